@@ -1,0 +1,51 @@
+# Two commands do everything on a fresh machine: `make demo` and `make test`.
+# Set-up is idempotent: a second run installs nothing new.
+SHELL := /bin/bash
+PYTHON ?= python3.11
+VENV := .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+LLVM_STAMP := $(VENV)/.llvm-ok
+OUT ?= out
+
+.PHONY: setup demo test test-fast bench lint format clean help
+
+help:  ## list targets
+	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
+
+$(STAMP): pyproject.toml
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	# The CPU build of torch first (a local file on these machines); other versions pull CUDA.
+	$(PY) -m pip install -q torch==2.13.0
+	$(PY) -m pip install -q -e ".[bpy,dev,bench]"
+	@touch $@
+
+$(LLVM_STAMP): $(STAMP) tools/ensure_llvm.sh
+	bash tools/ensure_llvm.sh $(PY)
+	@touch $@
+
+setup: $(STAMP) $(LLVM_STAMP)  ## create .venv with all extras; install libllvm19 if Dr.Jit needs it
+
+demo: setup  ## set-up, then the main job on built-in defaults (writes $(OUT)/demo)
+	$(PY) headless/demo.py --out $(OUT)/demo
+
+test: setup  ## set-up, then every test (unit, property, doctests, real Mitsuba and bpy)
+	$(PY) -m pytest -q -p no:cacheprovider
+
+test-fast: setup  ## skip tests marked slow
+	$(PY) -m pytest -q -p no:cacheprovider -m "not slow"
+
+bench: setup  ## benchmarks, JSON on stdout and in $(OUT)/bench
+	$(PY) headless/bench.py decode --out $(OUT)/bench/decode.json
+
+lint: setup  ## ruff lint and format check
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+
+format: setup  ## apply ruff formatting and safe fixes
+	$(VENV)/bin/ruff check --fix .
+	$(VENV)/bin/ruff format .
+
+clean:  ## remove outputs (keeps .venv)
+	rm -rf $(OUT) .pytest_cache .ruff_cache

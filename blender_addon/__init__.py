@@ -1,0 +1,1 @@
+"""blender_addon: the scene side. ``core`` is bpy-free; the add-on proper will live beside it."""

@@ -1,0 +1,159 @@
+"""Benchmarks with JSON output: run time against error, measured side by side in one run.
+
+Usage:
+    python headless/bench.py decode [--height 2048 --width 2448] [--repeat 5] [--out FILE]
+
+``decode``: a 2448x2048 IMX250MYR raw bracket (four exposures) decoded into the nine maps by
+:func:`pbrdf.decode.decode` on the half and full grids, next to polanalyser 3.0's single-bracket
+demosaic + Stokes of the same mosaic (the reference implementation; skipped with a note if it is
+not installed). Reports median wall time, peak traced memory, the speed ratio and the error of
+each route on a noise-free scene whose exact Stokes images are known.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+import tracemalloc
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from pbrdf import camera, decode  # noqa: E402
+from pbrdf import stokes as pstokes  # noqa: E402
+
+
+def _timed(fn, repeat: int) -> tuple[float, list[float]]:
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - t0)
+    return statistics.median(times), times
+
+
+def _peak_mib(fn) -> float:
+    tracemalloc.start()
+    tracemalloc.reset_peak()
+    fn()
+    _, peak = tracemalloc.get_traced_memory()
+    tracemalloc.stop()
+    return peak / 2**20
+
+
+def _scene(h: int, w: int) -> np.ndarray:
+    """Smooth, fully known Stokes images (H, W, 3, 4): an affine-in-space mix of states."""
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    u, v = yy / h, xx / w
+    s = np.empty((h, w, 3, 4))
+    for c in range(3):
+        s0 = 0.05 + 0.5 * u + 0.2 * v + 0.1 * c
+        s[..., c, :] = pstokes.stokes(s0, 0.2 + 0.5 * v, 0.3 + c + 0.5 * u, 0.1 * (c - 1) * u)
+    return s
+
+
+def bench_decode(args: argparse.Namespace) -> dict:
+    h, w = args.height, args.width
+    model = camera.CameraModel()
+    rng = np.random.default_rng(args.seed)
+    truth = _scene(h, w)
+    raws = camera.simulate_capture(truth, model, rng=rng, noise=True)
+    result: dict = {"benchmark": "decode", "height": h, "width": w, "brackets": len(model.exposures)}
+
+    # Float-exactness on a noise-free float mosaic (no quantisation): pure interpolation error.
+    exact_model = model.replace(
+        exposures=(1.0,), sensor=camera.SensorParams(black_level=0.0, bits=16, electrons_per_unit=1 / 0.38)
+    )
+    mosaic = camera.mosaic(truth, exact_model).astype(np.float32)
+    ref3 = truth[..., [0, 1, 3]]
+    margin = 8
+
+    for grid in ("half", "full"):
+        med, times = _timed(lambda g=grid: decode.decode(raws, model, grid=g), args.repeat)
+        peak = _peak_mib(lambda g=grid: decode.decode(raws, model, grid=g))
+        dec = decode.decode(mosaic[None], exact_model, grid=grid)
+        if grid == "half":
+            ref = ref3.reshape(h // 2, 2, w // 2, 2, 3, 3).mean(axis=(1, 3))
+            m = margin // 2
+        else:
+            ref = ref3
+            m = margin
+        err = np.abs(dec.stokes - ref)[m:-m, m:-m].max()
+        result[f"ours_{grid}"] = {
+            "seconds_median": med,
+            "seconds_all": times,
+            "peak_mib": peak,
+            "output_shape": list(dec.maps.shape),
+            "stokes_max_abs_error_noise_free": float(err),
+        }
+
+    try:
+        import polanalyser as pa  # noqa: PLC0415
+    except Exception as exc:  # noqa: BLE001 - report any import failure in the JSON
+        result["polanalyser"] = {"skipped": f"polanalyser unavailable: {exc}"}
+    else:
+        angles = np.deg2rad([0, 45, 90, 135])
+        raw0 = raws[-1]
+
+        def pa_route(raw=raw0):
+            imgs = pa.demosaicing(raw, pa.COLOR_PolarRGB)
+            return pa.calcStokes(imgs, angles)
+
+        med, times = _timed(pa_route, args.repeat)
+        peak = _peak_mib(pa_route)
+        # Its error on the same noise-free scene, scaled to 16 bit (its input must be integer).
+        scale = 65535.0 / mosaic.max()
+        st = pa.calcStokes(pa.demosaicing(np.rint(mosaic * scale).astype(np.uint16), pa.COLOR_PolarRGB), angles)
+        st = st[..., ::-1, :] / scale  # BGR -> RGB
+        pa3 = np.stack([st[..., 0], st[..., 1], st[..., 2]], axis=-1)  # its s2 channel is our s3
+        err = np.abs(pa3 - ref3)[margin:-margin, margin:-margin].max()
+        result["polanalyser"] = {
+            "version": getattr(pa, "__version__", "3.0.0"),
+            "route": "demosaicing(COLOR_PolarRGB) + calcStokes, one bracket",
+            "seconds_median": med,
+            "seconds_all": times,
+            "peak_mib": peak,
+            "stokes_max_abs_error_noise_free_16bit": float(err),
+        }
+        result["speed_ratio_polanalyser_1_bracket_over_ours_4_brackets_half"] = (
+            med / result["ours_half"]["seconds_median"]
+        )
+        result["speed_ratio_polanalyser_1_bracket_over_ours_4_brackets_full"] = (
+            med / result["ours_full"]["seconds_median"]
+        )
+    result["machine"] = {"cpus": os.cpu_count(), "python": platform.python_version(), "numpy": np.__version__}
+    return result
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="what", required=True)
+    p = sub.add_parser("decode", help="raw HDR bracket -> nine maps, against polanalyser")
+    p.add_argument("--height", type=int, default=2048, help="raw height in pixels (default 2048)")
+    p.add_argument("--width", type=int, default=2448, help="raw width in pixels (default 2448)")
+    p.add_argument("--repeat", type=int, default=5, help="timed repetitions; the median is reported")
+    p.add_argument("--seed", type=int, default=0, help="noise seed")
+    p.add_argument("--out", type=Path, help="also write the JSON here")
+    args = parser.parse_args(argv)
+    if args.height % 4 or args.width % 4 or min(args.height, args.width) < 32:
+        parser.error("--height and --width must be multiples of 4 and at least 32")
+    result = bench_decode(args)
+    text = json.dumps(result, indent=2)
+    print(text)
+    if args.out:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        tmp = args.out.with_suffix(args.out.suffix + ".tmp")
+        tmp.write_text(text + "\n")
+        os.replace(tmp, args.out)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,132 @@
+"""Stokes vectors: construction, derived quantities and physicality.
+
+Convention:
+    Stokes vectors are arrays of shape ``(..., 4)`` holding ``(s0, s1, s2, s3)``. The reference
+    x-axis is the camera image's horizontal axis: ``s1 > 0`` is horizontal, ``s1 < 0`` vertical,
+    ``s2 > 0`` is +45 degrees (counter-clockwise from x as seen by the camera), and ``s3 > 0`` is
+    right-circular in Mitsuba 3's and polanalyser's convention. The display's light is
+    ``intensity * [1, -1, 0, 0]`` (vertical linear polarization).
+
+All ratios over ``s0`` are zero-safe: they return 0 where ``s0 <= 0`` instead of NaN.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._checks import as_float_array, check_last_dims, safe_div
+
+__all__ = [
+    "stokes",
+    "intensity",
+    "dop",
+    "dolp",
+    "docp",
+    "aolp",
+    "ellipticity_angle",
+    "is_physical_stokes",
+]
+
+
+def stokes(s0: ArrayLike, dop: ArrayLike, aolp: ArrayLike, ellipticity: ArrayLike) -> NDArray:
+    """Build Stokes vectors from intensity, degree of polarization and the ellipse angles.
+
+    .. math::
+        s = s_0 [1,\\ p\\cos 2\\chi \\cos 2\\psi,\\ p\\cos 2\\chi \\sin 2\\psi,\\ p \\sin 2\\chi]
+
+    Args:
+        s0: intensity, ``>= 0``, shape broadcastable.
+        dop: degree of polarization in [0, 1].
+        aolp: angle of linear polarization psi in radians (0 = horizontal).
+        ellipticity: ellipticity angle chi in radians, in [-pi/4, pi/4] (pi/4 = right circular).
+
+    Returns:
+        Stokes vectors, shape ``(..., 4)``.
+
+    Raises:
+        ValueError: if ``s0 < 0`` or ``dop`` is outside [0, 1].
+
+    Example:
+        Vertical linear polarization (the display's light):
+
+        >>> stokes(1.0, 1.0, np.pi / 2, 0.0).round(12) + 0.0
+        array([ 1., -1.,  0.,  0.])
+    """
+    s0, p, psi, chi = np.broadcast_arrays(*(as_float_array(v) for v in (s0, dop, aolp, ellipticity)))
+    if np.any(s0 < 0):
+        raise ValueError("s0 must be >= 0")
+    if np.any((p < 0) | (p > 1)):
+        raise ValueError("dop must be in [0, 1]")
+    c2chi = np.cos(2 * chi)
+    return np.stack(
+        [s0, s0 * p * c2chi * np.cos(2 * psi), s0 * p * c2chi * np.sin(2 * psi), s0 * p * np.sin(2 * chi)],
+        axis=-1,
+    )
+
+
+def _checked(s: ArrayLike) -> NDArray:
+    s = as_float_array(s)
+    check_last_dims(s, (4,), "stokes")
+    return s
+
+
+def intensity(s: ArrayLike) -> NDArray:
+    """Total intensity ``s0``; shape ``(...)``."""
+    return _checked(s)[..., 0]
+
+
+def dop(s: ArrayLike) -> NDArray:
+    """Degree of polarization ``|(s1,s2,s3)| / s0`` (0 where ``s0 <= 0``); shape ``(...)``."""
+    s = _checked(s)
+    return safe_div(np.linalg.norm(s[..., 1:], axis=-1), s[..., 0])
+
+
+def dolp(s: ArrayLike) -> NDArray:
+    """Degree of linear polarization ``|(s1,s2)| / s0`` (0 where ``s0 <= 0``); shape ``(...)``."""
+    s = _checked(s)
+    return safe_div(np.hypot(s[..., 1], s[..., 2]), s[..., 0])
+
+
+def docp(s: ArrayLike) -> NDArray:
+    """Degree of circular polarization ``|s3| / s0`` (0 where ``s0 <= 0``); shape ``(...)``."""
+    s = _checked(s)
+    return safe_div(np.abs(s[..., 3]), s[..., 0])
+
+
+def aolp(s: ArrayLike) -> NDArray:
+    """Angle of linear polarization ``atan2(s2, s1) / 2`` in [0, pi) radians; shape ``(...)``.
+
+    Undefined for ``s1 = s2 = 0``; returns 0 there.
+    """
+    s = _checked(s)
+    # arctan2(+-0, -0) is +-pi, not 0, and np.mod(-tiny, pi) rounds up to pi: pin both back to 0.
+    psi = np.mod(0.5 * np.arctan2(s[..., 2], s[..., 1]), np.pi)
+    return np.where((psi >= np.pi) | ((s[..., 1] == 0) & (s[..., 2] == 0)), np.zeros_like(psi), psi)
+
+
+def ellipticity_angle(s: ArrayLike) -> NDArray:
+    """Ellipticity angle ``atan2(s3, |(s1,s2)|) / 2`` in [-pi/4, pi/4] radians; shape ``(...)``."""
+    s = _checked(s)
+    return 0.5 * np.arctan2(s[..., 3], np.hypot(s[..., 1], s[..., 2]))
+
+
+def is_physical_stokes(s: ArrayLike, *, rtol: float = 1e-6, atol: float = 0.0) -> NDArray[np.bool_]:
+    """True where ``s0 >= 0`` and ``s0**2 >= s1**2 + s2**2 + s3**2`` (up to tolerance).
+
+    The tolerance is relative to ``s0``: ``|(s1,s2,s3)| <= s0 * (1 + rtol) + atol``, so float32
+    round-off on a fully polarized state is accepted. NaN entries are never physical.
+
+    Args:
+        s: Stokes vectors, shape ``(..., 4)``.
+        rtol: relative tolerance on the polarized part.
+        atol: absolute tolerance.
+
+    Returns:
+        Boolean array of shape ``(...)``.
+    """
+    s = _checked(s)
+    s0 = s[..., 0]
+    pol = np.linalg.norm(s[..., 1:], axis=-1)
+    with np.errstate(invalid="ignore"):
+        return (s0 >= -atol) & (pol <= s0 * (1 + rtol) + atol)
