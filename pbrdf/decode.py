@@ -58,7 +58,8 @@ class Decoded:
     Attributes:
         maps: the nine maps, ``(H', W', 9)`` float32, order :data:`NINE_MAP_NAMES`.
         mask: ``(H', W')`` bool, True where every input pixel was measured (some exposure with
-            all four angles unsaturated), the result is finite and ``s0 > min_signal``.
+            all four angles unsaturated), the result is finite and the total ``s0`` (summed
+            over colours) exceeds ``min_signal``.
         stokes: measured Stokes ``(H', W', 3, 3)`` float32, per colour ``(s0, s1, s3)``.
     """
 
@@ -300,7 +301,8 @@ def decode(
         model: the calibrated camera model.
         grid: output grid, ``"half"`` (default, ``(H/2, W/2)``) or ``"full"`` (``(H, W)``).
         eps: CP regulariser (:func:`nine_maps`).
-        min_signal: pixels whose ``s0`` (in every colour) is not above this are masked out.
+        min_signal: pixels whose total ``s0`` (summed over the colours) is not above this are
+            masked out (background, all-dark pixels).
 
     Returns:
         :class:`Decoded` with ``maps`` ``(H', W', 9)``, ``mask`` ``(H', W')``, ``stokes``
@@ -319,7 +321,7 @@ def decode(
     if not block_valid.all():
         block_valid = ndimage.minimum_filter(block_valid, size=5, mode="nearest")
     mask = block_valid if grid == "half" else np.repeat(np.repeat(block_valid, 2, 0), 2, 1)
-    mask = mask & np.all(st[:, 0] > min_signal, axis=0)
+    mask = mask & (st[:, 0].sum(axis=0) > min_signal)
     finite = np.isfinite(maps_planar.sum(axis=0))
     if not finite.all():
         mask &= finite
