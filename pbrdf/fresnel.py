@@ -100,8 +100,9 @@ def reflection_mueller(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
 def transmission_mueller(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
     """Mueller matrix of specular transmission through a dielectric interface; ``(..., 4, 4)``.
 
-    Radiance transmittance including the solid-angle factor ``eta cos_t / cos_i``; with
-    ``t_s = 1 + r_s`` and ``t_p = (1 + r_p) / eta``:
+    Power (flux) transmittance, including the beam-area factor ``f = eta cos_t / cos_i`` so that
+    reflectance plus transmittance is 1 (tested); radiance would carry a further ``1 / eta^2``, not
+    included here. With ``t_s = 1 + r_s`` and ``t_p = (1 + r_p) / eta``:
 
     .. math::
         \\tfrac{f}{2}[[T_s+T_p, T_s-T_p, 0, 0], [T_s-T_p, T_s+T_p, 0, 0],
@@ -114,16 +115,20 @@ def transmission_mueller(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
     if np.any(np.abs(e_in.imag) > 0):
         raise ValueError("transmission_mueller needs a real eta (dielectric)")
     cos_i = np.clip(as_float_array(cos_theta_i).astype(np.float64), -1.0, 1.0)
-    r_s, r_p, cos_t = fresnel_amplitudes(cos_i, e_in)
+    _, _, cos_t = fresnel_amplitudes(cos_i, e_in)
     e = np.where(cos_i >= 0, e_in.real, 1.0 / e_in.real)
     tir = np.abs(cos_t.imag) > 0
     ct = np.where(tir, 0.0, cos_t.real)
-    t_s = np.abs(1 + r_s) ** 2
-    t_p = np.abs((1 + r_p) / e) ** 2
-    with np.errstate(divide="ignore", invalid="ignore"):
-        f = np.where((np.abs(cos_i) > 0) & ~tir, e * ct / np.abs(cos_i), 0.0)
-    f = np.where(e == 1, 1.0, f)  # index-matched: everything passes, grazing incidence included
-    a, b = 0.5 * f * (t_s + t_p), 0.5 * f * (t_s - t_p)
-    c = f * np.sqrt(t_s * t_p)
+    ci = np.abs(cos_i)
+    # f |t|^2 with f = eta cos_t / cos_i, |t_s|^2 = |2 cos_i / (cos_i + eta cos_t)|^2 and
+    # |t_p|^2 = |2 cos_i / (eta cos_i + cos_t)|^2, multiplied out so that nothing is divided by cos_i:
+    # f times the round-off in |1 + r|^2 gave T >> 1 for cos_i < 1e-29 and NaN for subnormal cos_i.
+    num = 4.0 * e * ct * ci  # 0 at grazing incidence and under TIR
+    t_s = num / np.where(num > 0, np.abs(ci + e * ct) ** 2, 1.0)
+    t_p = num / np.where(num > 0, np.abs(e * ci + ct) ** 2, 1.0)
+    matched = e == 1  # index-matched: everything passes, grazing incidence included
+    t_s, t_p = np.where(matched, 1.0, t_s), np.where(matched, 1.0, t_p)
+    a, b = 0.5 * (t_s + t_p), 0.5 * (t_s - t_p)
+    c = np.sqrt(t_s * t_p)
     z = np.zeros_like(a)
     return _grid([[a, b, z, z], [b, a, z, z], [z, z, c, z], [z, z, z, c]])

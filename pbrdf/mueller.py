@@ -27,6 +27,7 @@ __all__ = [
     "qwp",
     "hwp",
     "depolarizer",
+    "diagonal_depolarizer",
     "jones_to_mueller",
     "stokes_basis",
     "rotate_stokes_basis",
@@ -147,15 +148,22 @@ def depolarizer(a: ArrayLike = 0.0) -> NDArray:
     """Isotropic partial depolarizer ``diag(1, a, a, a)``; ``a = 0`` depolarizes fully.
 
     Args:
-        a: preserved fraction of polarization, in [0, 1], shape ``(...)`` or ``(..., 3)`` for
-            per-component factors.
+        a: preserved fraction of polarization in [-1, 1], shape ``(...)``.
+
+    Returns:
+        ``(..., 4, 4)``.
     """
     a = as_float_array(a)
-    if np.any(np.abs(a) > 1):
+    return diagonal_depolarizer(a, a, a)
+
+
+def diagonal_depolarizer(a1: ArrayLike, a2: ArrayLike, a3: ArrayLike) -> NDArray:
+    """Diagonal depolarizer ``diag(1, a1, a2, a3)`` with per-component factors in [-1, 1]."""
+    a1, a2, a3 = np.broadcast_arrays(*(as_float_array(v) for v in (a1, a2, a3)))
+    if any(np.any(np.abs(v) > 1) for v in (a1, a2, a3)):
         raise ValueError("depolarizer factors must be in [-1, 1]")
-    a3 = a if a.shape[-1:] == (3,) else np.stack([a, a, a], axis=-1)
-    diag = np.concatenate([np.ones(a3.shape[:-1] + (1,), a3.dtype), a3], axis=-1)
-    return diag[..., :, None] * np.eye(4, dtype=a3.dtype)
+    o, z = np.ones_like(a1), np.zeros_like(a1)
+    return _grid([[o, z, z, z], [z, a1, z, z], [z, z, a2, z], [z, z, z, a3]])
 
 
 # Stokes map S = A (E (x) E*), E = (Ex, Ey): s3 = -2 Im(Ex Ey*) so that E = (1, i)/sqrt(2) is right circular.
@@ -188,7 +196,7 @@ def stokes_basis(w: ArrayLike) -> NDArray:
     w = as_float_array(w)
     check_last_dims(w, (3,), "w")
     x, y, z = w[..., 0], w[..., 1], w[..., 2]
-    sign = np.where(z >= 0, 1.0, -1.0)
+    sign = np.copysign(1.0, z)  # z = -0.0 counts as negative, as in Mitsuba (the basis flips to -x otherwise)
     a = -1.0 / (sign + z)
     b = x * y * a
     return np.stack([1 + sign * x * x * a, sign * b, -sign * x], axis=-1)
@@ -202,9 +210,10 @@ def rotate_stokes_basis(forward: ArrayLike, basis_current: ArrayLike, basis_targ
     """
     f, cur, tgt = (as_float_array(v) for v in (forward, basis_current, basis_target))
     cur, tgt = _normalize(cur), _normalize(tgt)
-    cos = np.clip(np.sum(cur * tgt, axis=-1), -1.0, 1.0)
-    theta = np.arccos(cos)
-    flip = np.sum(f * np.cross(cur, tgt), axis=-1) < 0
+    cross = np.cross(cur, tgt)
+    # atan2 of (|sin|, cos) stays accurate near 0 and pi, where arccos loses half the digits.
+    theta = np.arctan2(np.linalg.norm(cross, axis=-1), np.sum(cur * tgt, axis=-1))
+    flip = np.sum(f * cross, axis=-1) < 0
     return rotator(np.where(flip, -theta, theta))
 
 

@@ -1,0 +1,24 @@
+"""Shared pytest fixtures."""
+
+import numpy as np
+import pytest
+
+
+@pytest.fixture
+def rng():
+    """Seeded generator, so random test inputs are reproducible."""
+    return np.random.default_rng(1234)
+
+
+@pytest.fixture
+def mitsuba_polarized():
+    """Mitsuba 3 in ``scalar_spectral_polarized`` (float32); skips when mitsuba is not installed.
+
+    The previous variant is restored afterwards: the variant is process-wide state.
+    """
+    mi = pytest.importorskip("mitsuba")
+    previous = mi.variant()
+    mi.set_variant("scalar_spectral_polarized")
+    yield mi
+    if previous is not None:
+        mi.set_variant(previous)
