@@ -150,24 +150,56 @@ def _grid_positions(n: int, grid: str) -> NDArray[np.float64]:
     raise ValueError(f"grid must be 'full' or 'half'; got {grid!r}")
 
 
-def _weights_1d(n_src: int, offset: int, targets: NDArray) -> tuple[NDArray, NDArray]:
-    """Linear interpolation from samples at ``offset + 4 m`` (m < n_src) to ``targets``.
+def _phases(n_src: int, offset: int, targets: NDArray) -> list[tuple[slice, int, float]]:
+    """Linear interpolation from samples at ``offset + 4 m`` (``m < n_src``) to ``targets``.
 
-    Outside the sampled range the nearest sample is used (clamped weights).
+    Both output grids advance by 4 raw pixels every ``period`` outputs (4 for "full", 2 for
+    "half"), so the weights repeat: output ``p::period`` reads padded samples ``m_p + 1 + n`` and
+    ``m_p + 2 + n`` with one weight ``w_p``. Samples are edge-padded by one on each side, which
+    clamps to the nearest sample outside the sampled range.
+
+    Returns:
+        ``[(output slice, first padded index, weight of the second sample), ...]`` per phase.
     """
+    period = 4 if np.all(np.diff(targets[:5]) == 1) else 2
+    out = []
+    for p in range(min(period, targets.size)):
+        u = (targets[p] - offset) / 4.0
+        m = int(np.floor(u))
+        count = len(range(p, targets.size, period))
+        start = min(max(m + 1, 0), n_src + 1)
+        w = float(np.clip(u - m, 0.0, 1.0)) if 0 <= m + 1 <= n_src else 0.0
+        if start + count + 1 > n_src + 2:  # beyond the last sample: clamp
+            raise AssertionError("interpolation phase out of range")  # pragma: no cover
+        out.append((slice(p, None, period), start, w))
+    return out
+
+
+def _resample_axis0(src: NDArray, phases: list, dst: NDArray, scale: float, accumulate: bool, scratch: NDArray) -> None:
+    """``dst (+)= scale * interp(src)`` along axis 0 without temporaries (``scratch`` >= one phase)."""
+    padded = np.concatenate([src[:1], src, src[-1:]], axis=0)
+    for sl, start, w in phases:
+        view = dst[sl]
+        count = view.shape[0]
+        tmp = scratch[:count]
+        lo = padded[start : start + count]
+        hi = padded[start + 1 : start + 1 + count]
+        a, b = np.float32(scale * (1.0 - w)), np.float32(scale * w)
+        if accumulate:
+            np.multiply(lo, a, out=tmp)
+            view += tmp
+        else:
+            np.multiply(lo, a, out=view)
+        if w != 0.0:
+            np.multiply(hi, b, out=tmp)
+            view += tmp
+
+
+def _column_weights(n_src: int, offset: int, targets: NDArray) -> tuple[NDArray, NDArray]:
+    """Gather indices and weights for interpolation along columns (nearest sample outside)."""
     u = (targets - offset) / 4.0
     i0 = np.clip(np.floor(u), 0, n_src - 2).astype(np.intp)
-    wgt = np.clip(u - i0, 0.0, 1.0).astype(np.float32)
-    return i0, wgt
-
-
-def _resample(lattice: NDArray, rows: tuple, cols: tuple) -> NDArray:
-    (ri, rw), (ci, cw) = rows, cols
-    a = lattice[:, ci]
-    a += (lattice[:, ci + 1] - a) * cw
-    out = a[ri]
-    out += (a[ri + 1] - out) * rw[:, None]
-    return out
+    return i0, np.clip(u - i0, 0.0, 1.0).astype(np.float32)
 
 
 def _demosaic_planar(img: NDArray, grid: str, pattern_offset: tuple[int, int]) -> NDArray[np.float32]:
@@ -175,18 +207,22 @@ def _demosaic_planar(img: NDArray, grid: str, pattern_offset: tuple[int, int]) -
     h, w = img.shape
     ys, xs = _grid_positions(h, grid), _grid_positions(w, grid)
     color, angle = mosaic_indices(pattern_offset)
-    out = np.zeros((3, 4, ys.size, xs.size), dtype=np.float32)
-    col_weights = [_weights_1d(w // 4, j, xs) for j in range(4)]
+    out = np.empty((3, 4, ys.size, xs.size), dtype=np.float32)
+    written = np.zeros((3, 4), dtype=bool)
+    scratch = np.empty(((ys.size + 1) // 2, xs.size), dtype=np.float32)
     for i in range(4):
-        rows = _weights_1d(h // 4, i, ys)
+        row_phases = _phases(h // 4, i, ys)
         for j in range(4):
             c, a = color[i, j], angle[i, j]
-            res = _resample(img[i::4, j::4], rows, col_weights[j])
-            if c == 1:  # two green lattices per angle: average them
-                res *= 0.5
-                out[c, a] += res
-            else:
-                out[c, a] = res
+            lattice = img[i::4, j::4]
+            # Columns by gather on the small (H/4, W') array, rows by periodic slices of the
+            # large one: every pass over the output is contiguous.
+            ci, cw = _column_weights(w // 4, j, xs)
+            cols = lattice[:, ci]
+            cols += (lattice[:, ci + 1] - cols) * cw
+            scale = 0.5 if c == 1 else 1.0  # two green lattices per angle: average them
+            _resample_axis0(cols, row_phases, out[c, a], scale, bool(written[c, a]), scratch)
+            written[c, a] = True
     return out
 
 
@@ -280,7 +316,8 @@ def nine_maps(stokes3: ArrayLike, *, eps: float = 1e-6, channel_axis: int = -1) 
     np.subtract(cm(s0, -1, 0), lp, out=out[0])
     den = cm(s0, -1, 0) + eps
     out[2] = 0.0
-    np.divide(cm(s3, -1, 0), den, out=out[2], where=den > 0)
+    with np.errstate(over="ignore"):  # a subnormal den (eps = 0) overflows to +-inf; the clip makes it +-1
+        np.divide(cm(s3, -1, 0), den, out=out[2], where=den > 0)
     np.clip(out[2], -1.0, 1.0, out=out[2])
     out = out.reshape(9, *s.shape[:-2])
     return out if channel_axis == 0 else np.moveaxis(out, 0, channel_axis)
