@@ -302,7 +302,7 @@ def nine_maps(stokes3: ArrayLike, *, eps: float = 1e-6, channel_axis: int = -1) 
         Pure display light (vertical, s1 = -s0) is all LP; unpolarized light is all unpol:
 
         >>> s = np.array([[[1.0, -1.0, 0.0]] * 3, [[1.0, 0.0, 0.0]] * 3])
-        >>> nine_maps(s, eps=0.0)[:, :6]
+        >>> nine_maps(s, eps=0.0)[:, :6] + 0.0  # + 0.0 turns -0.0 into 0.0
         array([[0., 0., 0., 1., 1., 1.],
                [1., 1., 1., 0., 0., 0.]])
     """
