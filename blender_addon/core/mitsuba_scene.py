@@ -1,0 +1,338 @@
+"""Scene spec -> Mitsuba 3 scene for one colour channel of the display-camera rig.
+
+The display is an ``area`` emitter on a rectangle (or a curved strip) showing one colour
+channel of the RGB pattern, with a ``polarizer`` sheet 1 mm in front of it; its radiance is
+doubled for the sheet's 50 % loss. Objects carry polarization-aware BSDFs only: ``pplastic``
+(Baek et al. 2018) and ``roughconductor`` for analytic materials and ``measured_polarized`` for
+pBRDF tables (``principled`` and ``diffuse`` depolarize). The integrator is ``stokes`` around
+``volpath`` (``path`` cannot send shadow rays through the polarizer sheet), with AOVs for the
+ground truth.
+
+Spectral multiplexing: one ``*_mono_polarized`` pass per colour channel, each with that
+channel's part of the pattern and the material's value at that channel's wavelength
+(:data:`CHANNEL_WAVELENGTHS_NM`). Between the passes of one sample only parameters change
+(:func:`channel_updates`), so Dr.Jit reuses the compiled kernel.
+
+Mitsuba is imported lazily: this module can be imported (and its geometry used) without it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    from .rig import CameraSpec, DisplaySpec
+    from .spec import MaterialSpec
+
+__all__ = [
+    "CHANNEL_WAVELENGTHS_NM",
+    "AOVS",
+    "CropWindow",
+    "crop_window",
+    "full_window",
+    "display_shapes",
+    "sensor_dict",
+    "bsdf_dict",
+    "mesh_object",
+    "scene_dict",
+    "channel_updates",
+    "SHEET_OFFSET",
+    "MIN_ALPHA",
+]
+
+#: Wavelength (nm) at which each colour channel (R, G, B) evaluates materials: the approximate
+#: emission peaks of the display's primaries. Measured tables interpolate between their bands.
+CHANNEL_WAVELENGTHS_NM = (630.0, 532.0, 465.0)
+#: AOVs rendered with the first pass: shading normal, position, shape index.
+AOVS = "nn:sh_normal,pp:position,si:shape_index"
+#: Distance (m) of the polarizer sheet in front of the emitting surface.
+SHEET_OFFSET = 1e-3
+#: Smallest GGX alpha handed to Mitsuba (roughness near 0 makes the microfacet lobes singular).
+MIN_ALPHA = 1e-3
+
+
+@dataclass(frozen=True)
+class CropWindow:
+    """Which part of the sensor a render covers, at which sampling.
+
+    The render is a ``height x width`` crop, starting at ``offset`` (x, y) in a virtual film of
+    ``film_size`` (W, H) pixels that covers the whole sensor with ``binning`` sensor pixels per
+    rendered pixel. Rendering only the crop is how the object's screen-space bounding box is
+    rendered and nothing else.
+    """
+
+    binning: float
+    film_size: tuple[int, int]
+    offset: tuple[int, int]
+    size: tuple[int, int]  # (width, height)
+
+    def intrinsics(self, camera: CameraSpec) -> NDArray[np.float64]:
+        """``(3, 3)`` pinhole matrix of the crop in its own pixels (row 0 = top)."""
+        f = camera.focal_length / (camera.pixel_pitch * self.binning)
+        cx = self.film_size[0] / 2 - self.offset[0]
+        cy = self.film_size[1] / 2 - self.offset[1]
+        return np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
+
+    def fov_x(self, camera: CameraSpec) -> float:
+        """Horizontal field of view of the virtual film in radians."""
+        return 2 * math.atan(self.film_size[0] * self.binning * camera.pixel_pitch / (2 * camera.focal_length))
+
+    def to_dict(self) -> dict:
+        """JSON-friendly form."""
+        return {"binning": self.binning, "film_size": list(self.film_size), "offset": list(self.offset),
+                "size": list(self.size)}  # fmt: skip
+
+
+def full_window(camera: CameraSpec, width: int) -> CropWindow:
+    """The whole sensor at ``width`` rendered pixels across (no cropping)."""
+    binning = camera.sensor_width_px / width
+    height = int(round(camera.sensor_height_px / binning))
+    return CropWindow(binning, (width, height), (0, 0), (width, height))
+
+
+def crop_window(camera: CameraSpec, uv: NDArray, resolution: int, *, margin: float = 0.06) -> CropWindow:
+    """Square crop around projected points, rendered at ``resolution`` x ``resolution``.
+
+    Args:
+        camera: the rig camera.
+        uv: ``(N, 2)`` sensor pixel coordinates of the object (e.g. its projected vertices).
+        resolution: rendered pixels across the square crop.
+        margin: extra border, as a fraction of the object's larger side, on each side.
+    """
+    lo, hi = uv.min(axis=0), uv.max(axis=0)
+    side = float(np.max(hi - lo)) * (1 + 2 * margin)
+    side = max(side, 8.0)
+    binning = side / resolution
+    film = (math.ceil(camera.sensor_width_px / binning), math.ceil(camera.sensor_height_px / binning))
+    centre = (lo + hi) / 2 / binning
+    off = np.round(centre - resolution / 2).astype(int)
+    off = np.clip(off, 0, np.maximum(np.array(film) - resolution, 0))
+    size = (min(resolution, film[0]), min(resolution, film[1]))
+    return CropWindow(binning, film, (int(off[0]), int(off[1])), size)
+
+
+def _transform(m: NDArray):
+    import mitsuba as mi  # noqa: PLC0415
+
+    return mi.ScalarTransform4f(np.asarray(m, dtype=np.float64).tolist())
+
+
+def _curved_strip(display: DisplaySpec, offset: float, segments: int = 64) -> tuple[NDArray, NDArray, NDArray]:
+    """Vertices (display-local), faces and UVs of a display curved about its vertical axis.
+
+    The centre of the strip is at the local origin and it bends toward +Z (concave toward the
+    viewer); ``offset`` moves it along its normal toward the viewer.
+    """
+    r = display.curvature_radius
+    half_angle = display.width / (2 * r)
+    theta = np.linspace(-half_angle, half_angle, segments + 1)
+    rad = r - offset
+    x = rad * np.sin(theta)
+    z = r - rad * np.cos(theta)
+    verts, uvs = [], []
+    for y, v in ((-display.height / 2, 0.0), (display.height / 2, 1.0)):
+        verts.append(np.stack([x, np.full_like(x, y), z], axis=-1))
+        uvs.append(np.stack([(theta + half_angle) / (2 * half_angle), np.full_like(x, v)], axis=-1))
+    verts_a, uvs_a = np.concatenate(verts), np.concatenate(uvs)
+    n = segments + 1
+    faces = []
+    for i in range(segments):
+        faces += [[i, i + 1, n + i + 1], [i, n + i + 1, n + i]]
+    return verts_a, np.asarray(faces, dtype=np.uint32), uvs_a
+
+
+def _strip_mesh(name: str, verts: NDArray, faces: NDArray, uvs: NDArray, to_world: NDArray, props: dict):
+    import mitsuba as mi  # noqa: PLC0415
+
+    p = mi.Properties()
+    for k, v in props.items():
+        p[k] = v
+    world = (to_world[:3, :3] @ verts.T).T + to_world[:3, 3]
+    mesh = mi.Mesh(name, len(world), len(faces), props=p, has_vertex_texcoords=True)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(world.astype(np.float32).ravel())
+    params["faces"] = mi.UInt32(faces.ravel())
+    params["vertex_texcoords"] = mi.Float(uvs.astype(np.float32).ravel())
+    params.update()
+    return mesh
+
+
+def _pattern_texture(display: DisplaySpec, channel: int) -> dict:
+    import mitsuba as mi  # noqa: PLC0415
+
+    pattern = display.pattern_image()[..., channel]
+    # Bitmap row 0 is v = 0, the bottom of the emitting surface; the pattern's row 0 is the top.
+    data = np.ascontiguousarray(np.flipud(pattern)[..., None], dtype=np.float32) * (2.0 * display.radiance)
+    return {"type": "bitmap", "data": mi.TensorXf(data), "raw": True, "filter_type": "nearest", "wrap_mode": "clamp"}
+
+
+def display_shapes(display: DisplaySpec, channel: int) -> dict[str, Any]:
+    """The emitting display surface and its polarizer sheet, for one colour channel.
+
+    Convention: Mitsuba's ``polarizer`` angle ``theta`` turns clockwise as seen from the front
+    of the sheet (measured: ``theta = 45`` transmits along display ``-X + Y``), while the rig's
+    ``polarization_angle`` turns from ``+X`` toward ``+Y`` as seen from the front, so
+    ``theta = -degrees(polarization_angle)``. 90 degrees gives vertically polarized light in the
+    camera frame (s1 < 0) and 45 degrees gives s2 < 0 after a mirror facing the camera (tested).
+    """
+    if display.degree_of_polarization != 1.0:
+        raise NotImplementedError(
+            "degree_of_polarization < 1 is not rendered yet; the default display is fully polarized"
+        )
+    to_world = np.asarray(display.display_to_world())
+    emitter = {"type": "area", "radiance": _pattern_texture(display, channel)}
+    sheet_bsdf = {"type": "polarizer", "theta": -math.degrees(display.polarization_angle)}
+    if display.curvature_radius is None:
+        scale = np.diag([display.width / 2, display.height / 2, 1.0, 1.0])
+        shift = np.eye(4)
+        shift[2, 3] = SHEET_OFFSET
+        return {
+            "display": {"type": "rectangle", "to_world": _transform(to_world @ scale), "emitter": emitter},
+            "display_polarizer": {"type": "rectangle", "to_world": _transform(to_world @ shift @ scale),
+                                  "bsdf": sheet_bsdf},
+        }  # fmt: skip
+    import mitsuba as mi  # noqa: PLC0415
+
+    v, f, uv = _curved_strip(display, 0.0)
+    vs, fs, uvs = _curved_strip(display, SHEET_OFFSET)
+    # The strip's front faces +Z (toward the viewer) with counter-clockwise faces seen from +Z.
+    return {
+        "display": _strip_mesh("display", v, f, uv, to_world, {"emitter": mi.load_dict(emitter)}),
+        "display_polarizer": _strip_mesh("display_polarizer", vs, fs, uvs, to_world,
+                                         {"bsdf": mi.load_dict(sheet_bsdf)}),
+    }  # fmt: skip
+
+
+def sensor_dict(camera: CameraSpec, window: CropWindow, spp: int, *, sampler: str = "independent") -> dict:
+    """Perspective sensor for the crop window; box filter so AOVs stay per-pixel averages."""
+    c2w = np.asarray(camera.camera_to_world(), dtype=np.float64)
+    origin = c2w[:3, 3]
+    forward = -c2w[:3, 2]  # OpenGL camera looks along -z
+    up = c2w[:3, 1]
+    import mitsuba as mi  # noqa: PLC0415
+
+    return {
+        "type": "perspective",
+        "fov": math.degrees(window.fov_x(camera)),
+        "fov_axis": "x",
+        "to_world": mi.ScalarTransform4f().look_at(origin=origin.tolist(), target=(origin + forward).tolist(),
+                                                   up=up.tolist()),
+        "film": {
+            "type": "hdrfilm",
+            "width": window.film_size[0],
+            "height": window.film_size[1],
+            "crop_offset_x": window.offset[0],
+            "crop_offset_y": window.offset[1],
+            "crop_width": window.size[0],
+            "crop_height": window.size[1],
+            "pixel_format": "luminance",
+            "rfilter": {"type": "box"},
+        },
+        "sampler": {"type": sampler, "sample_count": spp},
+    }  # fmt: skip
+
+
+def bsdf_dict(material: MaterialSpec, channel: int) -> dict:
+    """Polarization-aware Mitsuba BSDF for one colour channel of a material."""
+    alpha = max(material.roughness**2, MIN_ALPHA)
+    if material.kind == "pplastic":
+        return {
+            "type": "pplastic",
+            "diffuse_reflectance": float(material.albedo[channel]),
+            "specular_reflectance": 1.0,
+            "int_ior": float(material.ior),
+            "ext_ior": 1.0,
+            "alpha": alpha,
+            "distribution": "ggx",
+        }
+    if material.kind == "conductor":
+        return {
+            "type": "roughconductor",
+            "eta": float(material.eta[channel]),
+            "k": float(material.k[channel]),
+            "alpha": alpha,
+            "distribution": "ggx",
+        }
+    if material.kind == "measured":
+        return {
+            "type": "measured_polarized",
+            "filename": str(material.table),
+            "wavelength": CHANNEL_WAVELENGTHS_NM[channel],
+            "alpha_sample": max(alpha, 0.05),
+        }
+    raise ValueError(f"unknown material kind {material.kind!r}; valid: pplastic, conductor, measured")
+
+
+def channel_updates(name: str, material: MaterialSpec, channel: int) -> dict[str, float] | None:
+    """Scene-parameter updates that switch an object's BSDF to ``channel``; None if a reload is needed."""
+    if material.kind == "pplastic":
+        return {f"{name}.bsdf.diffuse_reflectance.value": float(material.albedo[channel])}
+    if material.kind == "conductor":
+        return {
+            f"{name}.bsdf.eta.value": float(material.eta[channel]),
+            f"{name}.bsdf.k.value": float(material.k[channel]),
+        }
+    return None
+
+
+def mesh_object(name: str, vertices_world: NDArray, faces: NDArray, normals_world: NDArray | None, bsdf: dict):
+    """A Mitsuba mesh built from arrays (no temporary files) carrying ``bsdf``."""
+    import mitsuba as mi  # noqa: PLC0415
+
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(bsdf)
+    mesh = mi.Mesh(name, len(vertices_world), len(faces), props=props, has_vertex_normals=normals_world is not None)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = mi.Float(np.asarray(vertices_world, dtype=np.float32).ravel())
+    params["faces"] = mi.UInt32(np.asarray(faces, dtype=np.uint32).ravel())
+    if normals_world is not None:
+        params["vertex_normals"] = mi.Float(np.asarray(normals_world, dtype=np.float32).ravel())
+    params.update()
+    return mesh
+
+
+def scene_dict(
+    display: DisplaySpec,
+    camera: CameraSpec,
+    window: CropWindow,
+    objects: dict[str, Any],
+    channel: int,
+    *,
+    spp: int,
+    max_depth: int = 4,
+    integrator: str = "volpath",
+    aovs: bool = True,
+) -> dict:
+    """The full Mitsuba scene dict for one colour channel.
+
+    Args:
+        display: display part of the rig.
+        camera: camera part of the rig.
+        window: crop window to render.
+        objects: name -> Mitsuba shape (from :func:`mesh_object`) or shape dict.
+        channel: colour channel 0, 1, 2 (R, G, B).
+        spp: samples per pixel.
+        max_depth: path length limit (4 covers camera -> object -> object -> display).
+        integrator: ``"volpath"`` (default; the only one whose shadow rays pass the sheet) or
+            ``"path"`` (for benchmarks).
+        aovs: add the ground-truth AOVs (:data:`AOVS`).
+    """
+    inner: dict = {"type": integrator, "max_depth": max_depth}
+    if aovs:
+        inner = {"type": "aov", "aovs": AOVS, "integrator": inner}
+    scene = {
+        "type": "scene",
+        "integrator": {"type": "stokes", "nested": inner},
+        "sensor": sensor_dict(camera, window, spp),
+        **display_shapes(display, channel),
+    }
+    for name, obj in objects.items():
+        if name in scene:
+            raise ValueError(f"object name {name!r} clashes with a rig element")
+        scene[name] = obj
+    return scene

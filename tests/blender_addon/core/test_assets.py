@@ -1,0 +1,333 @@
+"""Assets: procedural shapes, loading and cleaning files, UVs, placement in view, PLY for Mitsuba."""
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+
+from blender_addon.core import assets
+from blender_addon.core.rig import CameraSpec, Rig
+
+SHAPES = assets.PROCEDURAL_SHAPES
+
+
+@pytest.fixture
+def mitsuba_rgb():
+    """Mitsuba 3 in ``scalar_rgb``; the previous (process-wide) variant is restored afterwards."""
+    mi = pytest.importorskip("mitsuba")
+    previous = mi.variant()
+    mi.set_variant("scalar_rgb")
+    yield mi
+    if previous is not None:
+        mi.set_variant(previous)
+
+
+def _bbox_centre(v):
+    return (v.min(axis=0) + v.max(axis=0)) / 2
+
+
+class TestProcedural:
+    @pytest.mark.parametrize("shape", SHAPES)
+    @pytest.mark.parametrize("seed", [0, 7])
+    def test_closed_unit_centred_outward(self, shape, seed):
+        m = assets.procedural(shape, seed=seed)
+        v = np.asarray(m.vertices)
+        assert m.is_watertight and m.is_winding_consistent
+        assert m.volume > 0  # signed volume > 0: outward normals
+        assert len(m.nondegenerate_faces()) == len(m.faces)
+        assert assets.diameter(m) == pytest.approx(1.0, abs=1e-12)
+        np.testing.assert_allclose(_bbox_centre(v), 0.0, atol=1e-12)
+        assert np.max(np.linalg.norm(v, axis=1)) == pytest.approx(0.5, abs=1e-12)  # fits a unit-diameter sphere
+        n = np.asarray(m.vertex_normals)
+        np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
+        if shape != "torus":  # star-shaped about the origin: normals point away from it
+            assert np.mean(np.einsum("ij,ij->i", n, v) > 0) > 0.99
+
+    @pytest.mark.parametrize("shape", SHAPES)
+    def test_seed_determinism(self, shape):
+        a = assets.procedural(shape, seed=3)
+        b = assets.procedural(shape, seed=3)
+        np.testing.assert_array_equal(a.vertices, b.vertices)
+        np.testing.assert_array_equal(a.faces, b.faces)
+        if shape != "sphere":  # the sphere has no random parameters
+            c = assets.procedural(shape, seed=4)
+            assert a.vertices.shape != c.vertices.shape or not np.allclose(a.vertices, c.vertices)
+
+    def test_sphere_radius(self):
+        v = assets.procedural("sphere").vertices
+        np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.5, atol=1e-12)
+
+    def test_torus_volume(self):
+        # V = 2 pi^2 R r^2 (Pappus); R + r = 0.5 with r = 0.25 R -> R = 0.4, r = 0.1: V = 0.078957.
+        m = assets.procedural("torus", minor=0.25)
+        assert m.volume == pytest.approx(2 * math.pi**2 * 0.4 * 0.1**2, rel=0.01)  # 64 x 32 polygons: -0.5 %
+
+    def test_superquadric_limits(self):
+        # e1 = e2 = 1 with equal axes is a sphere (Barr 1981).
+        v = assets.procedural("superquadric", e1=1.0, e2=1.0, a=1.0, b=1.0, c=1.0).vertices
+        np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.5, atol=1e-12)
+
+    @pytest.mark.parametrize("e1,e2", [(1.0, 1.0), (0.5, 1.0), (1.0, 0.5), (0.3, 0.3), (0.1, 0.1), (1.5, 1.5)])
+    def test_superquadric_volume(self, e1, e2):
+        # V = 2 a b c e1 e2 B(e1/2 + 1, e1) B(e2/2, e2/2) (Jaklic, Leonardis, Solina 2000, eq. 2.60)
+        # and the bounding box is (2a, 2b, 2c): V / bbox volume = e1 e2 B(...) B(...) / 4.
+        # Measured mesh error at resolution 24: -0.24 % to -0.32 %.
+        from scipy.special import beta
+
+        m = assets.procedural("superquadric", e1=e1, e2=e2, a=1.0, b=0.8, c=0.6)
+        expected = e1 * e2 * beta(e1 / 2 + 1, e1) * beta(e2 / 2, e2 / 2) / 4
+        assert m.volume / np.prod(m.extents) == pytest.approx(expected, rel=0.005)
+        np.testing.assert_allclose(m.extents / m.extents[0], [1.0, 0.8, 0.6], atol=1e-12)
+
+    def test_bevel_box_volume_and_extents(self):
+        m = assets.procedural("bevel_box", x=1.0, y=0.5, z=0.5, bevel=0.2)
+        ext = np.asarray(m.extents)
+        np.testing.assert_allclose(ext / ext[0], [1.0, 0.5, 0.5], atol=1e-12)
+        # Rounded box = inner box (a, b, c) grown by a ball of radius r (Steiner formula):
+        # V = abc + 2r(ab + bc + ca) + pi r^2 (a + b + c) + 4/3 pi r^3, here in units of the x half extent.
+        r = 0.2 * 0.5
+        a, b, c = 2 * (1.0 - r), 2 * (0.5 - r), 2 * (0.5 - r)
+        expected = a * b * c + 2 * r * (a * b + b * c + c * a) + math.pi * r**2 * (a + b + c) + 4 / 3 * math.pi * r**3
+        scale = ext[0] / 2.0  # mesh units per unit half extent
+        assert m.volume == pytest.approx(expected * scale**3, rel=0.005)
+        # Flat faces stay flat: many vertices on the +x face plane.
+        v = np.asarray(m.vertices)
+        assert np.sum(np.isclose(v[:, 0], v[:, 0].max(), atol=1e-12)) >= 50
+
+    def test_blob_radius_bounds(self):
+        v = assets.procedural("blob", seed=1, amplitude=0.3).vertices
+        rad = np.linalg.norm(v - _bbox_centre(v), axis=1)
+        assert rad.min() > 0.5 * 0.7 / 1.3 - 1e-9  # r(d) in [1 - A, 1 + A], scaled to max 0.5
+
+    def test_bad_arguments(self):
+        with pytest.raises(ValueError, match=r"unknown procedural shape 'cone'; valid: \['sphere'"):
+            assets.procedural("cone")
+        with pytest.raises(ValueError, match=r"unknown parameters \['radius'\].*valid"):
+            assets.procedural("torus", radius=2.0)
+        with pytest.raises(ValueError, match="amplitude must be in"):
+            assets.procedural("blob", amplitude=1.5)
+        with pytest.raises(ValueError, match="seed must be a non-negative integer"):
+            assets.procedural("blob", seed=-1)
+
+    def test_builtin_strings(self):
+        assert assets.parse_builtin("builtin:torus?seed=3&minor=0.3&name=x") == (
+            "torus",
+            {"seed": 3, "minor": 0.3, "name": "x"},
+        )
+        assert assets.parse_builtin("builtin:sphere") == ("sphere", {})
+        assert assets.parse_builtin("meshes/bunny.ply") is None
+        a = assets.load_mesh("builtin:torus?seed=3")
+        np.testing.assert_array_equal(a.vertices, assets.procedural("torus", seed=3).vertices)
+
+
+class TestLoad:
+    def test_two_part_glb_merges_with_transforms(self, tmp_path):
+        a = trimesh.creation.box(extents=(1.0, 2.0, 3.0))
+        b = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+        ta = trimesh.transformations.translation_matrix([5.0, 0.0, 0.0])
+        tb = trimesh.transformations.rotation_matrix(0.5, [0, 0, 1], point=[0, 0, 0]) @ np.diag([2.0, 2, 2, 1])
+        scene = trimesh.Scene()
+        scene.add_geometry(a, node_name="a", transform=ta)
+        scene.add_geometry(b, node_name="b", transform=tb)
+        path = tmp_path / "two.glb"
+        scene.export(path)
+        m = assets.load_mesh(path)
+        assert len(m.vertices) == 16 and len(m.faces) == 24  # two boxes, 8 + 8 vertices
+        expected = np.concatenate([trimesh.transform_points(a.vertices, ta), trimesh.transform_points(b.vertices, tb)])
+        np.testing.assert_allclose(np.sort(m.vertices, axis=0), np.sort(expected, axis=0), atol=1e-6)
+        assert m.volume == pytest.approx(6.0 + 8.0, rel=1e-6)
+
+    @pytest.mark.parametrize("suffix", [".obj", ".ply", ".glb", ".gltf"])
+    def test_formats(self, tmp_path, suffix):
+        box = trimesh.creation.box(extents=(0.3, 0.2, 0.1))
+        path = tmp_path / f"box{suffix}"
+        if suffix == ".gltf":
+            for name, data in trimesh.Scene(box).export(file_type="gltf").items():
+                (tmp_path / name).write_bytes(data)
+            path = tmp_path / "model.gltf"
+        else:
+            box.export(path)
+        m = assets.load_mesh(path)
+        assert len(m.vertices) == 8 and len(m.faces) == 12
+        assert m.is_watertight and m.volume == pytest.approx(0.006, rel=1e-6)
+
+    def test_cleaning(self, tmp_path):
+        box = trimesh.creation.box()
+        # Unmerged triangle soup, a duplicate face, a degenerate face and an unused vertex.
+        v = np.concatenate([box.vertices[box.faces].reshape(-1, 3), [[9.0, 9.0, 9.0]]])
+        f = np.arange(36).reshape(12, 3)
+        f = np.concatenate([f, f[:1], [[0, 0, 1]]])
+        path = tmp_path / "soup.ply"
+        trimesh.Trimesh(v, f, process=False).export(path)
+        m = assets.load_mesh(path)
+        assert (len(m.vertices), len(m.faces)) == (8, 12) and m.is_watertight
+
+    def test_inside_out_mesh_is_flipped(self, tmp_path):
+        box = trimesh.creation.box()
+        box.invert()
+        path = tmp_path / "inv.ply"
+        box.export(path)
+        assert assets.load_mesh(path).volume == pytest.approx(1.0)
+
+    def test_degenerate_inputs(self, tmp_path):
+        empty = tmp_path / "empty.ply"
+        empty.write_bytes(b"")
+        with pytest.raises(ValueError, match=r"empty.ply: degenerate mesh: empty file"):
+            assets.load_mesh(empty)
+        tri = tmp_path / "tri.ply"
+        trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2]], process=False).export(tri)
+        with pytest.raises(ValueError, match=r"degenerate mesh: only 1 non-degenerate face "):
+            assets.load_mesh(tri)
+        flat = tmp_path / "flat.obj"
+        box = trimesh.creation.box()
+        box.vertices[:, 2] = 0.0
+        trimesh.Trimesh(box.vertices, box.faces, process=False).export(flat)
+        with pytest.raises(ValueError, match=r"degenerate mesh: flat: zero extent along z"):
+            assets.load_mesh(flat)
+        nan = tmp_path / "nan.obj"
+        v = np.array(trimesh.creation.box().vertices)
+        v[0] = np.nan
+        lines = [f"v {x} {y} {z}" for x, y, z in v] + [f"f {i + 1} {j + 1} {k + 1}" for i, j, k in box.faces]
+        nan.write_text("\n".join(lines) + "\n")
+        with pytest.raises(ValueError, match=r"degenerate mesh: 1 vertex with NaN"):
+            assets.load_mesh(nan)
+        lines_only = tmp_path / "lines.obj"
+        lines_only.write_text("v 0 0 0\nv 1 0 0\nl 1 2\n")
+        with pytest.raises(ValueError, match=r"degenerate mesh: no triangle geometry"):
+            assets.load_mesh(lines_only)
+
+    def test_file_errors(self, tmp_path):
+        with pytest.raises(FileNotFoundError, match="mesh file not found"):
+            assets.load_mesh(tmp_path / "missing.glb")
+        stl = tmp_path / "x.stl"
+        stl.write_text("solid x\nendsolid x\n")
+        with pytest.raises(ValueError, match=r"unsupported mesh type '.stl'"):
+            assets.load_mesh(stl)
+        junk = tmp_path / "junk.glb"
+        junk.write_bytes(b"definitely not a glb")
+        with pytest.raises(ValueError, match=r"junk.glb: cannot read mesh"):
+            assets.load_mesh(junk)
+
+
+class TestNormalizeAndUV:
+    def test_normalize(self):
+        m = trimesh.creation.box(extents=(2.0, 1.0, 0.5))
+        m.apply_translation([3.0, -1.0, 2.0])
+        before = np.array(m.vertices)
+        out = assets.normalize(m, diameter=2.0)
+        np.testing.assert_array_equal(m.vertices, before)  # input untouched
+        assert assets.diameter(out) == pytest.approx(2.0, abs=1e-12)
+        np.testing.assert_allclose(_bbox_centre(np.asarray(out.vertices)), 0.0, atol=1e-12)
+        with pytest.raises(ValueError, match="diameter must be > 0"):
+            assets.normalize(m, diameter=0.0)
+
+    def test_ensure_uv(self):
+        m = assets.procedural("sphere", subdivisions=2)
+        out = assets.ensure_uv(m)
+        uv = np.asarray(out.visual.uv)
+        assert uv.shape == (len(out.vertices), 2)
+        assert uv.min() >= 0.0 and uv.max() <= 1.0
+        assert len(out.faces) == len(m.faces)
+        # Seam vertices are copies of original vertices with the original normals.
+        idx = np.array([np.argmin(np.linalg.norm(m.vertices - p, axis=1)) for p in out.vertices])
+        np.testing.assert_array_equal(out.vertices, np.asarray(m.vertices)[idx])
+        np.testing.assert_allclose(out.vertex_normals, np.asarray(m.vertex_normals)[idx], atol=1e-12)
+        assert out.volume == pytest.approx(m.volume, rel=1e-12)
+        assert assets.ensure_uv(out) is out  # already has UVs
+
+
+class TestPlace:
+    def test_in_view_at_distance_and_size_for_200_seeds(self):
+        rig = Rig()
+        cam = rig.camera
+        margin_px = 0.03 * min(cam.sensor_width_px, cam.sensor_height_px)
+        meshes = [assets.procedural(s, seed=1) for s in SHAPES]
+        for seed in range(200):
+            mesh = meshes[seed % len(meshes)]
+            m = assets.place(mesh, rig, np.random.default_rng(seed))
+            v = np.asarray(mesh.vertices)
+            world = v @ m[:3, :3].T + m[:3, 3]
+            assert rig.in_view(world, margin_px=margin_px - 1e-6)
+            centre = m[:3, :3] @ _bbox_centre(v) + m[:3, 3]
+            assert 0.5 - 1e-12 <= np.linalg.norm(centre) <= 1.0 + 1e-12
+            scale = np.cbrt(np.linalg.det(m[:3, :3]))
+            np.testing.assert_allclose(m[:3, :3].T @ m[:3, :3], scale**2 * np.eye(3), atol=1e-12)  # similarity
+            assert 0.15 - 1e-12 <= scale * assets.diameter(mesh) <= 0.35 + 1e-12
+            np.testing.assert_array_equal(m[3], [0, 0, 0, 1])
+
+    def test_seeded(self):
+        mesh = assets.procedural("blob")
+        a = assets.place(mesh, Rig(), np.random.default_rng(5))
+        b = assets.place(mesh, Rig(), np.random.default_rng(5))
+        c = assets.place(mesh, Rig(), np.random.default_rng(6))
+        np.testing.assert_array_equal(a, b)
+        assert not np.allclose(a, c)
+
+    def test_posed_camera_and_unnormalised_mesh(self):
+        pose = np.eye(4)
+        pose[:3, :3] = trimesh.transformations.rotation_matrix(2.0, [0, 1, 0])[:3, :3]
+        pose[:3, 3] = [0.3, 0.1, -0.2]
+        rig = Rig(camera=CameraSpec(to_world=pose))
+        mesh = trimesh.creation.box(extents=(40.0, 10.0, 20.0))  # centimetres, off-centre
+        mesh.apply_translation([100.0, 0.0, 0.0])
+        for seed in range(20):
+            m = assets.place(mesh, rig, np.random.default_rng(seed), distance=(0.6, 0.7))
+            world = trimesh.transform_points(mesh.vertices, m)
+            assert rig.in_view(world, margin_px=61.0)
+            centre = trimesh.transform_points([_bbox_centre(np.asarray(mesh.vertices))], m)[0]
+            assert 0.6 - 1e-12 <= np.linalg.norm(centre - pose[:3, 3]) <= 0.7 + 1e-12
+
+    def test_rotation_is_uniform(self):
+        # Haar measure on SO(3): E[R] = 0 entry-wise; each entry has variance 1/3.
+        rng = np.random.default_rng(0)
+        rs = np.stack([assets.random_rotation(rng) for _ in range(3000)])
+        np.testing.assert_allclose(rs.mean(axis=0), 0.0, atol=0.05)  # 5 sigma = 5 / sqrt(3 * 3000) = 0.053
+        np.testing.assert_allclose((rs**2).mean(axis=0), 1 / 3, atol=0.03)
+        np.testing.assert_allclose(np.linalg.det(rs), 1.0, atol=1e-12)
+
+    def test_impossible(self):
+        with pytest.raises(ValueError, match="no pose inside the view after 5 tries"):
+            assets.place(assets.procedural("sphere"), Rig(), np.random.default_rng(0), size=(2, 2), max_tries=5)
+        with pytest.raises(ValueError, match="distance must be"):
+            assets.place(assets.procedural("sphere"), Rig(), np.random.default_rng(0), distance=(1.0, 0.5))
+
+
+class TestFiles:
+    def test_list_assets(self, tmp_path):
+        for name in ["b/z.GLB", "a.obj", "b/a.ply", "c.gltf", "notes.txt", "d.stl", "b/c/m.glb"]:
+            (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
+            (tmp_path / name).write_bytes(b"x")
+        found = [p.relative_to(tmp_path).as_posix() for p in assets.list_assets(tmp_path)]
+        assert found == ["a.obj", "b/a.ply", "b/c/m.glb", "b/z.GLB", "c.gltf"]
+        with pytest.raises(FileNotFoundError, match="asset folder not found"):
+            assets.list_assets(tmp_path / "nope")
+
+    def test_write_ply_round_trip(self, tmp_path):
+        m = assets.ensure_uv(assets.procedural("blob", seed=2, subdivisions=2))
+        path = tmp_path / "out" / "blob.ply"
+        assets.write_ply(m, path)
+        assert [p.name for p in path.parent.iterdir()] == ["blob.ply"]  # no temporary file left
+        back = trimesh.load(path, process=False)
+        np.testing.assert_array_equal(back.vertices, np.asarray(m.vertices, dtype=np.float32))
+        np.testing.assert_array_equal(back.faces, m.faces)
+        assert path.read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")
+
+    def test_mitsuba_loads_the_ply(self, tmp_path, mitsuba_rgb):
+        mi = mitsuba_rgb
+        for name, mesh in [
+            ("plain", assets.procedural("torus", seed=1)),
+            ("uv", assets.ensure_uv(assets.procedural("sphere", subdivisions=2))),
+        ]:
+            path = tmp_path / f"{name}.ply"
+            assets.write_ply(mesh, path)
+            shape = mi.load_dict({"type": "ply", "filename": str(path)})
+            assert shape.vertex_count() == len(mesh.vertices)
+            assert shape.face_count() == len(mesh.faces)
+            assert shape.has_vertex_normals()
+            assert shape.has_vertex_texcoords() == (name == "uv")
+            params = mi.traverse(shape)
+            pos = np.asarray(params["vertex_positions"]).reshape(-1, 3)
+            np.testing.assert_array_equal(pos, np.asarray(mesh.vertices, dtype=np.float32))
+            nrm = np.asarray(params["vertex_normals"]).reshape(-1, 3)
+            np.testing.assert_allclose(nrm, mesh.vertex_normals, atol=1e-6)
