@@ -224,7 +224,7 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings = RenderSettings()) 
                     for k, v in updates.items():
                         params[k] = v
                     params.update()
-        img = np.asarray(mi.render(scene, seed=int(spec.seed) * 3 + c, spp=settings.spp))
+        img = np.asarray(mi.render(scene, seed=(int(spec.seed) * 3 + c) % 2**32, spp=settings.spp))
         # Mono layout: [Y, S0 x3, S1 x3, S2 x3, S3 x3, AOVs...].
         stokes[:, :, c, :] = img[:, :, [1, 4, 7, 10]]
         if c == 0:

@@ -1,0 +1,153 @@
+"""Dataset generation: random scenes -> polarized renders -> synthetic captures -> samples.
+
+One process renders a list of sample indices (a shard). Every sample is a pure function of the
+run seed and its index (:func:`.scenegen.sample_seed`), so shards, resumed runs and reruns all
+produce identical samples; writes are atomic (:mod:`pbrdf.dataset`), so a killed run resumes
+without losing or duplicating work.
+"""
+
+from __future__ import annotations
+
+import logging
+import platform
+import time
+import traceback
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from pbrdf import dataset
+
+from . import assets, render, scenegen
+from .rig import Rig
+
+__all__ = ["GenerateConfig", "GenerateReport", "generate", "versions"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class GenerateConfig:
+    """What to generate (command-line flags of ``headless/render.py``)."""
+
+    out: Path
+    count: int
+    resolution: int = 384
+    seed: int = 0
+    spp: int = 32
+    assets: Path | None = None
+    pbrdfs: Path | None = None
+    rig: Path | None = None
+    resume: bool = False
+    shard: tuple[int, int] = (0, 1)
+    keep_stokes: bool = False
+    keep_raw: bool = False
+    noise: bool = True
+
+    def __post_init__(self) -> None:
+        if self.count < 1:
+            raise ValueError(f"--count must be >= 1, got {self.count}")
+        for name in ("assets", "pbrdfs", "rig"):
+            p = getattr(self, name)
+            if p is not None and not Path(p).exists():
+                raise FileNotFoundError(f"--{name} {p}: does not exist")
+
+
+@dataclass
+class GenerateReport:
+    """Outcome of a run: written, skipped (already complete) and failed samples, with timings."""
+
+    written: list[int] = field(default_factory=list)
+    skipped: int = 0
+    failed: dict[int, str] = field(default_factory=dict)
+    seconds: list[float] = field(default_factory=list)
+    stage_seconds: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> str:
+        """A few lines for the terminal."""
+        lines = [f"written {len(self.written)}, skipped {self.skipped} (already complete), failed {len(self.failed)}"]
+        if self.seconds:
+            s = np.asarray(self.seconds)
+            lines.append(f"seconds per sample: mean {s.mean():.2f}, median {np.median(s):.2f}, max {s.max():.2f}")
+            total = sum(self.stage_seconds.values()) or 1.0
+            parts = ", ".join(f"{k} {v / len(s):.2f}s ({100 * v / total:.0f}%)" for k, v in self.stage_seconds.items())
+            lines.append(f"per stage: {parts}")
+        for i, why in sorted(self.failed.items())[:10]:
+            lines.append(f"  sample {i}: {why}")
+        return "\n".join(lines)
+
+
+def versions() -> dict[str, str]:
+    """Software versions recorded in every sidecar and manifest."""
+    out = {"python": platform.python_version(), "numpy": np.__version__}
+    for mod in ("mitsuba", "drjit", "trimesh"):
+        try:
+            out[mod] = __import__(mod).__version__
+        except Exception:  # noqa: BLE001 - a missing optional package is simply not listed
+            pass
+    return out
+
+
+def generate(cfg: GenerateConfig, *, progress: bool = True) -> GenerateReport:
+    """Render ``cfg.count`` samples (this process's shard of them) into ``cfg.out``."""
+    rig = Rig.load(cfg.rig) if cfg.rig else Rig()
+    asset_files = assets.list_assets(cfg.assets) if cfg.assets else None
+    if cfg.assets and not asset_files:
+        raise ValueError(f"--assets {cfg.assets}: no GLB/GLTF/OBJ/PLY files found")
+    materials = scenegen.load_material_library(cfg.pbrdfs) if cfg.pbrdfs else None
+    out = Path(cfg.out)
+    todo = dataset.plan_work(out, cfg.count, cfg.shard, cfg.resume)
+    if cfg.resume:
+        dataset.cleanup_partial(out, shard=cfg.shard)
+    report = GenerateReport(skipped=len(dataset.shard_indices(cfg.count, cfg.shard)) - len(todo))
+    settings = render.RenderSettings(resolution=cfg.resolution, spp=cfg.spp, noise=cfg.noise)
+    info = {
+        "count": cfg.count,
+        "resolution": cfg.resolution,
+        "seed": cfg.seed,
+        "spp": cfg.spp,
+        "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
+        "rig": rig.to_dict(),
+        "versions": versions(),
+    }
+    bar = None
+    if progress:
+        from tqdm import tqdm  # noqa: PLC0415
+
+        bar = tqdm(total=len(todo), desc=f"render shard {cfg.shard[0]}/{cfg.shard[1]}", unit="sample")
+    for index in todo:
+        t0 = time.perf_counter()
+        seed = scenegen.sample_seed(cfg.seed, index)
+        try:
+            spec = scenegen.random_scene(rig, seed, asset_files=asset_files, materials=materials)
+            t1 = time.perf_counter()
+            result = render.render_stokes(spec, settings)
+            t2 = time.perf_counter()
+            sample, meta = render.synthesize_sample(
+                spec,
+                result,
+                rng=np.random.default_rng([seed, 1]),
+                noise=cfg.noise,
+                keep_stokes=cfg.keep_stokes,
+                keep_raw=cfg.keep_raw,
+            )
+            meta.update(sample_seed=seed, run_seed=cfg.seed, versions=info["versions"], spec=spec.to_dict())
+            t3 = time.perf_counter()
+            dataset.write_sample(out, index, sample, meta)
+            t4 = time.perf_counter()
+        except Exception as exc:  # noqa: BLE001 - one bad sample must not stop a long run
+            report.failed[index] = f"{type(exc).__name__}: {exc}"
+            log.debug("sample %d failed:\n%s", index, traceback.format_exc())
+        else:
+            report.written.append(index)
+            report.seconds.append(t4 - t0)
+            for k, v in (("scene", t1 - t0), ("render", t2 - t1), ("camera+decode", t3 - t2), ("write", t4 - t3)):
+                report.stage_seconds[k] = report.stage_seconds.get(k, 0.0) + v
+        if bar is not None:
+            bar.set_postfix(failed=len(report.failed))
+            bar.update()
+    if bar is not None:
+        bar.close()
+    dataset.write_manifest(out, info)
+    return report
