@@ -2,6 +2,7 @@
 
 Usage:
     python headless/bench.py decode [--height 2048 --width 2448] [--repeat 5] [--out FILE]
+    python headless/bench.py render [--resolution 384] [--ref-spp 1024] [--spp 4 8 16 32 64] [--out FILE]
 
 ``decode``: a 2448x2048 IMX250MYR raw bracket (four exposures) decoded into the nine maps by
 :func:`pbrdf.decode.decode` on the half and full grids, next to polanalyser 3.0's single-bracket
@@ -132,6 +133,109 @@ def bench_decode(args: argparse.Namespace) -> dict:
     return result
 
 
+def _bench_scene():
+    from blender_addon.core.rig import Rig  # noqa: PLC0415
+    from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: PLC0415
+
+    m = np.eye(4)
+    m[:3, :3] *= 0.25
+    m[:3, 3] = (0.03, -0.02, -0.7)
+    mat = MaterialSpec.plastic("plastic", (0.6, 0.4, 0.2), roughness=0.3)
+    obj = ObjectSpec("blob", "builtin:blob?seed=1", tuple(map(tuple, m)), "plastic")
+    return SceneSpec(rig=Rig(), objects=(obj,), materials=(mat,), seed=0)
+
+
+def _render_avg(spec, settings, spp: int, chunk: int):
+    """Render ``spp`` samples as passes of at most ``chunk`` (bounded memory), averaged."""
+    import dataclasses  # noqa: PLC0415
+
+    from blender_addon.core import render  # noqa: PLC0415
+
+    acc, res, n = None, None, 0
+    for k in range(0, spp, chunk):
+        part = min(chunk, spp - k)
+        s = dataclasses.replace(spec, seed=spec.seed + 1000 + k)
+        res = render.render_stokes(s, dataclasses.replace(settings, spp=part))
+        acc = res.stokes * part if acc is None else acc + res.stokes * part
+        n += part
+    res.stokes = acc / n
+    return res
+
+
+def _maps(stokes: np.ndarray) -> np.ndarray:
+    return decode.nine_maps(stokes[..., [0, 1, 3]], eps=1e-3)
+
+
+def bench_render(args: argparse.Namespace) -> dict:
+    import dataclasses  # noqa: PLC0415
+
+    from blender_addon.core import render  # noqa: PLC0415
+
+    spec = _bench_scene()
+    base = render.RenderSettings(resolution=args.resolution, spp=1)
+    variant = render.choose_variant()
+    result: dict = {
+        "benchmark": "render",
+        "resolution": args.resolution,
+        "reference_spp": args.ref_spp,
+        "variant": variant,
+        "scene": "blob, pplastic albedo (0.6, 0.4, 0.2), roughness 0.3, 0.7 m",
+    }
+    t0 = time.perf_counter()
+    ref = _render_avg(spec, base, args.ref_spp, 64)  # chunks of 64 spp with distinct seeds
+    result["reference_seconds"] = time.perf_counter() - t0
+    mask = ref.mask
+    ref_maps = _maps(ref.stokes)[mask]
+    ref_norm = np.sqrt(np.mean(ref_maps[..., :6] ** 2))
+    off = ref.window.offset
+    configs = {
+        "default (mono per channel, volpath, multijitter, crop)": base,
+        "naive (mono per channel, path, independent, full frame)": dataclasses.replace(
+            base, integrator="path", sampler="independent", crop=False
+        ),
+    }
+    for name, settings in configs.items():
+        entry: dict = {"points": []}
+        t0 = time.perf_counter()
+        render.render_stokes(spec, dataclasses.replace(settings, spp=1))
+        entry["first_call_seconds_incl_jit"] = time.perf_counter() - t0
+        for spp in args.spp:
+            t0 = time.perf_counter()
+            res = render.render_stokes(dataclasses.replace(spec, seed=spp), dataclasses.replace(settings, spp=spp))
+            sec = time.perf_counter() - t0
+            stokes = res.stokes
+            if not settings.crop:  # the crop window's pixels inside the full film
+                stokes = stokes[off[1] : off[1] + mask.shape[0], off[0] : off[0] + mask.shape[1]]
+            maps = _maps(stokes)[mask]
+            # Relative RMSE of unpol and LP (CP is a ratio with its own scale: reported apart).
+            rel = float(np.sqrt(np.mean((maps[..., :6] - ref_maps[..., :6]) ** 2)) / ref_norm)
+            cp_rmse = float(np.sqrt(np.mean((maps[..., 6:] - ref_maps[..., 6:]) ** 2)))
+            n = res.normal[mask] if settings.crop else None
+            normal_deg = (
+                float(np.degrees(np.arccos(np.clip(np.sum(n * ref.normal[mask], -1), -1, 1))).mean())
+                if n is not None
+                else None
+            )
+            samples = stokes.shape[0] * stokes.shape[1] if settings.crop else res.stokes.shape[0] * res.stokes.shape[1]
+            entry["points"].append({
+                "spp": spp, "seconds": sec, "rel_rmse_unpol_lp": rel, "rmse_cp": cp_rmse,
+                "normal_error_deg": normal_deg, "msamples_per_second": 3 * samples * spp / sec / 1e6,
+            })  # fmt: skip
+        # err ~ a / sqrt(spp), seconds ~ b * spp: extrapolate the time to 2 % error.
+        pts = entry["points"]
+        a = np.median([p["rel_rmse_unpol_lp"] * np.sqrt(p["spp"]) for p in pts])
+        b = np.median([p["seconds"] / p["spp"] for p in pts])
+        entry["spp_for_2pct"] = float((a / 0.02) ** 2)
+        entry["seconds_for_2pct"] = float(b * (a / 0.02) ** 2)
+        result[name] = entry
+    names = list(configs)
+    result["speedup_default_over_naive_at_2pct"] = (
+        result[names[1]]["seconds_for_2pct"] / result[names[0]]["seconds_for_2pct"]
+    )
+    result["machine"] = {"cpus": os.cpu_count(), "python": platform.python_version()}
+    return result
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -141,10 +245,18 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--repeat", type=int, default=5, help="timed repetitions; the median is reported")
     p.add_argument("--seed", type=int, default=0, help="noise seed")
     p.add_argument("--out", type=Path, help="also write the JSON here")
+    r = sub.add_parser("render", help="rendered nine maps: error against time, default vs naive configuration")
+    r.add_argument("--resolution", type=int, default=384, help="sample size (default 384)")
+    r.add_argument("--ref-spp", type=int, default=1024, help="reference samples per pixel (default 1024)")
+    r.add_argument("--spp", type=int, nargs="+", default=[4, 8, 16, 32, 64], help="spp values to time")
+    r.add_argument("--out", type=Path, help="also write the JSON here")
     args = parser.parse_args(argv)
-    if args.height % 4 or args.width % 4 or min(args.height, args.width) < 32:
-        parser.error("--height and --width must be multiples of 4 and at least 32")
-    result = bench_decode(args)
+    if args.what == "decode":
+        if args.height % 4 or args.width % 4 or min(args.height, args.width) < 32:
+            parser.error("--height and --width must be multiples of 4 and at least 32")
+        result = bench_decode(args)
+    else:
+        result = bench_render(args)
     text = json.dumps(result, indent=2)
     print(text)
     if args.out:

@@ -34,8 +34,9 @@ __all__ = [
     "AOVS",
     "CropWindow",
     "crop_window",
-    "full_window",
     "display_shapes",
+    "display_updates",
+    "lit_rectangle",
     "sensor_dict",
     "bsdf_dict",
     "mesh_object",
@@ -52,6 +53,8 @@ CHANNEL_WAVELENGTHS_NM = (630.0, 532.0, 465.0)
 AOVS = "nn:sh_normal,pp:position,si:shape_index"
 #: Distance (m) of the polarizer sheet in front of the emitting surface.
 SHEET_OFFSET = 1e-3
+#: Built-in patterns whose colour channels each light one rectangle of the display.
+BUILTIN_RECTANGLE_PATTERNS = ("rgb_halves", "white")
 #: Smallest GGX alpha handed to Mitsuba (roughness near 0 makes the microfacet lobes singular).
 MIN_ALPHA = 1e-3
 
@@ -86,13 +89,6 @@ class CropWindow:
         """JSON-friendly form."""
         return {"binning": self.binning, "film_size": list(self.film_size), "offset": list(self.offset),
                 "size": list(self.size)}  # fmt: skip
-
-
-def full_window(camera: CameraSpec, width: int) -> CropWindow:
-    """The whole sensor at ``width`` rendered pixels across (no cropping)."""
-    binning = camera.sensor_width_px / width
-    height = int(round(camera.sensor_height_px / binning))
-    return CropWindow(binning, (width, height), (0, 0), (width, height))
 
 
 def crop_window(camera: CameraSpec, uv: NDArray, resolution: int, *, margin: float = 0.06) -> CropWindow:
@@ -171,8 +167,42 @@ def _pattern_texture(display: DisplaySpec, channel: int) -> dict:
     return {"type": "bitmap", "data": mi.TensorXf(data), "raw": True, "filter_type": "nearest", "wrap_mode": "clamp"}
 
 
+def lit_rectangle(display: DisplaySpec, channel: int) -> tuple[float, float, float, float] | None:
+    """Display-local ``(x0, x1, y0, y1)`` in metres of channel ``channel``'s lit region.
+
+    Only when that region is one full rectangle of the pattern (as in the built-in patterns);
+    None otherwise (no light at all, or a more complex image).
+    """
+    lit = display.pattern_image()[..., channel] > 0.5
+    if not lit.any():
+        return None
+    rows, cols = np.nonzero(lit)
+    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
+    if not lit[r0:r1, c0:c1].all() or not np.all(display.pattern_image()[..., channel][lit] == 1.0):
+        return None
+    h, w = lit.shape
+    x0 = -display.width / 2 + display.width * c0 / w
+    x1 = -display.width / 2 + display.width * c1 / w
+    y1 = display.height / 2 - display.height * r0 / h  # row 0 is the top
+    y0 = display.height / 2 - display.height * r1 / h
+    return (x0, x1, y0, y1)
+
+
+def _emitter_to_world(display: DisplaySpec, rect: tuple[float, float, float, float]) -> NDArray:
+    x0, x1, y0, y1 = rect
+    local = np.eye(4)
+    local[0, 0], local[1, 1] = (x1 - x0) / 2, (y1 - y0) / 2
+    local[0, 3], local[1, 3] = (x0 + x1) / 2, (y0 + y1) / 2
+    return np.asarray(display.display_to_world()) @ local
+
+
 def display_shapes(display: DisplaySpec, channel: int) -> dict[str, Any]:
     """The emitting display surface and its polarizer sheet, for one colour channel.
+
+    On a flat display whose channel lights one rectangle (the built-in patterns), only that
+    rectangle emits, with constant radiance: next-event estimation then never samples dark
+    parts of the display (half the samples with ``rgb_halves``). Otherwise the whole surface
+    emits the pattern as a bitmap.
 
     Convention: Mitsuba's ``polarizer`` angle ``theta`` turns clockwise as seen from the front
     of the sheet (measured: ``theta = 45`` transmits along display ``-X + Y``), while the rig's
@@ -185,19 +215,26 @@ def display_shapes(display: DisplaySpec, channel: int) -> dict[str, Any]:
             "degree_of_polarization < 1 is not rendered yet; the default display is fully polarized"
         )
     to_world = np.asarray(display.display_to_world())
-    emitter = {"type": "area", "radiance": _pattern_texture(display, channel)}
     sheet_bsdf = {"type": "polarizer", "theta": -math.degrees(display.polarization_angle)}
     if display.curvature_radius is None:
         scale = np.diag([display.width / 2, display.height / 2, 1.0, 1.0])
         shift = np.eye(4)
         shift[2, 3] = SHEET_OFFSET
+        rect = lit_rectangle(display, channel) if display.pattern in BUILTIN_RECTANGLE_PATTERNS else None
+        if rect is not None:
+            emitting = {"type": "rectangle", "to_world": _transform(_emitter_to_world(display, rect)),
+                        "emitter": {"type": "area", "radiance": 2.0 * display.radiance}}  # fmt: skip
+        else:
+            emitter = {"type": "area", "radiance": _pattern_texture(display, channel)}
+            emitting = {"type": "rectangle", "to_world": _transform(to_world @ scale), "emitter": emitter}
         return {
-            "display": {"type": "rectangle", "to_world": _transform(to_world @ scale), "emitter": emitter},
+            "display": emitting,
             "display_polarizer": {"type": "rectangle", "to_world": _transform(to_world @ shift @ scale),
                                   "bsdf": sheet_bsdf},
         }  # fmt: skip
     import mitsuba as mi  # noqa: PLC0415
 
+    emitter = {"type": "area", "radiance": _pattern_texture(display, channel)}
     v, f, uv = _curved_strip(display, 0.0)
     vs, fs, uvs = _curved_strip(display, SHEET_OFFSET)
     # The strip's front faces +Z (toward the viewer) with counter-clockwise faces seen from +Z.
@@ -206,6 +243,18 @@ def display_shapes(display: DisplaySpec, channel: int) -> dict[str, Any]:
         "display_polarizer": _strip_mesh("display_polarizer", vs, fs, uvs, to_world,
                                          {"bsdf": mi.load_dict(sheet_bsdf)}),
     }  # fmt: skip
+
+
+def display_updates(display: DisplaySpec, channel: int, params: Any) -> dict[str, Any] | None:
+    """Scene-parameter updates that switch the display to ``channel``; None if a reload is needed."""
+    if display.curvature_radius is not None:
+        return None
+    if "display.emitter.radiance.data" in params:
+        return {"display.emitter.radiance.data": _pattern_texture(display, channel)["data"]}
+    rect = lit_rectangle(display, channel)
+    if rect is None or "display.to_world" not in params:
+        return None
+    return {"display.to_world": _transform(_emitter_to_world(display, rect))}
 
 
 def sensor_dict(camera: CameraSpec, window: CropWindow, spp: int, *, sampler: str = "independent") -> dict:
@@ -306,6 +355,7 @@ def scene_dict(
     spp: int,
     max_depth: int = 4,
     integrator: str = "volpath",
+    sampler: str = "independent",
     aovs: bool = True,
 ) -> dict:
     """The full Mitsuba scene dict for one colour channel.
@@ -320,6 +370,7 @@ def scene_dict(
         max_depth: path length limit (4 covers camera -> object -> object -> display).
         integrator: ``"volpath"`` (default; the only one whose shadow rays pass the sheet) or
             ``"path"`` (for benchmarks).
+        sampler: Mitsuba sampler plugin name.
         aovs: add the ground-truth AOVs (:data:`AOVS`).
     """
     inner: dict = {"type": integrator, "max_depth": max_depth}
@@ -328,7 +379,7 @@ def scene_dict(
     scene = {
         "type": "scene",
         "integrator": {"type": "stokes", "nested": inner},
-        "sensor": sensor_dict(camera, window, spp),
+        "sensor": sensor_dict(camera, window, spp, sampler=sampler),
         **display_shapes(display, channel),
     }
     for name, obj in objects.items():
