@@ -64,3 +64,20 @@ def test_help(script):
     proc = _run(script, "--help")
     assert proc.returncode == 0
     assert "usage" in proc.stdout.lower()
+
+
+def test_bench_render_default_beats_naive(tmp_path):
+    out = tmp_path / "render.json"
+    proc = _run(
+        "headless/bench.py", "render", "--resolution", "32", "--ref-spp", "128", "--spp", "4", "16", "--out", str(out)
+    )
+    assert proc.returncode == 0, proc.stderr
+    result = json.loads(out.read_text())
+    default = next(v for k, v in result.items() if k.startswith("default"))
+    naive = next(v for k, v in result.items() if k.startswith("naive"))
+    # Error falls with samples, and the default configuration is far more accurate per spp
+    # (next-event estimation through the polarizer sheet, stratified samples).
+    assert default["points"][1]["rel_rmse_unpol_lp"] < default["points"][0]["rel_rmse_unpol_lp"]
+    for d, n in zip(default["points"], naive["points"], strict=True):
+        assert d["rel_rmse_unpol_lp"] < 0.5 * n["rel_rmse_unpol_lp"]
+    assert result["speedup_default_over_naive_at_2pct"] > 5
