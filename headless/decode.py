@@ -1,0 +1,163 @@
+"""Decode a raw HDR capture folder into the nine network input maps.
+
+Usage::
+
+    python headless/decode.py CAPTURE_DIR --out OUT_DIR [--grid half|full] [--preview]
+    python -m headless.decode CAPTURE_DIR --out OUT_DIR
+
+Writes ``OUT_DIR/maps.npy`` (``(H', W', 9)`` float32), ``OUT_DIR/mask.npy`` (``(H', W')`` bool)
+and, with ``--preview``, ``OUT_DIR/preview.png``. Every file is written to a temporary name and
+renamed into place; nothing is written unless loading and decoding succeed. Bad input prints one
+line ``error: <message>`` on stderr and exits with status 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+if __package__ in (None, ""):  # run as a script: make the repository root importable
+    _here = Path(__file__).resolve().parent
+    sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _here]
+    sys.path.insert(0, str(_here.parent))
+
+import numpy as np  # noqa: E402
+
+from pbrdf.capture import CAPTURE_FORMAT, CAPTURE_JSON, decode_capture, load_capture  # noqa: E402
+from pbrdf.decode import NINE_MAP_NAMES  # noqa: E402
+
+EXIT_BAD_INPUT = 2
+
+_EPILOG = f"""\
+capture folder format ({CAPTURE_FORMAT}):
+  CAPTURE_DIR/{CAPTURE_JSON}   JSON object with
+      "format": "{CAPTURE_FORMAT}"
+      "exposures_s": [0.01, 0.02, 0.1, 0.2]      exposure times in seconds
+      "raw_files": ["raw_0010.0ms.png", ...]     one raw per exposure, same order
+      "black_level": 16.0, "white_level": 4095   optional, in DN (white = 2**bits - 1)
+      "bits": 12, "pattern_offset": [0, 0]       optional
+      "camera_model": {{...}}                      optional calibration (CameraModel.to_dict())
+  CAPTURE_DIR/raw_*.png|.tif|.tiff|.npy
+      single-channel IMX250MYR raw mosaics (H, W), H and W multiples of 4, black level
+      included, 16-bit grayscale PNG/TIFF or integer .npy
+  See pbrdf/capture.py (save_capture writes this layout).
+
+outputs:
+  OUT_DIR/maps.npy     (H', W', 9) float32, order {", ".join(NINE_MAP_NAMES)}
+  OUT_DIR/mask.npy     (H', W') bool, True where the maps are valid
+  OUT_DIR/preview.png  with --preview: the nine maps as a 3x3 grid
+  H', W' = H/2, W/2 for --grid half (default), H, W for --grid full.
+"""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="decode",
+        description="Decode a raw HDR capture (IMX250MYR polarization mosaics) into the nine maps.",
+        epilog=_EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument("capture_dir", type=Path, help="capture folder holding capture.json and the raws")
+    parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
+    parser.add_argument(
+        "--grid", choices=("half", "full"), default="half", help="output grid (default: half resolution)"
+    )
+    parser.add_argument("--preview", action="store_true", help="also write preview.png of the nine maps")
+    return parser
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    buf = io.BytesIO()
+    np.save(buf, array, allow_pickle=False)
+    return buf.getvalue()
+
+
+def _preview_png(maps: np.ndarray, mask: np.ndarray) -> bytes:
+    """3x3 grid (rows unpol, LP, CP; columns R, G, B) as PNG bytes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    h, w = mask.shape
+    fig = Figure(figsize=(9.0, 9.0 * h / w + 0.6), layout="constrained")
+    axes = fig.subplots(3, 3, squeeze=False)
+    for row in range(3):
+        block = maps[..., 3 * row : 3 * row + 3]
+        if row == 2:  # CP in [-1, 1]
+            vmin, vmax, cmap = -1.0, 1.0, "coolwarm"
+        else:  # one scale per row so colours compare
+            vals = block[mask] if mask.any() else block.reshape(-1)
+            vmin, vmax, cmap = 0.0, float(np.percentile(vals, 99.5)) if vals.size else 1.0, "gray"
+            vmax = vmax if vmax > 0 else 1.0
+        for col in range(3):
+            k = 3 * row + col
+            ax = axes[row][col]
+            im = ax.imshow(np.where(mask, maps[..., k], np.nan), vmin=vmin, vmax=vmax, cmap=cmap)
+            ax.set_title(NINE_MAP_NAMES[k], fontsize=9)
+            ax.set_axis_off()
+        fig.colorbar(im, ax=list(axes[row]), shrink=0.8)
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=100)
+    return buf.getvalue()
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    """Write ``data`` to a temporary file next to ``path`` and rename it into place."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = False) -> list[Path]:
+    """Load, decode and write the outputs; returns the written paths.
+
+    Raises:
+        ValueError: bad capture content.
+        OSError: unreadable capture or unwritable output folder.
+    """
+    decoded = decode_capture(load_capture(capture_dir), grid=grid)
+    # Render everything before writing anything.
+    outputs = {
+        "maps.npy": _npy_bytes(decoded.maps.astype(np.float32, copy=False)),
+        "mask.npy": _npy_bytes(decoded.mask.astype(bool, copy=False)),
+    }
+    if preview:
+        outputs["preview.png"] = _preview_png(decoded.maps, decoded.mask)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"{out}: output path exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for name, data in outputs.items():
+        _write_atomic(out / name, data)
+        written.append(out / name)
+    return written
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        written = run(args.capture_dir, args.out, grid=args.grid, preview=args.preview)
+    except (ValueError, OSError) as e:
+        message = " ".join(str(e).split()) or type(e).__name__
+        print(f"error: {message}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    for path in written:
+        print(path)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
