@@ -273,3 +273,54 @@ def test_synthesized_sample_is_valid_and_decodes_to_the_rendered_stokes():
         # (measured: unpol within 0.5 %, LP within 4 % where the white display's reflection has
         # sharp edges)
         assert sample["maps"][..., 3 + c][inner].mean() == pytest.approx(lp[..., c][inner].mean(), rel=0.06, abs=1e-4)
+
+
+def test_measured_lambertian_table_matches_pplastic(tmp_path, slab_path):
+    """A measured_polarized table with M00 = albedo/pi (all else 0) is a Lambertian, depolarizing
+    surface: its S0 must equal the index-matched pplastic slab's, channel by channel, while its
+    reflected light is unpolarized. The table is written with Mitsuba's own tensor_io (an
+    independent writer; the project's table format is a separate issue)."""
+    import mitsuba as mi
+
+    mi.set_variant("scalar_rgb")
+    from mitsuba import tensor_io
+
+    albedo = 0.6
+    n_phi, n_td, n_th, wvls = 9, 7, 7, np.array([450, 500, 550, 600, 650], np.uint16)
+    m = np.zeros((n_phi, n_td, n_th, len(wvls), 4, 4), np.float32)
+    m[..., 0, 0] = albedo / np.pi
+    table = tmp_path / "lambert.pbsdf"
+    tensor_io.write(
+        str(table),
+        phi_d=np.linspace(-np.pi, np.pi, n_phi, dtype=np.float32)[None],
+        theta_d=np.linspace(0, np.pi / 2, n_td, dtype=np.float32)[None],
+        theta_h=np.linspace(0, np.pi / 2, n_th, dtype=np.float32)[None],
+        wvls=wvls,
+        M=m,
+    )
+    measured = MaterialSpec.measured("table", str(table), (albedo,) * 3, roughness=1.0, metallic=0.0)
+    plastic = MaterialSpec.plastic("lambert", (albedo,) * 3, roughness=0.5, ior=1.001)
+    out = {}
+    for mat in (measured, plastic):
+        spec = _spec([ObjectSpec("slab", slab_path, _translate(0, 0, -0.6), mat.name)], [mat])
+        out[mat.name] = render.render_stokes(spec, render.RenderSettings(resolution=24, spp=128))
+    a, b = out["table"], out["lambert"]
+    inner = a.mask & b.mask
+    inner[:4], inner[-4:], inner[:, :4], inner[:, -4:] = False, False, False, False
+    np.testing.assert_allclose(a.stokes[inner][..., 0].mean(0), b.stokes[inner][..., 0].mean(0), rtol=0.03)
+    assert np.abs(a.stokes[inner][..., 1:]).max() < 1e-3 + 0.02 * a.stokes[inner][..., 0].max()
+
+
+def test_curved_display_keeps_polarization_and_pattern(slab_path):
+    """A 1000R display (a curved strip mesh with the pattern as a bitmap) seen in a mirror:
+    still vertically polarized, red on the image's left, blue on top."""
+    rig = Rig(display=DisplaySpec(curvature_radius=1.0))
+    spec = _spec([ObjectSpec("slab", slab_path, _translate(0, 0, -0.7), "mirror")], [MIRROR], rig=rig)
+    res = render.render_stokes(spec, render.RenderSettings(resolution=32, spp=16))
+    h, w = res.mask.shape
+    centre = res.stokes[h // 2 - 4 : h // 2 + 4, w // 2 - 4 : w // 2 + 4].reshape(-1, 3, 4)
+    lit = centre[..., 0] > 0.1
+    np.testing.assert_allclose(centre[..., 1][lit] / centre[..., 0][lit], -1.0, atol=0.01)
+    s0 = res.stokes[..., 0]
+    assert s0[6:-6, 6 : w // 2 - 3, 0].mean() > 0.5 and s0[6:-6, w // 2 + 3 : -6, 0].max() < 0.02
+    assert s0[6 : h // 2 - 3, 6:-6, 2].mean() > 0.5 and s0[h // 2 + 3 : -6, 6:-6, 2].max() < 0.02
