@@ -15,9 +15,7 @@ from __future__ import annotations
 
 import argparse
 import io
-import os
 import sys
-import tempfile
 from pathlib import Path
 
 if __package__ in (None, ""):  # run as a script: make the repository root importable
@@ -27,6 +25,7 @@ if __package__ in (None, ""):  # run as a script: make the repository root impor
 
 import numpy as np  # noqa: E402
 
+from pbrdf.atomic import atomic_write_bytes  # noqa: E402
 from pbrdf.capture import CAPTURE_FORMAT, CAPTURE_JSON, decode_capture, load_capture  # noqa: E402
 from pbrdf.decode import NINE_MAP_NAMES  # noqa: E402
 
@@ -106,21 +105,6 @@ def _preview_png(maps: np.ndarray, mask: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _write_atomic(path: Path, data: bytes) -> None:
-    """Write ``data`` to a temporary file next to ``path`` and rename it into place."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-
-
 def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = False) -> list[Path]:
     """Load, decode and write the outputs; returns the written paths.
 
@@ -141,7 +125,7 @@ def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = Fal
     out.mkdir(parents=True, exist_ok=True)
     written = []
     for name, data in outputs.items():
-        _write_atomic(out / name, data)
+        atomic_write_bytes(out / name, data)
         written.append(out / name)
     return written
 

@@ -36,7 +36,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import secrets
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -45,6 +44,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from .atomic import fsync_path, temporary_path
 from .camera import CameraModel
 from .decode import Decoded, decode
 
@@ -127,19 +127,6 @@ def _write_raw(path: Path, raw: NDArray[np.uint16], file_format: str) -> None:
         img.save(f, format="PNG" if file_format == "png" else "TIFF")
         f.flush()
         os.fsync(f.fileno())
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # pragma: no cover - e.g. platforms without directory handles
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # pragma: no cover
-        pass
-    finally:
-        os.close(fd)
 
 
 def _check_frame(raw: NDArray, where: str, white_level: int) -> NDArray[np.uint16]:
@@ -290,19 +277,19 @@ def save_capture(
             f.write(text + "\n")
             f.flush()
             os.fsync(f.fileno())
-        _fsync_dir(tmp)
+        fsync_path(tmp, directory=True)
         _move_into_place(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
-    _fsync_dir(parent)
+    fsync_path(parent, directory=True)
     return target
 
 
 def _make_sibling(target: Path, tag: str) -> Path:
     """Create a new, uniquely named hidden folder next to ``target`` (usual permissions)."""
     for _ in range(100):
-        path = target.parent / f".{target.name}.{tag}-{os.getpid()}-{secrets.token_hex(4)}"
+        path = temporary_path(target, tag)
         try:
             path.mkdir()
         except FileExistsError:  # pragma: no cover - 32 random bits collided

@@ -56,17 +56,11 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from .atomic import atomic_write_text, temporary_target
 from .camera import CameraModel
 from .capture import CAPTURE_JSON, Capture, load_capture, save_capture, validate_capture
 from .decode import NINE_MAP_NAMES
-from .exr import (
-    MissingChannelError,
-    read_exr,
-    stack_channels,
-    temporary_path,
-    temporary_target,
-    write_exr,
-)
+from .exr import MissingChannelError, read_exr, stack_channels, write_exr
 
 __all__ = [
     "SAMPLE_FORMAT",
@@ -340,34 +334,6 @@ def _check_metadata(metadata: Any, reserved: Sequence[str], what: str) -> dict[s
 # files
 
 
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # pragma: no cover - platforms without directory handles
-        return
-    try:
-        os.fsync(fd)
-    except OSError:  # pragma: no cover
-        pass
-    finally:
-        os.close(fd)
-
-
-def _atomic_write_text(path: Path, text: str) -> None:
-    """Write ``text`` to a temporary sibling, fsync it and rename it over ``path``."""
-    tmp = temporary_path(path)
-    try:
-        with open(tmp, "w", encoding="utf-8") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
-
-
 def _sha256(path: Path) -> str:
     with open(path, "rb") as f:
         return hashlib.file_digest(f, "sha256").hexdigest()
@@ -446,7 +412,7 @@ def write_sample(
         **({"raw_capture": paths.raw.name} if "raw" in sample else {}),
         **meta,
     }
-    _atomic_write_text(paths.sidecar, _dumps(sidecar, f"{paths.sidecar}: sidecar"))
+    atomic_write_text(paths.sidecar, _dumps(sidecar, f"{paths.sidecar}: sidecar"))
     return paths.sidecar
 
 
@@ -697,7 +663,7 @@ def write_manifest(
     text = _dumps({"format": MANIFEST_FORMAT, **data, "num_completed": len(done), "completed": done}, "manifest")
     root.mkdir(parents=True, exist_ok=True)
     path = root / MANIFEST_JSON
-    _atomic_write_text(path, text)
+    atomic_write_text(path, text)
     return path
 
 

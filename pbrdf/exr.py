@@ -39,7 +39,6 @@ import io
 import math
 import os
 import re
-import secrets
 from collections.abc import Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -47,6 +46,8 @@ from typing import Any
 import numpy as np
 import OpenEXR
 from numpy.typing import NDArray
+
+from .atomic import fsync_path, temporary_path
 
 __all__ = [
     "COMPRESSIONS",
@@ -58,8 +59,6 @@ __all__ = [
     "exr_channel_names",
     "stack_channels",
     "split_channels",
-    "temporary_path",
-    "temporary_target",
 ]
 
 #: First four bytes of every OpenEXR file (magic number 20000630, little-endian).
@@ -105,7 +104,6 @@ _UINT32_MAX = 2**32 - 1
 _MAX_NAME_BYTES = 255
 # Temporary siblings: ".<target name>.tmp-<pid>-<8 hex digits>" (the pattern of pbrdf.capture's
 # temporary folders, ".old-" being its set-aside folders).
-_TEMP_RE = re.compile(r"^\.(?P<target>.+)\.(?:tmp|old)-\d+-[0-9a-f]{8}$")
 
 
 class MissingChannelError(KeyError, ValueError):
@@ -113,50 +111,6 @@ class MissingChannelError(KeyError, ValueError):
 
     def __str__(self) -> str:  # KeyError would print the message in quotes
         return str(self.args[0]) if self.args else ""
-
-
-def temporary_path(target: str | os.PathLike) -> Path:
-    """A fresh temporary sibling of ``target``: ``.<name>.tmp-<pid>-<random hex>`` in its folder.
-
-    Args:
-        target: the final path.
-
-    Returns:
-        A path in the same folder (so that ``os.replace`` onto ``target`` is atomic).
-    """
-    t = Path(target)
-    return t.parent / f".{t.name}.tmp-{os.getpid()}-{secrets.token_hex(4)}"
-
-
-def temporary_target(name: str) -> str | None:
-    """The target file name a temporary sibling belongs to, or None if ``name`` is not one.
-
-    Recognises the names made by :func:`temporary_path` and :func:`pbrdf.capture.save_capture`.
-
-    Example:
-        >>> temporary_target(".000012.exr.tmp-4242-0a1b2c3d")
-        '000012.exr'
-        >>> temporary_target("000012.exr") is None
-        True
-    """
-    m = _TEMP_RE.match(name)
-    return m.group("target") if m else None
-
-
-def _fsync_path(path: Path, directory: bool = False) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # pragma: no cover - e.g. platforms without directory handles
-        if directory:
-            return
-        raise
-    try:
-        os.fsync(fd)
-    except OSError:  # pragma: no cover - some file systems refuse fsync on directories
-        if not directory:
-            raise
-    finally:
-        os.close(fd)
 
 
 def _half_names(half: bool | Iterable[str], names: Sequence[str]) -> set[str]:
@@ -308,13 +262,13 @@ def write_exr(
             exr.write(str(tmp))
         except RuntimeError as e:
             raise OSError(f"{target}: cannot write EXR: {_one_line(e)}") from e
-        _fsync_path(tmp)
+        fsync_path(tmp)
         os.replace(tmp, target)
     except BaseException:
         with contextlib.suppress(OSError):
             tmp.unlink(missing_ok=True)
         raise
-    _fsync_path(parent, directory=True)
+    fsync_path(parent, directory=True)
     return target
 
 

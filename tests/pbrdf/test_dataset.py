@@ -405,7 +405,7 @@ def test_sidecar_is_written_last(tmp_path, rng, monkeypatch):
         raise KeyboardInterrupt
 
     write_sample(tmp_path, 0, *make_sample(rng))  # a complete sample, then a rewrite that crashes
-    monkeypatch.setattr(ds, "_atomic_write_text", crash)
+    monkeypatch.setattr(ds, "atomic_write_text", crash)
     with pytest.raises(KeyboardInterrupt):
         write_sample(tmp_path, 0, *make_sample(rng, raw=True))
     monkeypatch.undo()

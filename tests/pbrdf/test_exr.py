@@ -8,6 +8,7 @@ import numpy as np
 import OpenEXR
 import pytest
 
+from pbrdf.atomic import temporary_path, temporary_target
 from pbrdf.exr import (
     COMPRESSIONS,
     MissingChannelError,
@@ -16,8 +17,6 @@ from pbrdf.exr import (
     read_exr_header,
     split_channels,
     stack_channels,
-    temporary_path,
-    temporary_target,
     write_exr,
 )
 

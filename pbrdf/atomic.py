@@ -1,0 +1,91 @@
+"""Atomic file writes: the one home for "temporary sibling, fsync, rename into place".
+
+Every writer of the project (captures, EXR samples, sidecars, manifests, rigs, CLI outputs)
+goes through these helpers, so a killed process leaves either the old file or the new one,
+never half of one, and the leftovers are recognisable (:func:`temporary_target`) and cleaned
+up on resume.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import secrets
+from pathlib import Path
+
+__all__ = ["temporary_path", "temporary_target", "fsync_path", "atomic_write_bytes", "atomic_write_text"]
+
+# ".<target>.tmp-<pid>-<8 hex>" (files being written) or ".<target>.old-<pid>-<8 hex>" (set aside).
+_TEMP_RE = re.compile(r"^\.(?P<target>.+)\.(?:tmp|old)-\d+-[0-9a-f]{8}$")
+
+
+def temporary_path(target: str | os.PathLike, kind: str = "tmp") -> Path:
+    """A fresh temporary sibling of ``target``: ``.<name>.<kind>-<pid>-<random hex>`` in its folder.
+
+    Args:
+        target: the final path.
+        kind: ``"tmp"`` for a file being written, ``"old"`` for a previous version set aside.
+
+    Returns:
+        A path in the same folder (so that ``os.replace`` onto ``target`` is atomic).
+    """
+    t = Path(target)
+    return t.parent / f".{t.name}.{kind}-{os.getpid()}-{secrets.token_hex(4)}"
+
+
+def temporary_target(name: str) -> str | None:
+    """The target file name a temporary sibling belongs to, or None if ``name`` is not one.
+
+    Example:
+        >>> temporary_target(".000012.exr.tmp-4242-0a1b2c3d")
+        '000012.exr'
+        >>> temporary_target("000012.exr") is None
+        True
+    """
+    m = _TEMP_RE.match(name)
+    return m.group("target") if m else None
+
+
+def fsync_path(path: str | os.PathLike, *, directory: bool = False) -> None:
+    """Fsync a file, or a folder (best effort: some platforms refuse directory handles)."""
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:  # pragma: no cover - e.g. platforms without directory handles
+        if directory:
+            return
+        raise
+    try:
+        os.fsync(fd)
+    except OSError:  # pragma: no cover - some file systems refuse fsync on directories
+        if not directory:
+            raise
+    finally:
+        os.close(fd)
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` through a temporary sibling, fsync and ``os.replace``.
+
+    A reader never sees a half-written file; a crash leaves the old file (or none). Missing
+    parent folders are created; the file gets mode 0644.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temporary_path(path)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    fsync_path(path.parent, directory=True)
+    return path
+
+
+def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
+    """UTF-8 text version of :func:`atomic_write_bytes`."""
+    return atomic_write_bytes(path, text.encode("utf-8"))
