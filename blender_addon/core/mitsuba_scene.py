@@ -40,6 +40,7 @@ __all__ = [
     "sensor_dict",
     "bsdf_dict",
     "mesh_object",
+    "mesh_from_arrays",
     "scene_dict",
     "channel_updates",
     "SHEET_OFFSET",
@@ -142,20 +143,37 @@ def _curved_strip(display: DisplaySpec, offset: float, segments: int = 64) -> tu
     return verts_a, np.asarray(faces, dtype=np.uint32), uvs_a
 
 
-def _strip_mesh(name: str, verts: NDArray, faces: NDArray, uvs: NDArray, to_world: NDArray, props: dict):
+def mesh_from_arrays(name: str, vertices: NDArray, faces: NDArray, props: dict, *, normals=None, uvs=None):
+    """A Mitsuba mesh from arrays (no temporary files), in any variant (scalar ones included).
+
+    The buffers take the types ``mi.traverse`` reports (``mi.Float`` is a Python float in scalar
+    variants, a Dr.Jit array in JIT ones).
+    """
     import mitsuba as mi  # noqa: PLC0415
 
     p = mi.Properties()
     for k, v in props.items():
         p[k] = v
-    world = (to_world[:3, :3] @ verts.T).T + to_world[:3, 3]
-    mesh = mi.Mesh(name, len(world), len(faces), props=p, has_vertex_texcoords=True)
+    mesh = mi.Mesh(
+        name, len(vertices), len(faces), props=p,
+        has_vertex_normals=normals is not None, has_vertex_texcoords=uvs is not None,
+    )  # fmt: skip
     params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(world.astype(np.float32).ravel())
-    params["faces"] = mi.UInt32(faces.ravel())
-    params["vertex_texcoords"] = mi.Float(uvs.astype(np.float32).ravel())
+    for key, value, dtype in (
+        ("vertex_positions", vertices, np.float32),
+        ("faces", faces, np.uint32),
+        ("vertex_normals", normals, np.float32),
+        ("vertex_texcoords", uvs, np.float32),
+    ):
+        if value is not None:
+            params[key] = type(params[key])(np.ascontiguousarray(value, dtype=dtype).ravel())
     params.update()
     return mesh
+
+
+def _strip_mesh(name: str, verts: NDArray, faces: NDArray, uvs: NDArray, to_world: NDArray, props: dict):
+    world = (to_world[:3, :3] @ verts.T).T + to_world[:3, 3]
+    return mesh_from_arrays(name, world, faces, props, uvs=uvs)
 
 
 def _pattern_texture(display: DisplaySpec, channel: int) -> dict:
@@ -333,16 +351,7 @@ def mesh_object(name: str, vertices_world: NDArray, faces: NDArray, normals_worl
     """A Mitsuba mesh built from arrays (no temporary files) carrying ``bsdf``."""
     import mitsuba as mi  # noqa: PLC0415
 
-    props = mi.Properties()
-    props["bsdf"] = mi.load_dict(bsdf)
-    mesh = mi.Mesh(name, len(vertices_world), len(faces), props=props, has_vertex_normals=normals_world is not None)
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(np.asarray(vertices_world, dtype=np.float32).ravel())
-    params["faces"] = mi.UInt32(np.asarray(faces, dtype=np.uint32).ravel())
-    if normals_world is not None:
-        params["vertex_normals"] = mi.Float(np.asarray(normals_world, dtype=np.float32).ravel())
-    params.update()
-    return mesh
+    return mesh_from_arrays(name, vertices_world, faces, {"bsdf": mi.load_dict(bsdf)}, normals=normals_world)
 
 
 def scene_dict(

@@ -195,8 +195,10 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings = RenderSettings()) 
     """
     variant = settings.variant or choose_variant()
     mi = _set_variant(variant)
-    if "spectral" in variant:
-        raise NotImplementedError("the spectral fallback renders through render_stokes_spectral (not yet built)")
+    if "spectral" in variant:  # the fallback without LLVM, and cross-checks
+        from .spectral import render_stokes_spectral  # noqa: PLC0415
+
+        return render_stokes_spectral(spec, settings, variant=variant)
     rig = spec.rig
     cam = rig.camera
     meshes = _world_meshes(spec)
@@ -224,7 +226,7 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings = RenderSettings()) 
     seconds["load"] = time.perf_counter() - t0
     w, h = window.size
     stokes = np.zeros((h, w, 3, 4), dtype=np.float32)
-    aov = None
+    aovs: dict[str, NDArray] = {}
     for c in range(3):
         t0 = time.perf_counter()
         if c > 0:
@@ -250,42 +252,57 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings = RenderSettings()) 
         img = np.asarray(mi.render(scene, seed=(int(spec.seed) * 3 + c) % 2**32, spp=settings.spp))
         # Mono layout: [Y, S0 x3, S1 x3, S2 x3, S3 x3, AOVs...].
         stokes[:, :, c, :] = img[:, :, [1, 4, 7, 10]]
-        if c == 0:
-            aov = img[:, :, 13:]
+        if c == 0:  # AOVs from the first pass, with that scene's shape ids
+            aovs = aov_result(img[:, :, 13:], scene, spec, names)
         seconds[f"pass_{'RGB'[c]}"] = time.perf_counter() - t0
-    # AOV layout after the Stokes block: integrator RGBA (4), nn.XYZ, pp.XYZ, si.I.
+    return RenderResult(stokes=stokes, window=window, variant=variant, seconds=seconds, **aovs)
+
+
+def aov_result(aov: NDArray, scene, spec: SceneSpec, names: list[str]) -> dict[str, NDArray]:
+    """Coverage, camera-frame normals, depth and object index from the AOV block of a render.
+
+    Args:
+        aov: ``(H, W, 11)`` channels after the Stokes block: integrator RGBA, ``nn.XYZ``
+            (shading normal), ``pp.XYZ`` (position), ``si.I`` (shape index), each averaged over
+            the pixel's samples (so divided by the coverage here).
+        scene: the Mitsuba scene that produced them (for the shape ids).
+        spec: the scene spec (camera pose).
+        names: Mitsuba shape names of ``spec.objects`` in order.
+    """
+    import drjit as dr  # noqa: PLC0415
+    import mitsuba as mi  # noqa: PLC0415
+
     coverage = aov[..., 3]
     safe = np.where(coverage > 0, coverage, 1.0)[..., None]
     n_world = aov[..., 4:7] / safe
     p_world = aov[..., 7:10] / safe
     shape_index = aov[..., 10] / safe[..., 0]
-    w2c = np.asarray(cam.world_to_camera(), dtype=np.float64)
+    w2c = np.asarray(spec.rig.camera.world_to_camera(), dtype=np.float64)
     normal = n_world @ w2c[:3, :3].T
     normal /= np.maximum(np.linalg.norm(normal, axis=-1, keepdims=True), 1e-12)
     p_cam = p_world @ w2c[:3, :3].T + w2c[:3, 3]
     mask = coverage >= 0.5
     normal[~mask] = 0.0
     depth = np.where(mask, -p_cam[..., 2], 0.0)
-    # The shape-index AOV holds Dr.Jit's registry id of the hit shape (global to the process).
-    import drjit as dr  # noqa: PLC0415
-
-    registry = np.asarray(dr.reinterpret_array(mi.UInt32, scene.shapes_dr()))
+    # The shape-index AOV holds Dr.Jit's registry id of the hit shape in JIT variants (global to
+    # the process); in scalar variants it is 1 + the shape's position in scene.shapes()
+    # (measured with mitsuba 3.9.1; both covered by tests).
+    if mi.variant().startswith("scalar"):
+        registry = np.arange(1, len(scene.shapes()) + 1)
+    else:
+        registry = np.asarray(dr.reinterpret_array(mi.UInt32, scene.shapes_dr())).reshape(-1)
     shape_names = [s.id() for s in scene.shapes()]
-    index = np.full((h, w), -1, dtype=np.int32)
+    index = np.full(coverage.shape, -1, dtype=np.int32)
     rounded = np.rint(shape_index).astype(np.int64)
     for i, name in enumerate(names):
         if name in shape_names:
             index[mask & (rounded == int(registry[shape_names.index(name)]))] = i
-    return RenderResult(
-        stokes=stokes,
-        normal=normal.astype(np.float32),
-        depth=depth.astype(np.float32),
-        coverage=coverage.astype(np.float32),
-        object_index=index,
-        window=window,
-        variant=variant,
-        seconds=seconds,
-    )
+    return {
+        "normal": normal.astype(np.float32),
+        "depth": depth.astype(np.float32),
+        "coverage": coverage.astype(np.float32),
+        "object_index": index,
+    }
 
 
 def ground_truth(spec: SceneSpec, result: RenderResult) -> dict[str, NDArray]:

@@ -324,3 +324,15 @@ def test_curved_display_keeps_polarization_and_pattern(slab_path):
     s0 = res.stokes[..., 0]
     assert s0[6:-6, 6 : w // 2 - 3, 0].mean() > 0.5 and s0[6:-6, w // 2 + 3 : -6, 0].max() < 0.02
     assert s0[6 : h // 2 - 3, 6:-6, 2].mean() > 0.5 and s0[h // 2 + 3 : -6, 6:-6, 2].max() < 0.02
+
+
+def test_spectral_variant_is_the_fallback_route():
+    """Without LLVM the renderer falls back to scalar_spectral_polarized: render_stokes must
+    route there and return the same kind of result (object ids, normals, vertical light)."""
+    mat = MaterialSpec.plastic("plastic", (0.5, 0.5, 0.5), roughness=0.3)
+    spec = _spec([ObjectSpec("ball", "builtin:sphere", _translate(0, 0, -0.7, 0.2), "plastic")], [mat])
+    res = render.render_stokes(spec, render.RenderSettings(resolution=16, spp=4, variant="scalar_spectral_polarized"))
+    assert res.variant == "scalar_spectral_polarized"
+    assert res.stokes.shape == (16, 16, 3, 4)
+    assert (res.object_index == 0).sum() == res.mask.sum() > 50
+    assert np.all(np.isfinite(res.stokes))

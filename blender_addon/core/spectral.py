@@ -1,0 +1,257 @@
+"""Spectral-polarized cross-check renderer: one ``*_spectral_polarized`` pass for all colour channels.
+
+The default renderer (:func:`blender_addon.core.render.render_stokes`) multiplexes the colour
+channels with one ``*_mono_polarized`` pass per channel. :func:`render_stokes_spectral` renders
+the same scene once in ``llvm_ad_spectral_polarized`` (or ``scalar_spectral_polarized``) and
+returns the same :class:`~blender_addon.core.render.RenderResult`, so the two can be compared
+(``tests/blender_addon/core/test_spectral.py``) and the spectral variant serves as the fallback
+where the LLVM backend is missing.
+
+Spectra (what the display emits and what the materials do at each wavelength):
+
+* **Display.** The pattern is the emitter's radiance through a ``d65`` texture wrapping an RGB
+  ``bitmap`` of the pattern (nearest filtering): each texel emits ``D65(lambda) x
+  upsample(rgb)(lambda)``, Mitsuba's own spectrum for a constant ``{'type': 'rgb'}`` emitter
+  (``srgb_d65``) and the one whose sRGB rendering is the RGB value itself: a white display renders
+  as (1, 1, 1) and the primaries without cross-talk (measured at 4096 spp: within 0.2 %, cross-talk
+  below 5e-4). A plain
+  ``bitmap`` (no D65) renders white as (1.205, 0.95, 0.89), and ``raw`` bitmaps throw in spectral
+  variants. The upsampling clamps texels to [0, 1], so the doubling for the sheet's 50 % loss and
+  ``display.radiance`` go into the ``d65`` texture's ``scale``. The whole active area emits (the
+  mono passes light only the channel's rectangle of a built-in pattern, but every part of it is
+  lit in some channel); the polarizer sheet (``SHEET_OFFSET`` in front, ``theta =
+  -degrees(polarization_angle)``) is :func:`~blender_addon.core.mitsuba_scene.display_shapes`'s,
+  and a curved display uses its strip geometry. Any pattern works, image files included (their
+  values are linear, as in the mono passes).
+* **pplastic.** ``diffuse_reflectance`` is the albedo as an ``rgb`` reflectance (Mitsuba's
+  smooth, bounded upsampling; a grey albedo is flat). ``int_ior`` is wavelength independent.
+* **conductor.** ``eta`` and ``k`` are ``irregular`` spectra, piecewise linear through the
+  channel values at :data:`~blender_addon.core.mitsuba_scene.CHANNEL_WAVELENGTHS_NM` (blue 465,
+  green 532, red 630 nm) and constant beyond them (360-830 nm): exactly the values the mono passes
+  use, at their wavelengths. An ``rgb`` value is no option: Mitsuba upsamples it as a bounded
+  reflectance, clamping ``eta = 1.3`` and ``k = 3.2`` to at most 1.
+* **measured.** ``measured_polarized`` without ``wavelength``: the table's own bands.
+
+What remains different from the mono passes is physics, not set-up: a colour channel of the
+spectral render integrates the whole emitted spectrum of *every* display region against that
+channel's sRGB matching function, with the material evaluated at each wavelength, while a mono
+pass uses one number per channel (the material at the channel's wavelength, the channel's share of
+the pattern). For wavelength-flat materials the two agree in expectation; for wavelength-dependent
+ones (gold) each channel sees the material averaged over a broad band.
+
+Cost (2-core CPU, LLVM, multijitter, sphere of ``tests/.../test_spectral.py``, same spp): the
+one spectral pass takes 0.3-0.6x the time of the three mono passes, but its per-pixel noise is
+far higher where the mono passes are nearly noise-free: relative S0 noise 0.10 vs 0.009 on a
+Lambertian sphere at 128 px / 64 spp (wavelength sampling of the coloured display regions adds
+colour noise), 0.10-0.16 vs 0.09 on gold. Per unit of error the mono passes are much cheaper for
+diffuse objects, hence the default; this renderer is for cross-checks and the fallback.
+
+Output: the ``stokes`` integrator sends each Stokes component through the spectrum -> linear sRGB
+conversion (signed), giving ``S0.R .. S3.B``; with the ``luminance`` film the channel layout is
+the mono passes' (``[Y, S0.RGB, S1.RGB, S2.RGB, S3.RGB, AOVs...]``), so the AOVs (coverage, normals,
+depth, object index) come out exactly as in :func:`~blender_addon.core.render.render_stokes`.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from . import mitsuba_scene as ms
+from . import render
+
+if TYPE_CHECKING:
+    from .rig import DisplaySpec
+    from .spec import MaterialSpec, SceneSpec
+
+__all__ = ["SPECTRAL_VARIANTS", "choose_spectral_variant", "display_radiance", "bsdf_dict", "render_stokes_spectral"]
+
+#: Mitsuba variants :func:`render_stokes_spectral` renders in (the PyPI wheel's; CUDA untested).
+SPECTRAL_VARIANTS = ("llvm_ad_spectral_polarized", "scalar_spectral_polarized", "cuda_ad_spectral_polarized")
+#: Spectral range of Mitsuba's colour matching functions (nm); spectra are defined over it.
+_LAMBDA_RANGE_NM = (360.0, 830.0)
+#: Film channels before the AOVs: Y, then S0..S3 x (R, G, B).
+_STOKES_CHANNELS = 13
+
+
+def choose_spectral_variant() -> str:
+    """``llvm_ad_spectral_polarized`` when Dr.Jit's LLVM backend works, else ``scalar_spectral_polarized``."""
+    return render.choose_variant("llvm_ad_spectral_polarized")
+
+
+def display_radiance(display: DisplaySpec) -> dict:
+    """Emitter radiance texture of the display pattern for spectral variants.
+
+    ``d65(bitmap)``: each texel emits D65 times the smooth upsampled spectrum of its RGB value, so
+    that the film's sRGB conversion returns the RGB value; the doubling for the polarizer sheet and
+    ``display.radiance`` sit in the ``scale`` (the bitmap's upsampling clamps to [0, 1]).
+    """
+    import mitsuba as mi  # noqa: PLC0415
+
+    # Bitmap row 0 is v = 0, the bottom of the emitting surface; the pattern's row 0 is the top.
+    pattern = np.ascontiguousarray(np.flipud(display.pattern_image()), dtype=np.float32)
+    return {
+        "type": "d65",
+        "scale": 2.0 * display.radiance,
+        "nested": {
+            "type": "bitmap",
+            "bitmap": mi.Bitmap(pattern),
+            "filter_type": "nearest",
+            "wrap_mode": "clamp",
+        },
+    }
+
+
+def _display_shapes(display: DisplaySpec) -> dict:
+    """:func:`mitsuba_scene.display_shapes` with the spectral emitter (``d65`` bitmap)."""
+    emitter = {"type": "area", "radiance": display_radiance(display)}
+    if display.curvature_radius is None:
+        # The mono helper's polarizer sheet; the whole active area emits (the mono passes light
+        # only the channel's rectangle, but every part of a built-in pattern is lit in some channel).
+        scale = np.diag([display.width / 2, display.height / 2, 1.0, 1.0])
+        to_world = np.asarray(display.display_to_world()) @ scale
+        return {
+            "display": {"type": "rectangle", "to_world": ms._transform(to_world), "emitter": emitter},
+            "display_polarizer": ms.display_shapes(display, 0)["display_polarizer"],
+        }
+    if display.degree_of_polarization != 1.0:  # same check as the mono helper
+        raise NotImplementedError(
+            "degree_of_polarization < 1 is not rendered yet; the default display is fully polarized"
+        )
+    import mitsuba as mi  # noqa: PLC0415
+
+    to_world = np.asarray(display.display_to_world())
+    sheet_bsdf = {"type": "polarizer", "theta": -math.degrees(display.polarization_angle)}
+    out = {}
+    for name, offset, props in (
+        ("display", 0.0, {"emitter": mi.load_dict(emitter)}),
+        ("display_polarizer", ms.SHEET_OFFSET, {"bsdf": mi.load_dict(sheet_bsdf)}),
+    ):
+        v, f, uv = ms._curved_strip(display, offset)
+        out[name] = ms.mesh_from_arrays(name, v @ to_world[:3, :3].T + to_world[:3, 3], f, props, uvs=uv)
+    return out
+
+
+def _channel_spectrum(values: tuple[float, float, float]) -> dict | float:
+    """Piecewise-linear spectrum through the (R, G, B) values at the channel wavelengths.
+
+    Constant below the blue and above the red wavelength; a plain float when the values are equal.
+    """
+    if values[0] == values[1] == values[2]:
+        return float(values[0])
+    r, g, b = (float(v) for v in values)
+    wl_r, wl_g, wl_b = ms.CHANNEL_WAVELENGTHS_NM
+    lo, hi = _LAMBDA_RANGE_NM
+    nodes = [(lo, b), (wl_b, b), (wl_g, g), (wl_r, r), (hi, r)]
+    return {
+        "type": "irregular",
+        "wavelengths": ", ".join(f"{w:g}" for w, _ in nodes),
+        "values": ", ".join(repr(v) for _, v in nodes),
+    }
+
+
+def bsdf_dict(material: MaterialSpec) -> dict:
+    """Polarization-aware Mitsuba BSDF of a material over all wavelengths (spectral variants)."""
+    alpha = max(material.roughness**2, ms.MIN_ALPHA)
+    if material.kind == "pplastic":
+        return {
+            "type": "pplastic",
+            "diffuse_reflectance": {"type": "rgb", "value": [float(a) for a in material.albedo]},
+            "specular_reflectance": 1.0,
+            "int_ior": float(material.ior),
+            "ext_ior": 1.0,
+            "alpha": alpha,
+            "distribution": "ggx",
+        }
+    if material.kind == "conductor":
+        return {
+            "type": "roughconductor",
+            "eta": _channel_spectrum(material.eta),
+            "k": _channel_spectrum(material.k),
+            "alpha": alpha,
+            "distribution": "ggx",
+        }
+    if material.kind == "measured":
+        return {
+            "type": "measured_polarized",
+            "filename": str(material.table),
+            "alpha_sample": max(alpha, 0.05),
+        }
+    raise ValueError(f"unknown material kind {material.kind!r}; valid: pplastic, conductor, measured")
+
+
+def render_stokes_spectral(
+    spec: SceneSpec, settings: render.RenderSettings | None = None, *, variant: str | None = None
+) -> render.RenderResult:
+    """Render the Stokes images (per colour channel) and AOVs in one spectral-polarized pass.
+
+    Same scene, crop window, AOVs and result type as :func:`render.render_stokes`; see the module
+    docstring for the spectra of the display and the materials.
+
+    Args:
+        spec: validated scene spec.
+        settings: resolution, samples (``spp`` for the single pass), cropping, integrator
+            (default :class:`render.RenderSettings`); ``settings.variant`` is used when it names
+            a spectral variant.
+        variant: Mitsuba variant (one of :data:`SPECTRAL_VARIANTS`); default
+            :func:`choose_spectral_variant`.
+
+    Returns:
+        :class:`render.RenderResult`; ``seconds`` holds ``load`` and ``pass_spectral``.
+
+    Raises:
+        ValueError: ``variant`` is not a spectral-polarized variant.
+    """
+    settings = settings or render.RenderSettings()
+    if variant is None and settings.variant is not None and "spectral" in settings.variant:
+        variant = settings.variant
+    variant = variant or choose_spectral_variant()
+    if variant not in SPECTRAL_VARIANTS:
+        raise ValueError(f"variant must be one of {SPECTRAL_VARIANTS}, got {variant!r}")
+    mi = render._set_variant(variant)
+    rig = spec.rig
+    cam = rig.camera
+    meshes = render._world_meshes(spec)
+    window = render.render_window(spec, settings, meshes)
+    materials = {m.name: m for m in spec.materials}
+    names = [f"object_{i}" for i in range(len(spec.objects))]
+
+    seconds: dict[str, float] = {}
+    t0 = time.perf_counter()
+    objs = {
+        name: ms.mesh_object(name, v, f, n, bsdf_dict(materials[obj.material]))
+        for name, obj, (v, f, n) in zip(names, spec.objects, meshes, strict=True)
+    }
+    # As mitsuba_scene.scene_dict, with the spectral display (its own would load a raw bitmap).
+    inner = {
+        "type": "aov",
+        "aovs": ms.AOVS,
+        "integrator": {"type": settings.integrator, "max_depth": settings.max_depth},
+    }
+    scene = mi.load_dict({
+        "type": "scene",
+        "integrator": {"type": "stokes", "nested": inner},
+        "sensor": ms.sensor_dict(cam, window, settings.spp, sampler=settings.sampler),
+        **_display_shapes(rig.display),
+        **objs,
+    })  # fmt: skip
+    seconds["load"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    img = np.asarray(mi.render(scene, seed=(int(spec.seed) * 3) % 2**32, spp=settings.spp))
+    seconds["pass_spectral"] = time.perf_counter() - t0
+    if img.shape[-1] != _STOKES_CHANNELS + 11:
+        raise RuntimeError(f"unexpected film layout: {img.shape[-1]} channels")
+    h, w = img.shape[:2]
+    # [Y, S0.RGB, S1.RGB, S2.RGB, S3.RGB]: channel 1 + 3 i + c is S_i of colour c.
+    stokes = img[..., 1:_STOKES_CHANNELS].reshape(h, w, 4, 3).transpose(0, 1, 3, 2)
+    aovs = render.aov_result(img[..., _STOKES_CHANNELS:], scene, spec, names)
+    return render.RenderResult(
+        stokes=np.ascontiguousarray(stokes, dtype=np.float32),
+        window=window,
+        variant=variant,
+        seconds=seconds,
+        **aovs,
+    )
