@@ -1,0 +1,922 @@
+"""Measured pBRDF tables: the :class:`PBRDFTable` type, its tensor-file format, resampling and evaluation.
+
+A pBRDF table samples the Mueller-matrix BRDF of an isotropic material on a regular grid of
+Rusinkiewicz angles and wavelengths, as in the KAIST pBRDF dataset (Baek et al. 2020, ``.pbsdf``,
+5 bands) and the hyperspectral hpBRDF dataset (Moon et al. 2025, ``.hpbrdf``, 68 bands). Both are
+Mitsuba ``tensor_file`` files with the same fields, read by :func:`load_table`:
+
+==========  ======================================  =======  ===========================
+field       shape                                   dtype    meaning
+==========  ======================================  =======  ===========================
+``phi_d``   ``(1, Np)``                             float32  difference azimuth, radians
+``theta_d`` ``(1, Nd)``                             float32  difference angle, radians
+``theta_h`` ``(1, Nh)``                             float32  half-vector angle, radians
+``wvls``    ``(W,)``                                uint16   wavelengths, nm
+``M``       ``(Np, Nd, Nh, W, 4, 4)``               float32  Mueller BRDF (no cos factor)
+==========  ======================================  =======  ===========================
+
+Convention:
+    Directions are unit vectors in the local shading frame (``z`` = normal) and are named as in
+    Mitsuba's BSDF interface in radiance mode: ``wi`` points towards the camera (the side light
+    leaves along) and ``wo`` towards the light. This is how Mitsuba's ``measured_polarized``
+    plugin (``src/bsdfs/measured_polarized.cpp``, mitsuba 3.9.1) reads its table, and every
+    function here follows it:
+
+    * Rusinkiewicz angles: ``h = normalize(wi + wo)``, ``theta_h = angle(n, h)``,
+      ``theta_d = angle(h, wo)``; ``b = normalize(n x h)``, ``t = b x h`` and
+      ``phi_d = atan2(b . wo, t . wo)`` in ``[-pi, pi]``: the azimuth of the *light-side*
+      direction about ``h``. The plugin first rotates both directions about ``n`` so that the
+      *camera-side* direction ``wi`` has azimuth 0; the Rusinkiewicz angles do not depend on that
+      rotation. Where ``h = n`` (``n x h = 0``), ``b = (0, 1, 0)`` here (the plugin gets NaN).
+      Examples: camera ``wi = n``, light ``wo = (sin 60deg, 0, cos 60deg)`` gives ``theta_h =
+      theta_d = 30deg`` and ``phi_d = 0`` (the light lies along ``+t``, away from the normal);
+      the mirror configuration ``wi = (sin 30deg, 0, cos 30deg)``, ``wo = (-sin 30deg, 0,
+      cos 30deg)`` gives ``theta_h = 0``, ``theta_d = 30deg``, ``phi_d = pi``.
+    * Stokes frames of the table: both the incident beam (travelling along ``-wo``) and the
+      reflected beam (along ``wi``) have their Stokes x-axis ``x = normalize(wo x wi)``,
+      *perpendicular* to the plane of reflection (the s-direction, as in
+      :func:`pbrdf.fresnel.reflection_mueller`): the plugin builds ``t = normalize((wo - wi) x -wo)``,
+      ``y = normalize(t x z)`` and ``x = y x z``, which is ``-t``; its y-axis lies in the plane (its
+      source comment says the reference vector "lies in the plane of reflection"). For ``wi == wo``
+      the plane is undefined (the plugin gets NaN); here it is the plane of incidence of ``wi``.
+      :func:`evaluate` rotates these frames into Mitsuba's implicit bases ``stokes_basis(-wo)``
+      and ``stokes_basis(wi)`` with :func:`pbrdf.mueller.rotate_mueller_basis`.
+    * ``M`` is the BRDF *without* the ``cos theta_o`` factor; :func:`evaluate` multiplies by
+      ``cos theta_o = wo_z`` and clamps ``m00 >= 0`` as the plugin does.
+    * Interpolation is multilinear in ``(phi_d, theta_d, theta_h, wavelength)`` with clamping at
+      the ends of each axis (Mitsuba's ``Marginal2D``); :func:`resample` additionally treats
+      ``phi_d`` as periodic.
+
+NaN bins: raw measurements mark invalid or unmeasured bins with NaN. A table keeps them
+(:attr:`PBRDFTable.nan_mask`); :func:`resample` skips them with renormalised weights;
+:func:`evaluate` returns a zero matrix wherever a NaN bin takes part in the interpolation, like
+the plugin; :func:`save_table` with ``for_mitsuba=True`` writes them as zeros.
+
+References:
+    S.-H. Baek, T. Zeltner, H. J. Ku, I. Hwang, X. Tong, W. Jakob, M. H. Kim, "Image-based
+    acquisition and modeling of polarimetric reflectance", ACM TOG 39(4):139, 2020.
+    S. Rusinkiewicz, "A new change of variables for efficient BRDF representation", EGWR 1998.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import struct
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .atomic import fsync_path, temporary_path
+from .mueller import rotate_mueller_basis, stokes_basis
+
+__all__ = [
+    "MITSUBA_MAX_BANDS",
+    "TABLE_FIELDS",
+    "PBRDFTable",
+    "write_tensor_file",
+    "read_tensor_file",
+    "save_table",
+    "load_table",
+    "resample",
+    "to_mitsuba_bands",
+    "rusinkiewicz_from_directions",
+    "directions_from_rusinkiewicz",
+    "evaluate",
+]
+
+#: The stock ``measured_polarized`` plugin copies the wavelengths into a fixed 5-element array.
+MITSUBA_MAX_BANDS = 5
+#: Field names of a pBRDF table in a tensor file (the ones ``measured_polarized`` reads).
+TABLE_FIELDS = ("phi_d", "theta_d", "theta_h", "wvls", "M")
+# Optional extra field with {"name": ..., "metadata": {...}} as UTF-8 JSON (uint8); the plugin ignores it.
+_META_FIELD = "metadata_json"
+
+# Axis ranges accept the float32 rounding of pi and pi/2 (8.7e-8) with a margin.
+_ANGLE_TOL = 1e-5
+_AXIS_NAMES = ("phi_d", "theta_d", "theta_h", "wavelengths")
+_AXIS_RANGES = {
+    "phi_d": (-np.pi - _ANGLE_TOL, np.pi + _ANGLE_TOL),
+    "theta_d": (-_ANGLE_TOL, np.pi / 2 + _ANGLE_TOL),
+    "theta_h": (-_ANGLE_TOL, np.pi / 2 + _ANGLE_TOL),
+    "wavelengths": (np.finfo(np.float64).tiny, np.inf),
+}
+
+# --- tensor_file -----------------------------------------------------------------------------------
+# Layout (Mitsuba src/core/tensor.cpp and src/python/python/tensor_io.py), little-endian:
+#   b"tensor_file\0" | uint8 major = 1, uint8 minor = 0 | uint32 field count
+#   per field: uint16 name length, name (UTF-8), uint16 ndim, uint8 dtype code, uint64 offset,
+#              ndim x uint64 shape
+#   field data, C order, each starting at an 8-byte aligned offset (zero padding before it).
+_MAGIC = b"tensor_file\x00"
+_VERSION = (1, 0)
+_ALIGN = 8
+_CODE_OF_KIND = {
+    ("u", 1): 1,
+    ("i", 1): 2,
+    ("u", 2): 3,
+    ("i", 2): 4,
+    ("u", 4): 5,
+    ("i", 4): 6,
+    ("u", 8): 7,
+    ("i", 8): 8,
+    ("f", 2): 9,
+    ("f", 4): 10,
+    ("f", 8): 11,
+}
+_DTYPE_OF_CODE = {code: np.dtype(f"<{kind}{size}") for (kind, size), code in _CODE_OF_KIND.items()}
+# Fields at least this large are memory-mapped by read_tensor_file(mmap=True); smaller ones are loaded.
+_MMAP_MIN_BYTES = 1 << 20
+# Bytes converted and written (or reduced by nan_mask / resample) per step.
+_CHUNK_BYTES = 64 << 20
+
+
+def _one_line(text: str) -> str:
+    return " ".join(str(text).split())
+
+
+def _align(pos: int) -> int:
+    return (pos + _ALIGN - 1) // _ALIGN * _ALIGN
+
+
+def _prepare_field(name: Any, value: ArrayLike) -> tuple[bytes, NDArray, int]:
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"tensor file field names must be non-empty strings; got {name!r}")
+    label = name.encode("utf-8")
+    if len(label) > 0xFFFF:
+        raise ValueError(f"field {name[:40]!r}...: name longer than 65535 bytes")
+    # No copy: a memmap stays on disk until it is written in chunks. A 0-d array is stored as (1,),
+    # like mitsuba.tensor_io.write (np.ascontiguousarray); Mitsuba's Python reader cannot read ndim 0.
+    arr = np.atleast_1d(np.asarray(value))
+    code = _CODE_OF_KIND.get((arr.dtype.kind, arr.dtype.itemsize))
+    if code is None:
+        valid = ", ".join(str(d) for d in _DTYPE_OF_CODE.values())
+        raise ValueError(f"field {name!r}: unsupported dtype {arr.dtype}; valid: {valid}")
+    if arr.ndim > 0xFFFF:
+        raise ValueError(f"field {name!r}: too many dimensions ({arr.ndim})")
+    return label, arr, code
+
+
+def _write_array(f: Any, arr: NDArray, chunk_fn: Callable[[NDArray], NDArray] | None) -> None:
+    """Write ``arr`` in C order, little-endian, at most about ``_CHUNK_BYTES`` at a time."""
+    le = arr.dtype.newbyteorder("<")
+    if arr.ndim == 0 or arr.nbytes <= _CHUNK_BYTES:
+        out = arr if chunk_fn is None else chunk_fn(arr)
+        f.write(np.ascontiguousarray(out, dtype=le).tobytes())
+        return
+    row_bytes = arr.nbytes // arr.shape[0]
+    if row_bytes > _CHUNK_BYTES and arr.ndim > 1:
+        for row in arr:
+            _write_array(f, row, chunk_fn)
+        return
+    step = max(1, _CHUNK_BYTES // max(row_bytes, 1))
+    for start in range(0, arr.shape[0], step):
+        _write_array(f, arr[start : start + step], chunk_fn)
+
+
+def _write_fields(
+    path: str | os.PathLike,
+    fields: Mapping[str, ArrayLike],
+    chunk_fns: Mapping[str, Callable[[NDArray], NDArray]] | None = None,
+) -> Path:
+    target = Path(path)
+    if not isinstance(fields, Mapping):
+        raise ValueError(f"{target}: fields must be a dict of name -> array; got {type(fields).__name__}")
+    prepared = [_prepare_field(name, value) for name, value in fields.items()]
+    chunk_fns = chunk_fns or {}
+
+    header = bytearray(_MAGIC)
+    header += struct.pack("<BBI", *_VERSION, len(prepared))
+    header_size = len(header) + sum(2 + len(label) + 2 + 1 + 8 + 8 * arr.ndim for label, arr, _ in prepared)
+    offsets = []
+    pos = header_size
+    for _, arr, _ in prepared:
+        pos = _align(pos)
+        offsets.append(pos)
+        pos += arr.nbytes  # Python ints: no overflow for 13 GB hpBRDF tables
+    for (label, arr, code), offset in zip(prepared, offsets, strict=True):
+        header += struct.pack("<H", len(label)) + label
+        header += struct.pack("<HBQ", arr.ndim, code, offset)
+        header += struct.pack(f"<{arr.ndim}Q", *arr.shape)
+
+    if target.is_dir():
+        raise IsADirectoryError(f"{target}: is a folder")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = temporary_path(target)
+    try:
+        with open(tmp, "wb") as f:
+            f.write(header)
+            pos = len(header)
+            for (label, arr, _), offset in zip(prepared, offsets, strict=True):
+                if arr.nbytes == 0:
+                    continue  # no padding either: Mitsuba's writer seeks, so a trailing empty field adds no bytes
+                f.write(b"\x00" * (offset - pos))
+                _write_array(f, arr, chunk_fns.get(label.decode("utf-8")))
+                pos = offset + arr.nbytes
+            f.flush()
+            os.fsync(f.fileno())
+        os.chmod(tmp, 0o644)
+        os.replace(tmp, target)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    fsync_path(target.parent, directory=True)
+    return target
+
+
+def write_tensor_file(path: str | os.PathLike, fields: Mapping[str, ArrayLike]) -> Path:
+    """Write named arrays to a Mitsuba ``tensor_file`` (version 1.0), atomically.
+
+    The bytes equal those of ``mitsuba.tensor_io.write(path, **fields)`` (tested): the header
+    (magic ``"tensor_file\\0"``, version 1.0, field count, then per field its name, ndim, dtype
+    code, 64-bit offset and 64-bit shape), followed by the data of each field in C order at an
+    8-byte aligned offset. Large arrays (including memory maps) are written in chunks of about
+    64 MB, so a 13 GB hpBRDF table needs no second copy in memory. The file is written to a
+    temporary sibling, fsynced and renamed over ``path``; parent folders are created.
+
+    Args:
+        path: target file.
+        fields: name -> array, in file order. Supported dtypes: uint8/16/32/64, int8/16/32/64,
+            float16/32/64 (booleans and objects are not).
+
+    Returns:
+        The path written.
+
+    Raises:
+        ValueError: an empty or non-string name, or an unsupported dtype (the message names the field).
+        OSError: the file cannot be written.
+
+    Example:
+        >>> import tempfile
+        >>> p = Path(tempfile.mkdtemp()) / "x.tensor"
+        >>> _ = write_tensor_file(p, {"wvls": np.array([450, 550], dtype=np.uint16)})
+        >>> read_tensor_file(p)["wvls"]
+        array([450, 550], dtype=uint16)
+    """
+    return _write_fields(path, fields)
+
+
+def _bad(path: Path, reason: str) -> ValueError:
+    return ValueError(f"{path}: not a valid tensor file: {reason}")
+
+
+def read_tensor_file(path: str | os.PathLike, *, mmap: bool = True) -> dict[str, NDArray]:
+    """Read all fields of a Mitsuba ``tensor_file``.
+
+    Args:
+        path: file written by :func:`write_tensor_file`, ``mitsuba.tensor_io.write`` or Mitsuba's
+            C++ ``TensorFile`` tools (KAIST ``.pbsdf``, hpBRDF ``.hpbrdf``).
+        mmap: memory-map fields of 1 MiB or more as read-only :class:`numpy.memmap` instead of
+            loading them (a 13 GB hpBRDF ``M`` then costs no memory until it is used). Smaller
+            fields are always loaded.
+
+    Returns:
+        name -> array in file order, with the stored dtype (native byte order where loaded).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: bad magic string, unsupported version, unknown dtype code, duplicate field
+            name, or a truncated file (the header or a field's data ends past the end of the file).
+    """
+    p = Path(path)
+    if p.is_dir():
+        raise IsADirectoryError(f"{p}: is a folder, not a tensor file")
+    size = p.stat().st_size
+    with open(p, "rb") as f:
+
+        def take(n: int, what: str) -> bytes:
+            data = f.read(n)
+            if len(data) != n:
+                raise _bad(p, f"truncated header ({size} bytes; it ends inside {what})")
+            return data
+
+        magic = f.read(len(_MAGIC))
+        if magic != _MAGIC:
+            if len(magic) < len(_MAGIC) and _MAGIC.startswith(magic):
+                raise _bad(p, f"truncated header ({size} bytes)")
+            raise _bad(p, f"bad magic {magic!r} (expected {_MAGIC!r})")
+        major, minor = struct.unpack("<BB", take(2, "the version"))
+        if (major, minor) != _VERSION:
+            raise _bad(p, f"unsupported version {major}.{minor} (expected 1.0)")
+        (n_fields,) = struct.unpack("<I", take(4, "the field count"))
+        specs: dict[str, tuple[np.dtype, int, tuple[int, ...]]] = {}
+        for k in range(n_fields):
+            what = f"field {k} of {n_fields}"
+            (name_len,) = struct.unpack("<H", take(2, what))
+            try:
+                name = take(name_len, what).decode("utf-8")
+            except UnicodeDecodeError as e:
+                raise _bad(p, f"{what}: name is not UTF-8 ({e.reason})") from None
+            ndim, code, offset = struct.unpack("<HBQ", take(11, f"field {name!r}"))
+            shape = struct.unpack(f"<{ndim}Q", take(8 * ndim, f"the shape of field {name!r}"))
+            if code not in _DTYPE_OF_CODE:
+                raise _bad(p, f"field {name!r} has unknown dtype code {code} (valid: 1..11)")
+            if name in specs:
+                raise _bad(p, f"duplicate field {name!r}")
+            specs[name] = (_DTYPE_OF_CODE[code], offset, tuple(int(s) for s in shape))
+
+        out: dict[str, NDArray] = {}
+        for name, (dtype, offset, shape) in specs.items():
+            count = math.prod(shape)
+            nbytes = count * dtype.itemsize
+            if nbytes and offset + nbytes > size:
+                raise _bad(
+                    p, f"truncated: field {name!r} {shape} needs bytes {offset}..{offset + nbytes}, file has {size}"
+                )
+            if count == 0:
+                out[name] = np.empty(shape, dtype=dtype.newbyteorder("="))
+            elif mmap and nbytes >= _MMAP_MIN_BYTES:
+                out[name] = np.memmap(p, dtype=dtype, mode="r", offset=offset, shape=shape)
+            else:
+                f.seek(offset)
+                arr = np.fromfile(f, dtype=dtype, count=count).reshape(shape)  # one copy, even for 13 GB
+                out[name] = arr if arr.dtype.isnative else arr.astype(dtype.newbyteorder("="))
+    return out
+
+
+# --- the table type --------------------------------------------------------------------------------
+
+
+def _axis(value: ArrayLike, name: str, lo: float, hi: float) -> NDArray[np.float64]:
+    a = np.array(value, dtype=np.float64)  # a copy, made read-only below
+    if a.ndim != 1 or a.size == 0:
+        raise ValueError(f"PBRDFTable.{name} must be a non-empty 1-D array; got shape {a.shape}")
+    if not np.all(np.isfinite(a)):
+        raise ValueError(f"PBRDFTable.{name} must be finite")
+    if a.size > 1 and not np.all(np.diff(a) > 0):
+        raise ValueError(f"PBRDFTable.{name} must be strictly increasing")
+    if a[0] < lo or a[-1] > hi:
+        raise ValueError(f"PBRDFTable.{name} must lie in [{lo:.6g}, {hi:.6g}]; got [{a[0]:.9g}, {a[-1]:.9g}]")
+    a.setflags(write=False)
+    return a
+
+
+@dataclass(frozen=True, eq=False)
+class PBRDFTable:
+    """A tabulated isotropic Mueller-matrix BRDF on a Rusinkiewicz grid (see the module conventions).
+
+    Attributes:
+        phi_d: ``(Np,)`` difference azimuths, radians, strictly increasing in ``[-pi, pi]``.
+        theta_d: ``(Nd,)`` difference angles, radians, strictly increasing in ``[0, pi/2]``.
+        theta_h: ``(Nh,)`` half-vector angles, radians, strictly increasing in ``[0, pi/2]``.
+        wavelengths: ``(W,)`` wavelengths in nm, strictly increasing, positive.
+        M: ``(Np, Nd, Nh, W, 4, 4)`` float32 Mueller BRDF in 1/sr, *without* the ``cos theta_o``
+            factor; NaN marks invalid bins. Kept as given when already float32 (a read-only
+            memory map from :func:`load_table` stays one), converted otherwise.
+        name: optional material name.
+        metadata: free-form provenance (JSON-serialisable to be saved by :func:`save_table`).
+
+    Raises:
+        ValueError: an axis that is not 1-D, finite, strictly increasing and in range, or ``M`` of
+            the wrong shape or a non-float dtype; the message names the field.
+
+    Example:
+        A Lambertian table with albedo 0.8 on a coarse grid:
+
+        >>> t = PBRDFTable(np.linspace(-np.pi, np.pi, 5), np.linspace(0, np.pi / 2, 4),
+        ...                np.linspace(0, np.pi / 2, 4), [450.0, 550.0, 650.0],
+        ...                np.zeros((5, 4, 4, 3, 4, 4), np.float32) + np.diag([0.8 / np.pi, 0, 0, 0]))
+        >>> t.shape
+        (5, 4, 4, 3)
+        >>> bool(t.nan_mask.any())
+        False
+    """
+
+    phi_d: NDArray[np.float64]
+    theta_d: NDArray[np.float64]
+    theta_h: NDArray[np.float64]
+    wavelengths: NDArray[np.float64]
+    M: NDArray[np.float32]
+    name: str | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        for name in _AXIS_NAMES:
+            set_(self, name, _axis(getattr(self, name), name, *_AXIS_RANGES[name]))
+        m = self.M if isinstance(self.M, np.ndarray) else np.asarray(self.M)
+        if m.dtype.kind not in "fiu":
+            raise ValueError(f"PBRDFTable.M must be a real (float or integer) array; got dtype {m.dtype}")
+        if m.dtype != np.float32:
+            m = m.astype(np.float32)
+        expected = (*self.shape, 4, 4)
+        if m.shape != expected:
+            raise ValueError(f"PBRDFTable.M must have shape (Np, Nd, Nh, W, 4, 4) = {expected}; got {m.shape}")
+        set_(self, "M", m)
+        if self.name is not None and not isinstance(self.name, str):
+            raise ValueError(f"PBRDFTable.name must be a string or None; got {type(self.name).__name__}")
+        if not isinstance(self.metadata, dict):
+            raise ValueError(f"PBRDFTable.metadata must be a dict; got {type(self.metadata).__name__}")
+
+    @property
+    def shape(self) -> tuple[int, int, int, int]:
+        """Grid shape ``(Np, Nd, Nh, W)``."""
+        return (self.phi_d.size, self.theta_d.size, self.theta_h.size, self.wavelengths.size)
+
+    @property
+    def nan_mask(self) -> NDArray[np.bool_]:
+        """``(Np, Nd, Nh, W)`` bool, True for bins whose Mueller matrix has a NaN (or Inf) entry.
+
+        Computed in chunks on each access (a memory-mapped table is read once).
+        """
+        out = np.empty(self.shape, dtype=bool)
+        step = max(1, _CHUNK_BYTES // max(self.M[:1].nbytes, 1))
+        for start in range(0, self.shape[0], step):
+            block = np.asarray(self.M[start : start + step])
+            out[start : start + step] = ~np.isfinite(block).all(axis=(-2, -1))
+        return out
+
+    def masked(self) -> np.ma.MaskedArray:
+        """``M`` as a masked array ``(Np, Nd, Nh, W, 4, 4)`` with the NaN bins masked (loads ``M``).
+
+        Example:
+            >>> t = PBRDFTable([0.0], [0.0, 1.0], [0.0], [550.0], np.ones((1, 2, 1, 1, 4, 4)))
+            >>> t.M[0, 1] = np.nan
+            >>> float(t.masked()[..., 0, 0].mean())
+            1.0
+        """
+        mask = np.broadcast_to(self.nan_mask[..., None, None], self.M.shape)
+        return np.ma.MaskedArray(np.asarray(self.M), mask=mask)
+
+
+# --- table files -----------------------------------------------------------------------------------
+
+
+def _zero_nan_bins(block: NDArray) -> NDArray:
+    bad = ~np.isfinite(block).all(axis=(-2, -1))
+    return np.where(bad[..., None, None], np.float32(0), block) if bad.any() else block
+
+
+def save_table(path: str | os.PathLike, table: PBRDFTable, *, for_mitsuba: bool = False) -> Path:
+    """Save a table as a tensor file with the ``measured_polarized`` field names (atomic write).
+
+    Fields: ``phi_d``, ``theta_d``, ``theta_h`` float32 ``(1, N)``; ``wvls`` uint16 ``(W,)``; ``M``
+    float32 ``(Np, Nd, Nh, W, 4, 4)``; plus ``metadata_json`` (uint8, UTF-8 JSON of ``name`` and
+    ``metadata``) when either is set. Mitsuba ignores the extra field.
+
+    Args:
+        path: target file (``.pbsdf`` by convention; the format does not depend on the suffix).
+        table: the table; its wavelengths must be whole nanometres in [1, 65535] (``wvls`` is uint16).
+        for_mitsuba: write NaN bins as zero matrices, and refuse more than
+            :data:`MITSUBA_MAX_BANDS` bands (the stock plugin mishandles them; see
+            :func:`to_mitsuba_bands`). With NaN bins kept, the plugin returns a zero matrix wherever
+            one touches the interpolation; with zeros it blends towards zero instead.
+
+    Returns:
+        The path written.
+
+    Raises:
+        ValueError: non-integer wavelengths, too many bands with ``for_mitsuba``, or metadata
+            that JSON cannot encode.
+    """
+    wl = table.wavelengths
+    if np.any(wl != np.round(wl)) or wl[0] < 1 or wl[-1] > 0xFFFF:
+        raise ValueError(f"wavelengths must be whole nanometres in [1, 65535] (stored as uint16 'wvls'); got {wl}")
+    if for_mitsuba and wl.size > MITSUBA_MAX_BANDS:
+        raise ValueError(
+            f"table has {wl.size} bands; the stock measured_polarized plugin reads at most "
+            f"{MITSUBA_MAX_BANDS}: use to_mitsuba_bands(table) first"
+        )
+    fields: dict[str, NDArray] = {
+        "phi_d": table.phi_d.astype(np.float32)[None],
+        "theta_d": table.theta_d.astype(np.float32)[None],
+        "theta_h": table.theta_h.astype(np.float32)[None],
+        "wvls": wl.astype(np.uint16),
+        "M": table.M,
+    }
+    if table.name is not None or table.metadata:
+        try:
+            text = json.dumps({"name": table.name, "metadata": table.metadata}, sort_keys=True, allow_nan=False)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"table metadata must be JSON-serialisable: {_one_line(str(e))}") from None
+        fields[_META_FIELD] = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
+    return _write_fields(path, fields, {"M": _zero_nan_bins} if for_mitsuba else None)
+
+
+def _axis_field(fields: Mapping[str, NDArray], name: str, path: Path) -> NDArray:
+    a = fields[name]
+    if a.size == 0:
+        raise ValueError(
+            f"{path}: field {name!r} has shape {a.shape} and stores no axis values "
+            "(like Mitsuba's spectralon_lowres.pbsdf test fixture); it is not a usable table"
+        )
+    if a.dtype.kind != "f" or a.ndim not in (1, 2) or (a.ndim == 2 and a.shape[0] != 1):
+        raise ValueError(f"{path}: field {name!r} must be float (1, N) or (N,); got {a.dtype} {a.shape}")
+    return np.asarray(a).reshape(-1)
+
+
+def load_table(path: str | os.PathLike, *, mmap: bool = True) -> PBRDFTable:
+    """Load a pBRDF table: KAIST ``.pbsdf`` (5 bands), hpBRDF ``.hpbrdf`` (68 bands) or :func:`save_table` output.
+
+    Args:
+        path: tensor file with the fields of :data:`TABLE_FIELDS`.
+        mmap: memory-map ``M`` (read-only) instead of loading it; a 13 GB hpBRDF file then opens
+            instantly and only the bins used are read.
+
+    Returns:
+        The table, NaN bins kept. ``name`` and ``metadata`` come from ``metadata_json`` when the
+        file has it; otherwise ``name`` is the file name without suffix.
+
+    Raises:
+        ValueError: not a tensor file (see :func:`read_tensor_file`), a missing field, or fields
+            of the wrong dtype or shape (the message names them).
+    """
+    p = Path(path)
+    fields = read_tensor_file(p, mmap=mmap)
+    missing = [k for k in TABLE_FIELDS if k not in fields]
+    if missing:
+        raise ValueError(
+            f"{p}: not a pBRDF table: missing field(s) {', '.join(map(repr, missing))} (has {', '.join(fields)})"
+        )
+    axes = {k: _axis_field(fields, k, p) for k in ("phi_d", "theta_d", "theta_h")}
+    wvls, m = fields["wvls"], fields["M"]
+    if wvls.ndim != 1 or wvls.dtype.kind not in "uif":
+        raise ValueError(f"{p}: field 'wvls' must be a 1-D numeric array; got {wvls.dtype} {wvls.shape}")
+    if m.dtype != np.float32 or m.ndim != 6:
+        raise ValueError(f"{p}: field 'M' must be float32 (Np, Nd, Nh, W, 4, 4); got {m.dtype} {m.shape}")
+    name, metadata = p.stem, {}
+    if _META_FIELD in fields:
+        try:
+            meta = json.loads(bytes(np.asarray(fields[_META_FIELD], dtype=np.uint8)).decode("utf-8"))
+            name, metadata = meta.get("name"), dict(meta.get("metadata") or {})
+        except (ValueError, AttributeError) as e:
+            raise ValueError(f"{p}: field {_META_FIELD!r} is not a JSON object: {_one_line(str(e))}") from None
+    try:
+        return PBRDFTable(axes["phi_d"], axes["theta_d"], axes["theta_h"], wvls, m, name=name, metadata=metadata)
+    except ValueError as e:
+        raise ValueError(f"{p}: {e}") from None
+
+
+# --- interpolation ---------------------------------------------------------------------------------
+
+
+def _interval(grid: NDArray, q: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """Mitsuba's ``Marginal2D`` lookup: ``(i0, i1, w1)`` with clamping at both ends.
+
+    ``i0`` is the first index with ``grid[i0 + 1] >= q`` (so a query on a grid point ``k >= 1`` uses
+    the interval ``[k - 1, k]`` with ``w1 = 1``); single-point axes give ``(0, 0, 0)``.
+    """
+    n = grid.size
+    if n == 1:
+        z = np.zeros(q.shape, dtype=np.intp)
+        return z, z, np.zeros(q.shape)
+    i0 = np.clip(np.searchsorted(grid, q, side="left") - 1, 0, n - 2)
+    g0, g1 = grid[i0], grid[i0 + 1]
+    w1 = np.clip((q - g0) / (g1 - g0), 0.0, 1.0)
+    return i0, i0 + 1, w1
+
+
+def _interval_periodic(grid: NDArray, q: NDArray, period: float = 2 * np.pi) -> tuple[NDArray, NDArray, NDArray]:
+    """Like :func:`_interval`, but a query outside ``[grid[0], grid[-1]]`` wraps by ``period``.
+
+    A wrapped query in the gap between ``grid[-1]`` and ``grid[0] + period`` interpolates between
+    the last and the first sample.
+    """
+    n = grid.size
+    if n == 1:
+        return _interval(grid, q)
+    outside = (q < grid[0]) | (q > grid[-1])
+    qw = np.where(outside, grid[0] + np.mod(q - grid[0], period), q)
+    i0, i1, w1 = _interval(grid, np.minimum(qw, grid[-1]))
+    gap = grid[0] + period - grid[-1]
+    in_gap = qw > grid[-1]
+    if gap > 0 and np.any(in_gap):
+        i0 = np.where(in_gap, n - 1, i0)
+        i1 = np.where(in_gap, 0, i1)
+        w1 = np.where(in_gap, np.clip((qw - grid[-1]) / gap, 0.0, 1.0), w1)
+    return i0, i1, w1
+
+
+def _lerp_axis(num: NDArray, den: NDArray, axis: int, i0: NDArray, i1: NDArray, w1: NDArray) -> tuple[NDArray, NDArray]:
+    """One separable step of NaN-aware multilinear interpolation along ``axis`` of ``den``."""
+    shape = [1] * den.ndim
+    shape[axis] = -1
+    wd1 = w1.reshape(shape)
+    wd0 = 1.0 - wd1
+    den = np.take(den, i0, axis=axis) * wd0 + np.take(den, i1, axis=axis) * wd1
+    wn0, wn1 = wd0[..., None, None], wd1[..., None, None]
+    num = np.take(num, i0, axis=axis) * wn0 + np.take(num, i1, axis=axis) * wn1
+    return num, den
+
+
+def _target_axis(current: NDArray, target: ArrayLike | None) -> NDArray | None:
+    if target is None:
+        return None
+    t = np.asarray(target, dtype=np.float64).reshape(-1)
+    if t.shape == current.shape and np.array_equal(t, current):
+        return None  # identity: no interpolation, values copied exactly
+    return t
+
+
+def resample(
+    table: PBRDFTable,
+    *,
+    phi_d: ArrayLike | None = None,
+    theta_d: ArrayLike | None = None,
+    theta_h: ArrayLike | None = None,
+    wavelengths: ArrayLike | None = None,
+) -> PBRDFTable:
+    """Resample a table onto new axes: multilinear in the angles and linear in wavelength.
+
+    ``phi_d`` is periodic (a target outside the source range wraps by ``2 pi``; one in the gap
+    between the last and first source samples interpolates between them); the other axes clamp
+    to their end values, like Mitsuba's lookup. Interpolation is NaN-aware: each result bin uses
+    only the neighbouring bins whose Mueller matrices are finite, with their weights
+    renormalised, and is NaN if none is. A target equal to a source sample copies it exactly.
+    Runs in float64, in chunks of ``phi_d`` (a memory-mapped table is streamed).
+
+    Args:
+        table: the source table.
+        phi_d: ``(Np',)`` new difference azimuths in radians, or None to keep them.
+        theta_d: ``(Nd',)`` new difference angles in radians, or None.
+        theta_h: ``(Nh',)`` new half angles in radians, or None.
+        wavelengths: ``(W',)`` new wavelengths in nm, or None.
+
+    Returns:
+        A new in-memory table (float32 ``M``) with the same ``name`` and a copy of ``metadata``.
+
+    Raises:
+        ValueError: a target axis that is not valid for :class:`PBRDFTable`.
+
+    Example:
+        >>> t = PBRDFTable([0.0], [0.0, 1.0], [0.0], [500.0, 600.0],
+        ...                np.arange(4, dtype=np.float32).reshape(1, 2, 1, 2, 1, 1) * np.ones((4, 4)))
+        >>> resample(t, theta_d=[0.5], wavelengths=[550.0]).M[0, 0, 0, 0, 0, 0]
+        1.5
+    """
+    src_axes = (table.phi_d, table.theta_d, table.theta_h, table.wavelengths)
+    targets = [_target_axis(a, t) for a, t in zip(src_axes, (phi_d, theta_d, theta_h, wavelengths), strict=True)]
+    new_axes = [a if t is None else t for a, t in zip(src_axes, targets, strict=True)]
+    for name, a in zip(_AXIS_NAMES, new_axes, strict=True):
+        _axis(a, name, *_AXIS_RANGES[name])  # validate the targets before the work
+
+    lookups: list[tuple[NDArray, NDArray, NDArray] | None] = [None] * 4
+    for k, t in enumerate(targets):
+        if t is not None:
+            lookups[k] = (_interval_periodic if k == 0 else _interval)(src_axes[k], t)
+
+    out_shape = (*(a.size for a in new_axes), 4, 4)
+    out = np.empty(out_shape, dtype=np.float32)
+    slab_bytes = math.prod(table.M.shape[1:]) * 8 * 3  # float64 values + temporaries
+    step = max(1, _CHUNK_BYTES * 4 // max(slab_bytes, 1))
+    n_out_phi = out_shape[0]
+    for start in range(0, n_out_phi, step):
+        rows = np.arange(start, min(start + step, n_out_phi))
+        phi_lookup = None
+        src_rows = rows
+        if lookups[0] is not None:
+            i0, i1, w1 = (x[rows] for x in lookups[0])
+            src_rows = np.unique(np.concatenate([i0, i1[w1 > 0]]))  # a weight-0 neighbour is not read
+            phi_lookup = (np.searchsorted(src_rows, i0), np.searchsorted(src_rows, np.where(w1 > 0, i1, i0)), w1)
+        block = np.asarray(table.M[src_rows], dtype=np.float64)
+        den = np.isfinite(block).all(axis=(-2, -1)).astype(np.float64)
+        num = np.where(den[..., None, None] > 0, block, 0.0)
+        del block
+        if phi_lookup is not None:
+            num, den = _lerp_axis(num, den, 0, *phi_lookup)
+        for k in (3, 1, 2):  # wavelength first: it shrinks a hyperspectral table the most
+            if lookups[k] is not None:
+                num, den = _lerp_axis(num, den, k, *lookups[k])
+        res = np.full(num.shape, np.nan)
+        np.divide(num, den[..., None, None], out=res, where=den[..., None, None] > 0)
+        out[start : start + rows.size] = res
+    return PBRDFTable(*new_axes, out, name=table.name, metadata=dict(table.metadata))
+
+
+def to_mitsuba_bands(table: PBRDFTable, max_bands: int = MITSUBA_MAX_BANDS) -> PBRDFTable:
+    """Resample a table to at most ``max_bands`` wavelengths for the stock ``measured_polarized`` plugin.
+
+    The new bands are evenly spaced over the table's wavelength range, both ends included, and
+    rounded to whole nanometres (68 hpBRDF bands 414..950 nm become 414, 548, 682, 816, 950 nm). The
+    table is point-sampled there by :func:`resample` (no band averaging): spectral features
+    between the new bands are lost, and Mitsuba interpolates linearly between them again. A table
+    with at most ``max_bands`` bands is returned unchanged.
+
+    .. warning::
+        Mitsuba 3.9.1's ``measured_polarized`` copies the ``wvls`` field into a fixed
+        ``ScalarFloat wavelengths[5]`` array and then reads as many entries as the table has
+        bands: with more than 5 bands it interpolates with garbage wavelengths (a 7-band table
+        returned 0.6 at 600, 650 and 700 nm instead of 0.6, 0.7, 0.7; notes/mitsuba.md section 2).
+        68-band hpBRDF tables need this resampling, the patched plugin of ``yunseong0518/hpBRDF``,
+        or :func:`evaluate`.
+
+    Args:
+        table: the source table.
+        max_bands: at most this many bands (>= 1); 5 for the stock plugin.
+
+    Returns:
+        The resampled table (or ``table`` itself).
+
+    Raises:
+        ValueError: ``max_bands < 1``.
+    """
+    if int(max_bands) != max_bands or max_bands < 1:
+        raise ValueError(f"max_bands must be an integer >= 1; got {max_bands!r}")
+    wl = table.wavelengths
+    if wl.size <= max_bands:
+        return table
+    if max_bands == 1:
+        bands = np.array([np.round(0.5 * (wl[0] + wl[-1]))])
+    else:
+        bands = np.unique(np.round(np.linspace(wl[0], wl[-1], int(max_bands))))
+    return resample(table, wavelengths=bands)
+
+
+# --- geometry --------------------------------------------------------------------------------------
+
+
+def _unit_vectors(v: ArrayLike, name: str) -> NDArray[np.float64]:
+    a = np.asarray(v, dtype=np.float64)
+    if a.ndim < 1 or a.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (..., 3); got {a.shape}")
+    norm = np.linalg.norm(a, axis=-1)
+    if np.any(~np.isfinite(norm)) or np.any(np.abs(norm - 1.0) > 1e-3):
+        raise ValueError(f"{name} must hold finite unit vectors (|v| = 1 within 1e-3)")
+    return a
+
+
+def _dot(a: NDArray, b: NDArray) -> NDArray:
+    return np.einsum("...i,...i->...", a, b)
+
+
+def _rusinkiewicz(camera: NDArray, light: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """``(theta_h, theta_d, phi_d, phi_h)`` of unit directions, float64, with the degenerate cases defined."""
+    s = camera + light
+    norm = np.linalg.norm(s, axis=-1, keepdims=True)
+    h = np.where(norm > 0, s / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
+    rho = np.hypot(h[..., 0], h[..., 1])
+    theta_h = np.arctan2(rho, h[..., 2])
+    theta_d = np.arctan2(np.linalg.norm(np.cross(h, light), axis=-1), _dot(h, light))
+    # b = normalize(n x h) = (-sin phi_h, cos phi_h, 0); phi_h = 0 where h = n.
+    phi_h = np.arctan2(h[..., 1], h[..., 0])
+    b = np.stack([-np.sin(phi_h), np.cos(phi_h), np.zeros_like(phi_h)], axis=-1)
+    t = np.cross(b, h)
+    phi_d = np.arctan2(_dot(b, light), _dot(t, light))
+    return theta_h, theta_d, phi_d, phi_h
+
+
+def rusinkiewicz_from_directions(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray, NDArray, NDArray]:
+    """Rusinkiewicz angles ``(theta_h, theta_d, phi_d)`` of direction pairs, as ``measured_polarized`` computes them.
+
+    Convention: ``wi`` is the camera side and ``wo`` the light side (Mitsuba's names in radiance
+    mode); ``phi_d`` is the azimuth of ``wo`` about ``h = normalize(wi + wo)`` measured from
+    ``t = b x h`` towards ``b = normalize(n x h)``, so it changes sign under ``y -> -y`` mirroring.
+    The angles are computed with ``atan2`` (accurate near 0, where the plugin's float32 ``acos``
+    has errors up to 3e-4 rad). Where ``h = n`` (mirror configuration) ``b = (0, 1, 0)``; where
+    ``wo = h`` (``theta_d = 0``) ``phi_d = 0``.
+
+    Args:
+        wi: ``(..., 3)`` unit directions towards the camera, local frame (``z`` = normal).
+        wo: ``(..., 3)`` unit directions towards the light; broadcast against ``wi``.
+
+    Returns:
+        ``theta_h`` in ``[0, pi]``, ``theta_d`` in ``[0, pi]`` (both ``<= pi/2`` on the upper
+        hemisphere) and ``phi_d`` in ``[-pi, pi]``, radians, shape ``(...)``.
+
+    Example:
+        Light at 30 degrees on the -x side, camera at 30 degrees on +x (mirror configuration):
+
+        >>> s, c = np.sin(np.pi / 6), np.cos(np.pi / 6)
+        >>> [float(np.round(np.degrees(a), 9)) for a in rusinkiewicz_from_directions([s, 0, c], [-s, 0, c])]
+        [0.0, 30.0, 180.0]
+    """
+    cam = _unit_vectors(wi, "wi")
+    light = _unit_vectors(wo, "wo")
+    cam, light = np.broadcast_arrays(cam, light)
+    theta_h, theta_d, phi_d, _ = _rusinkiewicz(cam, light)
+    return theta_h, theta_d, phi_d
+
+
+def directions_from_rusinkiewicz(
+    theta_h: ArrayLike, theta_d: ArrayLike, phi_d: ArrayLike, phi_h: ArrayLike = 0.0
+) -> tuple[NDArray, NDArray]:
+    """Inverse of :func:`rusinkiewicz_from_directions`: the direction pair ``(wi, wo)``.
+
+    ``h = (sin theta_h cos phi_h, sin theta_h sin phi_h, cos theta_h)``, ``b = (-sin phi_h, cos phi_h, 0)``,
+    ``t = b x h``; the light side is ``wo = sin theta_d (cos phi_d t + sin phi_d b) + cos theta_d h``
+    and the camera side its mirror image about ``h``, ``wi = 2 cos theta_d h - wo``. Angle
+    combinations that put a direction below the horizon (e.g. ``theta_h + theta_d > pi/2`` in the
+    plane of ``h``) are returned as they are (``z < 0``).
+
+    Args:
+        theta_h: half-vector angle, radians, shape ``(...)``.
+        theta_d: difference angle, radians.
+        phi_d: difference azimuth, radians.
+        phi_h: azimuth of ``h`` about the normal, radians (isotropic tables do not depend on it).
+
+    Returns:
+        ``(wi, wo)``, unit vectors ``(..., 3)`` in the local frame.
+    """
+    th, td, pd, ph = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d, phi_h)))
+    h = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
+    b = np.stack([-np.sin(ph), np.cos(ph), np.zeros_like(ph)], axis=-1)
+    t = np.cross(b, h)
+    wo = np.sin(td)[..., None] * (np.cos(pd)[..., None] * t + np.sin(pd)[..., None] * b) + np.cos(td)[..., None] * h
+    wi = 2.0 * np.cos(td)[..., None] * h - wo
+    return wi, wo
+
+
+def _reflection_x_axis(camera: NDArray, light: NDArray) -> NDArray:
+    """Stokes x-axis of both beams: ``normalize(light x camera)``, perpendicular to the plane of reflection.
+
+    For ``light == camera`` the plane is undefined; use the limit of ``light`` approaching
+    ``camera`` in the plane of incidence, ``normalize(n x camera)``, and ``(0, 1, 0)`` at normal
+    incidence. Sign flips of ``x`` do not change Stokes vectors.
+    """
+    x = np.cross(light, camera)
+    norm = np.linalg.norm(x, axis=-1, keepdims=True)
+    alt = np.stack([-camera[..., 1], camera[..., 0], np.zeros_like(camera[..., 0])], axis=-1)
+    alt_norm = np.linalg.norm(alt, axis=-1, keepdims=True)
+    alt = np.where(alt_norm > 1e-12, alt / np.where(alt_norm > 0, alt_norm, 1.0), np.array([0.0, 1.0, 0.0]))
+    return np.where(norm > 1e-12, x / np.where(norm > 0, norm, 1.0), alt)
+
+
+def _lookup(table: PBRDFTable, phi_d: NDArray, theta_d: NDArray, theta_h: NDArray, lam: NDArray) -> NDArray:
+    """Multilinear lookup ``(n, 4, 4)`` float64, clamped like Mitsuba; a NaN corner (even of weight 0) gives NaN."""
+    parts = [
+        _interval(g, q)
+        for g, q in zip(
+            (table.phi_d, table.theta_d, table.theta_h, table.wavelengths), (phi_d, theta_d, theta_h, lam), strict=True
+        )
+    ]
+    out = np.zeros((phi_d.size, 4, 4))
+    for corner in range(16):
+        idx, w = [], np.ones(phi_d.size)
+        for k, (i0, i1, w1) in enumerate(parts):
+            upper = (corner >> k) & 1
+            idx.append(i1 if upper else i0)
+            w = w * (w1 if upper else 1.0 - w1)
+        out += w[:, None, None] * table.M[tuple(idx)]
+    return out
+
+
+def evaluate(
+    table: PBRDFTable, wi: ArrayLike, wo: ArrayLike, wavelength: ArrayLike, *, mode: str = "radiance"
+) -> NDArray[np.float64]:
+    """Evaluate a table like Mitsuba's ``measured_polarized`` ``bsdf.eval(ctx, si, wo)`` (polarized variants).
+
+    The pipeline of the plugin, in float64: Rusinkiewicz angles (:func:`rusinkiewicz_from_directions`),
+    multilinear lookup in ``(phi_d, theta_d, theta_h, wavelength)`` clamped at the ends of each axis,
+    zero matrix where a NaN bin enters the lookup, ``m00 := max(m00, 0)``, rotation from the
+    plane-of-reflection Stokes frames into Mitsuba's implicit bases (input beam along ``-wo_light``
+    with ``stokes_basis(-wo_light)``, output along ``wi_camera`` with ``stokes_basis(wi_camera)``),
+    times ``cos theta_o = wo_z``. Zero unless both directions are strictly above the surface.
+
+    Differences from the plugin, all at measure-zero geometry or float32 round-off: the plugin
+    works in float32 (``acos`` of ``theta_d`` and ``theta_h`` is off by up to 3e-4 rad near 0); it
+    returns NaN where ``h = n`` exactly or ``wi == wo`` (undefined frames), where this function
+    uses the limits described in the module conventions; it zeroes a matrix only where the
+    interpolated ``m00`` is NaN, this function wherever any entry is.
+
+    Args:
+        table: the table.
+        wi: ``(..., 3)`` unit direction of ``si.wi`` in the local frame (the camera side in radiance mode).
+        wo: ``(..., 3)`` unit direction passed as ``wo`` (the light side in radiance mode).
+        wavelength: wavelength in nm, shape broadcastable with the batch (the plugin's
+            ``wavelength`` parameter, or ``si.wavelengths`` in spectral variants).
+        mode: ``"radiance"`` (Mitsuba's default ``TransportMode.Radiance``) or ``"importance"``
+            (the roles of ``wi`` and ``wo`` swap; the cos factor stays ``wo_z``).
+
+    Returns:
+        ``(..., 4, 4)`` float64 Mueller matrices in 1/sr times ``cos theta_o``, acting on Stokes
+        vectors of the light arriving along ``-wo`` (radiance mode) and producing the Stokes vector
+        leaving along ``wi``, in Mitsuba's implicit bases.
+
+    Raises:
+        ValueError: directions that are not ``(..., 3)`` unit vectors, or an unknown ``mode``.
+
+    Example:
+        Lambertian albedo 0.8 seen at any angle, light at 60 degrees: ``0.8 / pi * cos 60deg``.
+
+        >>> t = PBRDFTable([-np.pi, np.pi], [0, np.pi / 2], [0, np.pi / 2], [550.0],
+        ...                np.zeros((2, 2, 2, 1, 4, 4)) + np.diag([0.8 / np.pi, 0, 0, 0]))
+        >>> m = evaluate(t, [0.0, 0.6, 0.8], [np.sin(np.pi / 3), 0.0, 0.5], 550.0)
+        >>> round(float(m[0, 0] * np.pi / 0.8), 6), float(np.abs(m).sum() - m[0, 0])
+        (0.5, 0.0)
+    """
+    if mode not in ("radiance", "importance"):
+        raise ValueError(f"mode must be 'radiance' or 'importance'; got {mode!r}")
+    wi_a, wo_a = _unit_vectors(wi, "wi"), _unit_vectors(wo, "wo")
+    lam = np.asarray(wavelength, dtype=np.float64)
+    batch = np.broadcast_shapes(wi_a.shape[:-1], wo_a.shape[:-1], lam.shape)
+    wi_f = np.broadcast_to(wi_a, (*batch, 3)).reshape(-1, 3)
+    wo_f = np.broadcast_to(wo_a, (*batch, 3)).reshape(-1, 3)
+    lam_f = np.broadcast_to(lam, batch).reshape(-1)
+    out = np.zeros((wi_f.shape[0], 4, 4))
+    active = (wi_f[:, 2] > 0) & (wo_f[:, 2] > 0)
+    if np.any(active):
+        camera, light = (wi_f, wo_f) if mode == "radiance" else (wo_f, wi_f)
+        camera, light = camera[active], light[active]
+        theta_h, theta_d, phi_d, _ = _rusinkiewicz(camera, light)
+        m = _lookup(table, phi_d, theta_d, theta_h, lam_f[active])
+        m[~np.isfinite(m).all(axis=(-2, -1))] = 0.0
+        m[:, 0, 0] = np.maximum(m[:, 0, 0], 0.0)
+        x = _reflection_x_axis(camera, light)
+        m = rotate_mueller_basis(m, -light, x, stokes_basis(-light), camera, x, stokes_basis(camera))
+        out[active] = m * wo_f[active, 2][:, None, None]
+    return out.reshape(*batch, 4, 4)
