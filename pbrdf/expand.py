@@ -42,6 +42,9 @@ __all__ = [
     "reconstruct",
     "filter_tables",
     "TableVerdict",
+    "RGB_WAVELENGTHS_NM",
+    "sample_directions",
+    "fit_table_disney",
 ]
 
 #: Largest |g| handed to tan(): tan(G_MAX) = 1e6, far beyond any physical compressed value.
@@ -312,3 +315,41 @@ def filter_tables(
             out[t] = flat.reshape(out[t].shape)
         verdicts.append(TableVerdict(float(gk.sum() / n), float(cl.sum() / n), accepted))
     return out, verdicts
+
+
+#: Wavelengths (nm) that stand for the display's R, G, B primaries when a table is reduced to RGB
+#: (the renderer's per-channel wavelengths).
+RGB_WAVELENGTHS_NM = (630.0, 532.0, 465.0)
+
+
+def sample_directions(n: int, rng: np.random.Generator) -> tuple[NDArray, NDArray]:
+    """Direction pairs for fitting: half cosine-distributed, half near the mirror direction."""
+
+    def cosine_dirs(k: int) -> NDArray:
+        u1, u2 = rng.random(k), rng.random(k)
+        r, phi = np.sqrt(u1), 2 * np.pi * u2
+        return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1 - u1, 1e-6))], axis=-1)
+
+    wi = cosine_dirs(n)
+    wo = cosine_dirs(n)
+    half = n // 2
+    mirror = wi[:half] * np.array([-1.0, -1.0, 1.0])
+    jitter = mirror + 0.15 * rng.normal(size=mirror.shape)
+    jitter[:, 2] = np.abs(jitter[:, 2]) + 0.02
+    wo[:half] = jitter / np.linalg.norm(jitter, axis=-1, keepdims=True)
+    return wi, wo
+
+
+def fit_table_disney(table, *, n: int = 2000, seed: int = 0):
+    """Disney parameters (albedo RGB, roughness, metallic) of a table's m00 (:func:`pbrdf.disney.fit_disney`).
+
+    The table is evaluated (cos-weighted, as Mitsuba renders it) at the renderer's R, G, B
+    wavelengths on ``n`` direction pairs from :func:`sample_directions`.
+    """
+    from . import disney  # noqa: PLC0415
+    from .table import evaluate  # noqa: PLC0415
+
+    rng = np.random.default_rng(seed)
+    wi, wo = sample_directions(n, rng)
+    values = np.stack([evaluate(table, wi, wo, lam)[:, 0, 0] for lam in RGB_WAVELENGTHS_NM], axis=-1)
+    return disney.fit_disney(wi, wo, values)

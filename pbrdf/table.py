@@ -88,6 +88,7 @@ __all__ = [
     "rusinkiewicz_from_directions",
     "directions_from_rusinkiewicz",
     "evaluate",
+    "tabulate",
 ]
 
 #: The stock ``measured_polarized`` plugin copies the wavelengths into a fixed 5-element array.
@@ -920,3 +921,47 @@ def evaluate(
         m = rotate_mueller_basis(m, -light, x, stokes_basis(-light), camera, x, stokes_basis(camera))
         out[active] = m * wo_f[active, 2][:, None, None]
     return out.reshape(*batch, 4, 4)
+
+
+def tabulate(
+    brdf: Callable[[NDArray, NDArray, int], NDArray],
+    phi_d: ArrayLike,
+    theta_d: ArrayLike,
+    theta_h: ArrayLike,
+    wavelengths: ArrayLike,
+    *,
+    name: str = "",
+    metadata: dict | None = None,
+) -> PBRDFTable:
+    """Sample a pBRDF given in Mitsuba's conventions onto a Rusinkiewicz table (inverse of :func:`evaluate`).
+
+    Args:
+        brdf: ``brdf(wi, wo, band) -> (..., 4, 4)``: the Mueller matrix as Mitsuba's ``bsdf.eval``
+            returns it (camera side ``wi``, light side ``wo``, implicit Stokes bases, times
+            ``cos theta_o``), e.g. :func:`pbrdf.microfacet.dielectric_pbrdf`; ``band`` indexes
+            ``wavelengths``.
+        phi_d: difference azimuths, radians.
+        theta_d: difference angles, radians.
+        theta_h: half-vector angles, radians.
+        wavelengths: nm.
+        name: table name.
+        metadata: stored with the table.
+
+    Returns:
+        A table without the cos factor, in the plane-of-reflection frames; bins whose directions
+        fall below the horizon are 0.
+    """
+    pd, td, th = (np.asarray(a, dtype=np.float64) for a in (phi_d, theta_d, theta_h))
+    wl = np.asarray(wavelengths, dtype=np.float64)
+    g_pd, g_td, g_th = np.meshgrid(pd, td, th, indexing="ij")
+    wi, wo = directions_from_rusinkiewicz(g_th, g_td, g_pd)
+    active = (wi[..., 2] > 1e-6) & (wo[..., 2] > 1e-6)
+    cam, light = wi[active], wo[active]
+    x = _reflection_x_axis(cam, light)
+    out = np.zeros((*g_pd.shape, wl.size, 4, 4), dtype=np.float32)
+    for band in range(wl.size):
+        m = np.asarray(brdf(cam, light, band), dtype=np.float64) / light[:, 2, None, None]
+        # Inverse of evaluate's rotation: implicit bases -> plane-of-reflection frames.
+        m = rotate_mueller_basis(m, -light, stokes_basis(-light), x, cam, stokes_basis(cam), x)
+        out[active, band] = m
+    return PBRDFTable(pd, td, th, wl, out, name=name, metadata=dict(metadata or {}))

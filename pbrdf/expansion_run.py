@@ -1,0 +1,293 @@
+"""The expansion pipeline behind ``headless/expand_pbrdf.py``.
+
+seed tables (built-in analytic set, or measured files) -> Disney fit of each -> streaming PCA
+-> conditional VAE on (Disney parameters -> PCA weights) -> for each requested table: random
+Disney parameters, sampled weights, reconstruction, validity filter (Givens-Kostinski +
+Cloude, per-table acceptance, Cloude projection of the few invalid matrices), Disney re-fit,
+Mitsuba tensor file + JSON sidecar. Every table is a function of ``(seed, index)``; a sidecar is
+written last and atomically, so a killed run resumes where it stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import expand, seeds
+from .atomic import atomic_write_text
+from .table import PBRDFTable, evaluate, load_table, resample, save_table, to_mitsuba_bands
+
+__all__ = ["ExpansionConfig", "ExpansionReport", "run_expansion", "load_measured", "sphere_polarimetry"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ExpansionConfig:
+    """Flags of ``headless/expand_pbrdf.py``."""
+
+    out: Path
+    count: int = 2000
+    seed: int = 0
+    measured: Path | None = None
+    grid: tuple[int, int, int] = seeds.DEFAULT_GRID
+    k_intensity: int = 10
+    k_polarization: int = 10
+    generator_steps: int = 1500
+    min_valid_fraction: float = 0.95
+    max_attempts: int = 4
+    fit_samples: int = 600
+    figures: int = 8
+
+
+@dataclass
+class ExpansionReport:
+    """What a run did, with timings and validity statistics."""
+
+    written: int = 0
+    skipped: int = 0
+    failed: int = 0
+    attempts: int = 0
+    seconds: dict[str, float] = field(default_factory=dict)
+    explained: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> str:
+        """A few lines for the terminal."""
+        acc = self.written / max(self.attempts, 1)
+        lines = [
+            f"tables written {self.written}, skipped {self.skipped} (already done), failed {self.failed}",
+            f"acceptance rate {acc:.1%} over {self.attempts} generated candidates",
+            "explained variance: " + ", ".join(f"{k} {v:.4f}" for k, v in self.explained.items()),
+            "seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in self.seconds.items()),
+        ]
+        return "\n".join(lines)
+
+
+def load_measured(folder: Path, grid: tuple[int, int, int]) -> list[PBRDFTable]:
+    """Measured tables (``*.pbsdf``, ``*.hpbrdf``) resampled to the working grid and 5 bands."""
+    files = sorted([*folder.glob("*.pbsdf"), *folder.glob("*.hpbrdf")])
+    if not files:
+        raise FileNotFoundError(f"--measured {folder}: no .pbsdf or .hpbrdf files")
+    out = []
+    for f in files:
+        t = to_mitsuba_bands(load_table(f))
+        n_phi, n_td, n_th = grid
+        t = resample(
+            t,
+            phi_d=np.linspace(-np.pi, np.pi, n_phi),
+            theta_d=np.linspace(0, np.pi / 2, n_td),
+            theta_h=np.linspace(0, np.pi / 2, n_th),
+            wavelengths=np.asarray(seeds.WAVELENGTHS_NM),
+        )
+        m = np.nan_to_num(np.asarray(t.M))
+        out.append(PBRDFTable(t.phi_d, t.theta_d, t.theta_h, t.wavelengths, m, name=f.stem))
+    return out
+
+
+def _stack(tables: list[PBRDFTable]) -> np.ndarray:
+    """``(T, bins, W, 4, 4)`` float64 from tables on one grid."""
+    return np.stack([np.asarray(t.M, dtype=np.float64).reshape(-1, *t.M.shape[3:]) for t in tables])
+
+
+def _random_condition(rng: np.random.Generator) -> np.ndarray:
+    metallic = float(rng.random() < 0.3)
+    albedo = rng.uniform(0.3, 1.0, 3) if metallic else rng.uniform(0.02, 0.95, 3)
+    return np.array([*albedo, rng.uniform(0.25, 0.9), metallic])
+
+
+def sphere_polarimetry(table: PBRDFTable, size: int = 64, wavelength: float = 550.0) -> dict[str, np.ndarray]:
+    """A sphere lit by unpolarized light from beside the camera: intensity, DoLP, DoCP images.
+
+    The view is along -z, the light comes from ``(-0.3, 0.4, 1)``; degrees of polarization are
+    frame-independent, so no frame rotation is needed for them.
+    """
+    yy, xx = np.mgrid[0:size, 0:size]
+    x = (xx + 0.5) / size * 2 - 1
+    y = 1 - (yy + 0.5) / size * 2
+    inside = x**2 + y**2 < 1
+    n = np.stack([x, y, np.sqrt(np.clip(1 - x**2 - y**2, 0, 1))], -1)[inside]
+    view = np.array([0.0, 0.0, 1.0])
+    light = np.array([-0.3, 0.4, 1.0]) / np.linalg.norm([-0.3, 0.4, 1.0])
+    # Local frame per pixel: z = n, x = any tangent.
+    t = np.cross(n, [0.0, 1.0, 0.0])
+    t /= np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-9)
+    b = np.cross(n, t)
+    to_local = np.stack([t, b, n], axis=-2)
+    wi = to_local @ view
+    wo = to_local @ light
+    s = evaluate(table, wi, wo, wavelength)[..., 0]  # unpolarized input: first column
+    out = {k: np.zeros((size, size)) for k in ("s0", "dolp", "docp")}
+    s0 = np.maximum(s[:, 0], 1e-12)
+    out["s0"][inside] = s[:, 0]
+    out["dolp"][inside] = np.hypot(s[:, 1], s[:, 2]) / s0 * (s[:, 0] > 1e-9)
+    out["docp"][inside] = np.abs(s[:, 3]) / s0 * (s[:, 0] > 1e-9)
+    return out
+
+
+def _figure(path: Path, tables: list[PBRDFTable], params: list[dict]) -> None:
+    import matplotlib  # noqa: PLC0415
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt  # noqa: PLC0415
+
+    n = len(tables)
+    fig, axes = plt.subplots(n, 3, figsize=(8.0, 2.1 * n), squeeze=False)
+    for r, (t, p) in enumerate(zip(tables, params, strict=True)):
+        img = sphere_polarimetry(t)
+        for c, (key, title, vmax) in enumerate((("s0", "intensity", None), ("dolp", "DoLP", 1), ("docp", "DoCP", 0.3))):
+            ax = axes[r, c]
+            im = img[key]
+            ax.imshow(
+                im / max(np.percentile(im, 99), 1e-9) if vmax is None else im, vmin=0, vmax=vmax or 1, cmap="magma"
+            )
+            ax.set_axis_off()
+            if r == 0:
+                ax.set_title(title, fontsize=9)
+        a = p["albedo"]
+        label = f"{t.name}\nalb ({a[0]:.2f},{a[1]:.2f},{a[2]:.2f})\nr {p['roughness']:.2f} m {p['metallic']:.2f}"
+        axes[r, 0].text(-0.1, 0.5, label, transform=axes[r, 0].transAxes, ha="right", va="center", fontsize=7)
+    fig.subplots_adjust(left=0.25, right=0.98, wspace=0.05)
+    tmp = path.with_name(f".{path.name}.tmp.png")
+    fig.savefig(tmp, dpi=90)
+    plt.close(fig)
+    tmp.replace(path)
+
+
+def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionReport:
+    """Run (or resume) an expansion into ``cfg.out``."""
+    from . import generator  # noqa: PLC0415 - torch only here
+
+    out = Path(cfg.out)
+    tables_dir, model_dir = out / "tables", out / "model"
+    tables_dir.mkdir(parents=True, exist_ok=True)
+    model_dir.mkdir(parents=True, exist_ok=True)
+    report = ExpansionReport()
+    t0 = time.perf_counter()
+    seed_set = load_measured(cfg.measured, cfg.grid) if cfg.measured else seeds.seed_tables(out / "seeds", cfg.grid)
+    fits = [expand.fit_table_disney(t, n=cfg.fit_samples, seed=cfg.seed) for t in seed_set]
+    conds = np.array([[*f.albedo, f.roughness, f.metallic] for f in fits])
+    report.seconds["seeds_and_fits"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    pca_path, gen_path = model_dir / "pca.npz", model_dir / "generator.pt"
+    data = _stack(seed_set)
+    if pca_path.is_file():
+        pca = expand.PCAModel.from_arrays(dict(np.load(pca_path)))
+    else:
+        pca = expand.fit_pca(data, k_intensity=cfg.k_intensity, k_polarization=cfg.k_polarization, grid_shape=cfg.grid)
+        tmp = model_dir / ".pca.tmp.npz"
+        np.savez(tmp, **pca.to_arrays())
+        tmp.replace(pca_path)
+    report.explained = {"intensity": float(pca.explained_i.sum()), "polarization": float(pca.explained_p.sum())}
+    weights = expand.project(pca, data)
+    if gen_path.is_file():
+        model = generator.load_generator(gen_path)
+    else:
+        model, _ = generator.train_generator(weights, conds, steps=cfg.generator_steps, seed=cfg.seed)
+        generator.save_generator(gen_path, model)
+    report.seconds["pca_and_generator"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    grid_axes = (seed_set[0].phi_d, seed_set[0].theta_d, seed_set[0].theta_h, seed_set[0].wavelengths)
+    shape = seed_set[0].M.shape
+    bar = None
+    if progress:
+        from tqdm import tqdm  # noqa: PLC0415
+
+        bar = tqdm(total=cfg.count, desc="expand pBRDFs", unit="table")
+    for i in range(cfg.count):
+        name = f"gen_{i:05d}"
+        sidecar = tables_dir / f"{name}.json"
+        if sidecar.is_file():
+            report.skipped += 1
+            if bar is not None:
+                bar.update()
+            continue
+        done = False
+        for attempt in range(cfg.max_attempts):
+            rng = np.random.default_rng([cfg.seed, i, attempt])
+            cond = _random_condition(rng)
+            w = generator.sample_weights(model, cond[None], seed=int(rng.integers(2**31)))
+            m = expand.reconstruct(pca, w.reshape(1, shape[3], -1))
+            report.attempts += 1
+            m, (verdict,) = expand.filter_tables(m, min_valid_fraction=cfg.min_valid_fraction)
+            if not verdict.accepted:
+                continue
+            table = PBRDFTable(*grid_axes, m[0].reshape(shape).astype(np.float32), name=name)
+            fit = expand.fit_table_disney(table, n=cfg.fit_samples, seed=cfg.seed)
+            save_table(tables_dir / f"{name}.pbsdf", table, for_mitsuba=True)
+            meta = {
+                "name": name,
+                "table": f"tables/{name}.pbsdf",
+                "albedo": [float(v) for v in fit.albedo],
+                "roughness": float(fit.roughness),
+                "metallic": float(fit.metallic),
+                "fit_rel_rmse": float(fit.rel_rmse),
+                "requested": {"albedo": cond[:3].tolist(), "roughness": float(cond[3]), "metallic": float(cond[4])},
+                "validity": {"gk_fraction": verdict.gk_fraction, "cloude_fraction": verdict.cloude_fraction},
+                "attempt": attempt,
+                "seed": cfg.seed,
+            }
+            atomic_write_text(sidecar, json.dumps(meta, indent=1))
+            report.written += 1
+            done = True
+            break
+        if not done:
+            report.failed += 1
+        if bar is not None:
+            bar.set_postfix(failed=report.failed)
+            bar.update()
+    if bar is not None:
+        bar.close()
+    report.seconds["generate"] = time.perf_counter() - t0
+    _write_index(out, cfg, report, fits, seed_set)
+    return report
+
+
+def _write_index(out: Path, cfg: ExpansionConfig, report: ExpansionReport, fits, seed_set) -> None:
+    entries = [json.loads(p.read_text()) for p in sorted((out / "tables").glob("gen_*.json"))]
+    materials = [{k: e[k] for k in ("name", "table", "albedo", "roughness", "metallic")} for e in entries]
+    atomic_write_text(out / "materials.json", json.dumps(materials, indent=1))
+    manifest = {
+        "format": "pdir-pbrdf-expansion/1",
+        "count": len(entries),
+        "requested": cfg.count,
+        "seed": cfg.seed,
+        "grid": list(cfg.grid),
+        "wavelengths_nm": list(seeds.WAVELENGTHS_NM),
+        "seed_source": str(cfg.measured) if cfg.measured else "built-in analytic seed set",
+        "seeds": [
+            {
+                "name": t.name,
+                "albedo": f.albedo.tolist(),
+                "roughness": f.roughness,
+                "metallic": f.metallic,
+                "fit_rel_rmse": f.rel_rmse,
+            }
+            for t, f in zip(seed_set, fits, strict=True)
+        ],  # fmt: skip
+        "explained_variance": report.explained,
+        "validity": {
+            "mean_gk_fraction": float(np.mean([e["validity"]["gk_fraction"] for e in entries])) if entries else None,
+            "mean_cloude_fraction": float(np.mean([e["validity"]["cloude_fraction"] for e in entries]))
+            if entries
+            else None,
+            "acceptance_rate_this_run": report.written / max(report.attempts, 1),
+        },
+        "seconds": report.seconds,
+    }
+    atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=1))
+    if cfg.figures and entries:
+        pick = entries[:: max(1, len(entries) // cfg.figures)][: cfg.figures]
+        tables = [load_table(out / e["table"]) for e in pick]
+        for t, e in zip(tables, pick, strict=True):
+            object.__setattr__(t, "name", e["name"])
+        _figure(out / "figure_generated.png", tables, pick)
+        seed_params = [{"albedo": f.albedo, "roughness": f.roughness, "metallic": f.metallic} for f in fits]
+        step = max(1, len(seed_set) // cfg.figures)
+        _figure(out / "figure_seeds.png", seed_set[::step][: cfg.figures], seed_params[::step][: cfg.figures])
