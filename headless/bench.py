@@ -3,6 +3,7 @@
 Usage:
     python headless/bench.py decode [--height 2048 --width 2448] [--repeat 5] [--out FILE]
     python headless/bench.py render [--resolution 384] [--ref-spp 1024] [--spp 4 8 16 32 64] [--out FILE]
+    python headless/bench.py pbrdf [--count 40] [--out FILE]
 
 ``decode``: a 2448x2048 IMX250MYR raw bracket (four exposures) decoded into the nine maps by
 :func:`pbrdf.decode.decode` on the half and full grids, next to polanalyser 3.0's single-bracket
@@ -236,6 +237,64 @@ def bench_render(args: argparse.Namespace) -> dict:
     return result
 
 
+def bench_pbrdf(args: argparse.Namespace) -> dict:
+    from pbrdf import expand, seeds, validity  # noqa: PLC0415
+    from pbrdf.expansion_run import ExpansionConfig, run_expansion  # noqa: PLC0415
+
+    result: dict = {"benchmark": "pbrdf", "grid": list(seeds.DEFAULT_GRID)}
+    tabs = seeds.seed_tables()
+    data = np.stack([np.asarray(t.M, dtype=np.float64).reshape(-1, 5, 4, 4) for t in tabs])
+    norm = np.sqrt(np.mean(data**2))
+    result["reconstruction"] = []
+    for k in (2, 5, 10, 15):
+        t0 = time.perf_counter()
+        pca = expand.fit_pca(data, k_intensity=k, k_polarization=k)
+        rec = expand.reconstruct(pca, expand.project(pca, data))
+        result["reconstruction"].append({
+            "components": f"{k}+{k}", "seconds": time.perf_counter() - t0,
+            "rel_rmse_held_in": float(np.sqrt(np.mean((rec - data) ** 2)) / norm),
+        })  # fmt: skip
+    mats = data.reshape(-1, 4, 4)
+    mats = mats[mats[:, 0, 0] > 1e-8]
+    t0 = time.perf_counter()
+    ok = validity.is_givens_kostinski(mats) & validity.is_cloude_physical(mats)
+    vec = time.perf_counter() - t0
+    sub = mats[:2000]
+    t0 = time.perf_counter()
+    for m in sub:  # plain per-matrix numpy: eig of G M^T G M and eigvalsh of the coherency matrix
+        g = np.diag([1.0, -1.0, -1.0, -1.0])
+        np.linalg.eig(g @ m.T @ g @ m)
+        np.linalg.eigvalsh(validity.coherency_matrix(m))
+    loop = (time.perf_counter() - t0) / len(sub) * len(mats)
+    result["validity_filter"] = {
+        "matrices": int(len(mats)), "valid_fraction": float(ok.mean()),
+        "matrices_per_second_vectorised": len(mats) / vec, "matrices_per_second_per_matrix_loop": len(mats) / loop,
+        "speedup": loop / vec,
+    }  # fmt: skip
+    import tempfile  # noqa: PLC0415
+
+    with tempfile.TemporaryDirectory() as tmp:
+        cfg = ExpansionConfig(out=Path(tmp), count=args.count, figures=0)
+        t0 = time.perf_counter()
+        report = run_expansion(cfg, progress=False)
+        total = time.perf_counter() - t0
+    result["expansion"] = {
+        "tables_requested": args.count,
+        "written": report.written,
+        "acceptance_rate": report.written / max(report.attempts, 1),
+        "seconds": total, "stage_seconds": report.seconds,
+        "seconds_per_valid_table": report.seconds["generate"] / max(report.written, 1),
+        "extrapolated_minutes_for_2000": (
+            report.seconds["generate"] / max(report.written, 1) * 2000
+            + report.seconds["seeds_and_fits"]
+            + report.seconds["pca_and_generator"]
+        )
+        / 60,
+    }  # fmt: skip
+    result["machine"] = {"cpus": os.cpu_count(), "python": platform.python_version()}
+    return result
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -250,8 +309,13 @@ def main(argv: list[str] | None = None) -> int:
     r.add_argument("--ref-spp", type=int, default=1024, help="reference samples per pixel (default 1024)")
     r.add_argument("--spp", type=int, nargs="+", default=[4, 8, 16, 32, 64], help="spp values to time")
     r.add_argument("--out", type=Path, help="also write the JSON here")
+    q = sub.add_parser("pbrdf", help="PCA error vs components, validity-filter throughput, expansion speed")
+    q.add_argument("--count", type=int, default=40, help="tables generated to time the expansion (default 40)")
+    q.add_argument("--out", type=Path, help="also write the JSON here")
     args = parser.parse_args(argv)
-    if args.what == "decode":
+    if args.what == "pbrdf":
+        result = bench_pbrdf(args)
+    elif args.what == "decode":
         if args.height % 4 or args.width % 4 or min(args.height, args.width) < 32:
             parser.error("--height and --width must be multiples of 4 and at least 32")
         result = bench_decode(args)

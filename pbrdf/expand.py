@@ -103,6 +103,8 @@ class PCAModel:
         explained_i: ``(k_I,)`` fraction of variance explained by each intensity component.
         explained_p: ``(k_P,)`` same for polarization.
         grid_shape: the table grid the bins flatten, e.g. ``(Np, Nd, Nh)``.
+        m00_max: largest intensity of the training tables; reconstructions are clamped to twice
+            it, so a weight near the arctan pole cannot produce a runaway peak.
     """
 
     alpha_i: float
@@ -114,6 +116,7 @@ class PCAModel:
     explained_i: NDArray
     explained_p: NDArray
     grid_shape: tuple[int, ...] = field(default=())
+    m00_max: float = np.inf
 
     @property
     def n_weights(self) -> int:
@@ -131,6 +134,7 @@ class PCAModel:
             "explained_i": self.explained_i,
             "explained_p": self.explained_p,
             "grid_shape": np.asarray(self.grid_shape, dtype=np.int64),
+            "m00_max": np.array(self.m00_max),
         }
 
     @classmethod
@@ -139,6 +143,7 @@ class PCAModel:
         return cls(
             float(d["alpha"][0]), float(d["alpha"][1]), d["mean_i"], d["mean_p"], d["basis_i"], d["basis_p"],
             d["explained_i"], d["explained_p"], tuple(int(v) for v in d["grid_shape"]),
+            float(d["m00_max"]) if "m00_max" in d else np.inf,
         )  # fmt: skip
 
 
@@ -169,7 +174,7 @@ def fit_pca(
     n_bins: int | None = None,
     k_intensity: int = 10,
     k_polarization: int = 10,
-    alpha_i: float = 10.0,
+    alpha_i: float | None = None,
     alpha_p: float = 1.0,
     chunk_bins: int = 65536,
     grid_shape: Sequence[int] = (),
@@ -182,7 +187,10 @@ def fit_pca(
         n_bins: number of bins (required with a callable source).
         k_intensity: intensity components.
         k_polarization: polarization components.
-        alpha_i: arctan compression of m00.
+        alpha_i: arctan compression of m00; None picks ``1 / max(m00)`` of the data, which maps
+            the brightest bin to ``arctan(1) = pi/4`` and keeps the pole far away (with a fixed
+            large alpha, specular peaks sit at the pole and tiny weight errors explode); the
+            maximum, unlike a percentile, does not depend on the chunking.
         alpha_p: arctan compression of the polarization terms.
         chunk_bins: bins per streamed chunk (memory is about ``T * W * chunk_bins * 16 * 8`` bytes).
         grid_shape: the table grid, stored with the model.
@@ -202,6 +210,12 @@ def fit_pca(
             raise ValueError("n_bins is required with a callable source")
         load = source
     chunks = [slice(i, min(i + chunk_bins, n_bins)) for i in range(0, n_bins, chunk_bins)]
+    # Pass 0: intensity scale (alpha_i) and range.
+    m00_max = 0.0
+    for s in chunks:
+        m00_max = max(m00_max, float(factor(load(s))[0].max(initial=0.0)))
+    if alpha_i is None:
+        alpha_i = 1.0 / max(m00_max, 1e-12)
     # Pass 1: means and Gram matrices of the centred features.
     sums_i, sums_p, n = [], [], None
     for s in chunks:
@@ -235,7 +249,7 @@ def fit_pca(
     total_i, total_p = max(lam_i.sum(), 1e-30), max(lam_p.sum(), 1e-30)
     return PCAModel(
         alpha_i, alpha_p, mean_i, mean_p, basis_i, basis_p,
-        lam_i[:k_intensity] / total_i, lam_p[:k_polarization] / total_p, tuple(grid_shape),
+        lam_i[:k_intensity] / total_i, lam_p[:k_polarization] / total_p, tuple(grid_shape), m00_max,
     )  # fmt: skip
 
 
@@ -251,14 +265,14 @@ def project(model: PCAModel, m: NDArray) -> NDArray:
 def reconstruct(model: PCAModel, weights: NDArray) -> NDArray:
     """Tables from PCA weights: ``(T, W, k_I + k_P)`` -> ``(T, bins, W, 4, 4)`` (float64).
 
-    Inverse arctan with the safe clamp (:func:`decompress`); m00 clamped to >= 0.
+    Inverse arctan with the safe clamp (:func:`decompress`); m00 clamped to ``[0, 2 m00_max]``.
     """
     weights = np.asarray(weights, dtype=np.float64)
     t, w, _ = weights.shape
     ki = model.basis_i.shape[0]
     gi = weights[..., :ki] @ model.basis_i + model.mean_i  # (T, W, bins)
     gp = weights[..., ki:] @ model.basis_p + model.mean_p  # (T, W, bins * 15)
-    m00 = np.maximum(decompress(gi, model.alpha_i), 0.0)
+    m00 = np.clip(decompress(gi, model.alpha_i), 0.0, 2.0 * model.m00_max)
     pol = decompress(gp, model.alpha_p).reshape(t, w, -1, 15)
     m = unfactor(m00, pol)  # (T, W, bins, 4, 4)
     return m.transpose(0, 2, 1, 3, 4)
