@@ -23,7 +23,7 @@ import struct
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from pbrdf import fresnel, mueller
@@ -584,6 +584,8 @@ class TestRusinkiewicz:
     @settings(max_examples=300, deadline=None)
     @given(upper_directions(), upper_directions())
     def test_round_trip_directions(self, wi, wo):
+        # Opposite grazing directions (wi = -wo on the horizon) have no half vector: excluded.
+        assume(np.linalg.norm(wi + wo) > 1e-6)
         theta_h, theta_d, phi_d = rusinkiewicz_from_directions(wi, wo)
         h = wi + wo
         phi_h = np.arctan2(h[1], h[0])
