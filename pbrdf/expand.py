@@ -253,8 +253,31 @@ def fit_pca(
     )  # fmt: skip
 
 
-def project(model: PCAModel, m: NDArray) -> NDArray:
-    """PCA weights of tables: ``(T, bins, W, 4, 4)`` -> ``(T, W, k_I + k_P)``."""
+def project(
+    model: PCAModel, m: NDArray | TableSource, *, n_bins: int | None = None, chunk_bins: int = 65536
+) -> NDArray:
+    """PCA weights of tables: ``(T, bins, W, 4, 4)`` (or a chunk loader) -> ``(T, W, k_I + k_P)``.
+
+    With a callable source (as for :func:`fit_pca`) the projection streams over chunks of bins.
+    """
+    if callable(m):
+        if n_bins is None:
+            raise ValueError("n_bins is required with a callable source")
+        total = None
+        for start in range(0, n_bins, chunk_bins):
+            s = slice(start, min(start + chunk_bins, n_bins))
+            part = m(s)
+            gi, gp = _features(part, model.alpha_i, model.alpha_p)
+            w = np.concatenate(
+                [
+                    (gi - model.mean_i[s]) @ model.basis_i[:, s].T,
+                    (gp - model.mean_p[s.start * 15 : s.stop * 15]) @ model.basis_p[:, s.start * 15 : s.stop * 15].T,
+                ],
+                axis=-1,
+            )
+            total = w if total is None else total + w
+            t, wl = part.shape[0], part.shape[2]
+        return total.reshape(t, wl, -1)
     gi, gp = _features(np.asarray(m), model.alpha_i, model.alpha_p)
     t, w = m.shape[0], m.shape[2]
     wi = (gi - model.mean_i) @ model.basis_i.T

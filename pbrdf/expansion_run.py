@@ -89,9 +89,17 @@ def load_measured(folder: Path, grid: tuple[int, int, int]) -> list[PBRDFTable]:
     return out
 
 
-def _stack(tables: list[PBRDFTable]) -> np.ndarray:
-    """``(T, bins, W, 4, 4)`` float64 from tables on one grid."""
-    return np.stack([np.asarray(t.M, dtype=np.float64).reshape(-1, *t.M.shape[3:]) for t in tables])
+def _source(tables: list[PBRDFTable]):
+    """Chunk loader ``slice of bins -> (T, bins_c, W, 4, 4)`` over (possibly memory-mapped) tables.
+
+    The PCA and the projection stream through it, so all tables are never in memory at once.
+    """
+    flat = [t.M.reshape(-1, *t.M.shape[3:]) for t in tables]
+
+    def load(s: slice) -> np.ndarray:
+        return np.stack([np.asarray(f[s], dtype=np.float64) for f in flat])
+
+    return load, flat[0].shape[0]
 
 
 def _random_condition(rng: np.random.Generator) -> np.ndarray:
@@ -175,16 +183,18 @@ def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionRe
 
     t0 = time.perf_counter()
     pca_path, gen_path = model_dir / "pca.npz", model_dir / "generator.pt"
-    data = _stack(seed_set)
+    source, n_bins = _source(seed_set)
     if pca_path.is_file():
         pca = expand.PCAModel.from_arrays(dict(np.load(pca_path)))
     else:
-        pca = expand.fit_pca(data, k_intensity=cfg.k_intensity, k_polarization=cfg.k_polarization, grid_shape=cfg.grid)
+        pca = expand.fit_pca(
+            source, n_bins=n_bins, k_intensity=cfg.k_intensity, k_polarization=cfg.k_polarization, grid_shape=cfg.grid
+        )
         tmp = model_dir / ".pca.tmp.npz"
         np.savez(tmp, **pca.to_arrays())
         tmp.replace(pca_path)
     report.explained = {"intensity": float(pca.explained_i.sum()), "polarization": float(pca.explained_p.sum())}
-    weights = expand.project(pca, data)
+    weights = expand.project(pca, source, n_bins=n_bins)
     if gen_path.is_file():
         model = generator.load_generator(gen_path)
     else:

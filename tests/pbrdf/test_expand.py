@@ -158,3 +158,11 @@ class TestGenerator:
             generator.train_generator(np.zeros((4, 2, 3)), np.zeros((3, 5)), steps=1)
         with pytest.raises(ValueError, match="finite"):
             generator.train_generator(np.full((4, 2, 3), np.nan), np.zeros((4, 5)), steps=1)
+
+
+def test_streamed_projection_equals_in_memory(seed_set):
+    t, _ = seed_set
+    m = expand.fit_pca(t)
+    np.testing.assert_allclose(
+        expand.project(m, lambda s: t[:, s], n_bins=t.shape[1], chunk_bins=50), expand.project(m, t), atol=1e-10
+    )

@@ -62,3 +62,25 @@ def test_expansion_run_and_resume(tmp_path):
 
     lib = scenegen.load_material_library(tmp_path)
     assert len(lib) == report.written and lib[0].kind == "measured"
+
+
+def test_measured_folder_is_used_instead_of_the_seed_set(tmp_path):
+    """--measured: real-format tables (here two seed materials written at another grid with 7
+    bands, like an hpBRDF subset) are resampled to the working grid and 5 bands."""
+    from pbrdf.expansion_run import load_measured
+
+    folder = tmp_path / "measured"
+    for mat in seeds.SEED_MATERIALS[:2]:
+        t = seeds.seed_table(mat, grid=(10, 8, 12))
+        wl = np.arange(410, 700, 40.0)  # 7 whole-nanometre bands
+        t7 = table.resample(t, wavelengths=wl)  # clamped outside 450-650: a 7-band file
+        table.save_table(folder / f"{mat.name}.hpbrdf", t7)
+    tabs = load_measured(folder, GRID)
+    assert [t.name for t in tabs] == sorted(m.name for m in seeds.SEED_MATERIALS[:2])
+    assert all(t.M.shape == (*GRID, 5, 4, 4) for t in tabs)
+    cfg = ExpansionConfig(out=tmp_path / "out", count=2, grid=GRID, measured=folder, generator_steps=100,
+                          fit_samples=150, figures=0)  # fmt: skip
+    report = run_expansion(cfg, progress=False)
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["seed_source"] == str(folder) and len(manifest["seeds"]) == 2
+    assert report.written + report.failed == 2
