@@ -218,9 +218,10 @@ def display_shapes(display: DisplaySpec, channel: int) -> dict[str, Any]:
     """The emitting display surface and its polarizer sheet, for one colour channel.
 
     On a flat display whose channel lights one rectangle (the built-in patterns), only that
-    rectangle emits, with constant radiance: next-event estimation then never samples dark
-    parts of the display (half the samples with ``rgb_halves``). Otherwise the whole surface
-    emits the pattern as a bitmap.
+    rectangle emits, with constant radiance (no texture lookups, and a parameter update switches
+    channels). Otherwise the whole surface emits the pattern as a bitmap, which Mitsuba's area
+    emitter importance-samples by radiance, so dark parts are not sampled either way (measured:
+    identical errors per spp).
 
     Convention: Mitsuba's ``polarizer`` angle ``theta`` turns clockwise as seen from the front
     of the sheet (measured: ``theta = 45`` transmits along display ``-X + Y``), while the rig's
