@@ -1,1 +1,1 @@
-"""network: the feed-forward model, losses, training and inference (torch). Not yet implemented."""
+"""network: the feed-forward model (config, model), data, losses and training (torch)."""
