@@ -11,6 +11,17 @@ def rng():
 
 
 @pytest.fixture
+def mitsuba_rgb():
+    """Mitsuba 3 in ``scalar_rgb`` (float32); restores the process-wide variant afterwards."""
+    mi = pytest.importorskip("mitsuba")
+    previous = mi.variant()
+    mi.set_variant("scalar_rgb")
+    yield mi
+    if previous is not None:
+        mi.set_variant(previous)
+
+
+@pytest.fixture
 def mitsuba_polarized():
     """Mitsuba 3 in ``scalar_spectral_polarized`` (float32); skips when mitsuba is not installed.
 

@@ -305,13 +305,25 @@ def sensor_dict(camera: CameraSpec, window: CropWindow, spp: int, *, sampler: st
     }  # fmt: skip
 
 
-def bsdf_dict(material: MaterialSpec, channel: int) -> dict:
-    """Polarization-aware Mitsuba BSDF for one colour channel of a material."""
+def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = None) -> dict:
+    """Polarization-aware Mitsuba BSDF of a material, for one colour channel or spectral.
+
+    Args:
+        material: the material spec.
+        channel: colour channel 0, 1, 2 (mono passes: scalar values at that channel), or None for
+            spectral variants, where per-channel values become spectra through ``spectrum``.
+        spectrum: ``spectrum(values_rgb, kind)`` -> Mitsuba spectrum for ``kind`` ``"reflectance"``
+            or ``"ior"`` (required when ``channel`` is None).
+    """
+
+    def value(rgb: tuple[float, float, float], kind: str) -> Any:
+        return float(rgb[channel]) if channel is not None else spectrum(rgb, kind)
+
     alpha = max(material.roughness**2, MIN_ALPHA)
     if material.kind == "pplastic":
         return {
             "type": "pplastic",
-            "diffuse_reflectance": float(material.albedo[channel]),
+            "diffuse_reflectance": value(material.albedo, "reflectance"),
             "specular_reflectance": 1.0,
             "int_ior": float(material.ior),
             "ext_ior": 1.0,
@@ -321,18 +333,16 @@ def bsdf_dict(material: MaterialSpec, channel: int) -> dict:
     if material.kind == "conductor":
         return {
             "type": "roughconductor",
-            "eta": float(material.eta[channel]),
-            "k": float(material.k[channel]),
+            "eta": value(material.eta, "ior"),
+            "k": value(material.k, "ior"),
             "alpha": alpha,
             "distribution": "ggx",
         }
     if material.kind == "measured":
-        return {
-            "type": "measured_polarized",
-            "filename": str(material.table),
-            "wavelength": CHANNEL_WAVELENGTHS_NM[channel],
-            "alpha_sample": max(alpha, 0.05),
-        }
+        out = {"type": "measured_polarized", "filename": str(material.table), "alpha_sample": max(alpha, 0.05)}
+        if channel is not None:
+            out["wavelength"] = CHANNEL_WAVELENGTHS_NM[channel]
+        return out
     raise ValueError(f"unknown material kind {material.kind!r}; valid: pplastic, conductor, measured")
 
 

@@ -153,34 +153,19 @@ def _channel_spectrum(values: tuple[float, float, float]) -> dict | float:
     }
 
 
+def _spectrum(values: tuple[float, float, float], kind: str) -> dict | float:
+    """RGB reflectances as an ``rgb`` spectrum, IORs through :func:`_channel_spectrum`.
+
+    (An ``rgb`` IOR would be squashed into [0, 1] as if it were a reflectance.)
+    """
+    if kind == "reflectance":
+        return {"type": "rgb", "value": [float(a) for a in values]}
+    return _channel_spectrum(values)
+
+
 def bsdf_dict(material: MaterialSpec) -> dict:
-    """Polarization-aware Mitsuba BSDF of a material over all wavelengths (spectral variants)."""
-    alpha = max(material.roughness**2, ms.MIN_ALPHA)
-    if material.kind == "pplastic":
-        return {
-            "type": "pplastic",
-            "diffuse_reflectance": {"type": "rgb", "value": [float(a) for a in material.albedo]},
-            "specular_reflectance": 1.0,
-            "int_ior": float(material.ior),
-            "ext_ior": 1.0,
-            "alpha": alpha,
-            "distribution": "ggx",
-        }
-    if material.kind == "conductor":
-        return {
-            "type": "roughconductor",
-            "eta": _channel_spectrum(material.eta),
-            "k": _channel_spectrum(material.k),
-            "alpha": alpha,
-            "distribution": "ggx",
-        }
-    if material.kind == "measured":
-        return {
-            "type": "measured_polarized",
-            "filename": str(material.table),
-            "alpha_sample": max(alpha, 0.05),
-        }
-    raise ValueError(f"unknown material kind {material.kind!r}; valid: pplastic, conductor, measured")
+    """The material's BSDF for spectral variants (:func:`mitsuba_scene.bsdf_dict` with spectra)."""
+    return ms.bsdf_dict(material, None, spectrum=_spectrum)
 
 
 def render_stokes_spectral(

@@ -379,17 +379,6 @@ class TestTorch:
 # --- Mitsuba's principled BSDF -------------------------------------------------------------------------
 
 
-@pytest.fixture
-def mitsuba_rgb():
-    """Mitsuba 3 in ``scalar_rgb`` (float32); restores the process-wide variant afterwards."""
-    mi = pytest.importorskip("mitsuba")
-    previous = mi.variant()
-    mi.set_variant("scalar_rgb")
-    yield mi
-    if previous is not None:
-        mi.set_variant(previous)
-
-
 def mitsuba_principled_eval(mi, wi, wo, albedo, roughness, metallic):
     """Mitsuba's ``principled`` eval (BRDF * cos(theta of wo)) for ``si.wi = wi``; ``(N, 3)``."""
     bsdf = mi.load_dict(

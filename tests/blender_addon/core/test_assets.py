@@ -12,17 +12,6 @@ from blender_addon.core.rig import CameraSpec, Rig
 SHAPES = assets.PROCEDURAL_SHAPES
 
 
-@pytest.fixture
-def mitsuba_rgb():
-    """Mitsuba 3 in ``scalar_rgb``; the previous (process-wide) variant is restored afterwards."""
-    mi = pytest.importorskip("mitsuba")
-    previous = mi.variant()
-    mi.set_variant("scalar_rgb")
-    yield mi
-    if previous is not None:
-        mi.set_variant(previous)
-
-
 def _bbox_centre(v):
     return (v.min(axis=0) + v.max(axis=0)) / 2
 
