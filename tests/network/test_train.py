@@ -75,3 +75,43 @@ def test_toy_model_overfits_and_resume_is_exact(tiny_dataset, tmp_path):
     np.testing.assert_allclose(resumed, full, rtol=1e-6, atol=1e-7)
     with pytest.raises(FileExistsError, match="--resume"):
         train(TrainConfig(out=tmp_path / "b", steps=41, **common), progress=False)
+
+
+def test_infer_on_sample_and_capture(tiny_dataset, tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from network.config import get_config
+    from network.infer import load_input, predict
+    from network.model import PolarInverseModel
+    from pbrdf import camera, capture, exr
+
+    root = Path(__file__).resolve().parents[2]
+    torch.manual_seed(0)
+    model = PolarInverseModel(get_config("toy"))
+    ckpt = tmp_path / "model.pt"
+    torch.save({"config": model.config.to_dict(), "model": model.state_dict()}, ckpt)
+    sample = tiny_dataset / "samples" / "000000.exr"
+    maps, mask = load_input(sample)
+    pred = predict(model, maps, mask)
+    assert pred["normal"].shape == (*mask.shape, 3) and pred["roughness"].shape == (*mask.shape, 1)
+    assert np.all(pred["albedo"][~mask] == 0)
+    np.testing.assert_allclose(np.linalg.norm(pred["normal"][mask], axis=-1), 1.0, atol=1e-4)
+    # A capture folder goes through the decoder (any size; here 48 x 64 raw -> 24 x 32 maps).
+    s = np.zeros((48, 64, 3, 4))
+    s[12:36, 16:48, :, 0] = 0.3
+    s[12:36, 16:48, :, 1] = -0.1
+    m = camera.CameraModel()
+    cap = capture.save_capture(tmp_path / "cap", camera.simulate_capture(s, m, rng=np.random.default_rng(0)), m)
+    cmd = [sys.executable, "headless/infer.py", "--checkpoint", str(ckpt), "--input", str(cap)]
+    proc = subprocess.run([*cmd, "--out", str(tmp_path / "o")], cwd=root, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    normal = exr.read_exr(tmp_path / "o" / "cap_normal.exr")
+    assert normal["normal.X"].shape == (24, 32)
+    assert (tmp_path / "o" / "cap_albedo.png").is_file()
+    bad = subprocess.run(
+        [sys.executable, "headless/infer.py", "--checkpoint", str(ckpt), "--input", str(tmp_path / "nope"), "--out",
+         str(tmp_path / "o2")], cwd=root, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert bad.returncode == 2 and bad.stderr.startswith("error:")
