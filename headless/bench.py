@@ -4,6 +4,7 @@ Usage:
     python headless/bench.py decode [--height 2048 --width 2448] [--repeat 5] [--out FILE]
     python headless/bench.py render [--resolution 384] [--ref-spp 1024] [--spp 4 8 16 32 64] [--out FILE]
     python headless/bench.py pbrdf [--count 40] [--out FILE]
+    python headless/bench.py network [--configs toy small paper] [--out FILE]
 
 ``decode``: a 2448x2048 IMX250MYR raw bracket (four exposures) decoded into the nine maps by
 :func:`pbrdf.decode.decode` on the half and full grids, next to polanalyser 3.0's single-bracket
@@ -295,6 +296,52 @@ def bench_pbrdf(args: argparse.Namespace) -> dict:
     return result
 
 
+def bench_network(args: argparse.Namespace) -> dict:
+    import torch  # noqa: PLC0415
+
+    from network.config import get_config  # noqa: PLC0415
+    from network.model import PolarInverseModel, count_parameters  # noqa: PLC0415
+
+    result: dict = {"benchmark": "network", "device": "cpu", "threads": torch.get_num_threads(), "configs": {}}
+    for name in args.configs:
+        cfg = get_config(name)
+        torch.manual_seed(0)
+        model = PolarInverseModel(cfg)
+        size = args.size or cfg.image_size
+        maps = torch.rand(1, 9, size, size)
+        mask = torch.zeros(1, 1, size, size)
+        mask[..., size // 8 : -size // 8, size // 8 : -size // 8] = 1
+        entry: dict = {"parameters": count_parameters(model), "image_size": size, "masked_pixels": int(mask.sum())}
+        model.train()
+        with torch.no_grad():
+            model(maps, mask)  # warm-up
+            t0 = time.perf_counter()
+            model(maps, mask)
+            entry["train_forward_seconds"] = time.perf_counter() - t0
+        model.train()
+        opt = torch.optim.AdamW(model.parameters(), lr=1e-4)
+        t0 = time.perf_counter()
+        out = model(maps, mask)
+        loss = sum(v.float().mean() for k, v in out.items() if k in ("normal", "albedo", "roughness", "metallic"))
+        loss.backward()
+        opt.step()
+        entry["train_step_seconds"] = time.perf_counter() - t0
+        if not args.skip_dense or name == "toy":
+            model.eval()
+            with torch.no_grad():
+                t0 = time.perf_counter()
+                model(maps, mask)
+                sec = time.perf_counter() - t0
+            entry["dense_forward_seconds"] = sec
+            entry["decoder_pixels_per_second"] = entry["masked_pixels"] / sec
+        import resource  # noqa: PLC0415
+
+        entry["process_peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+        result["configs"][name] = entry
+    result["machine"] = {"cpus": os.cpu_count(), "python": platform.python_version(), "torch": torch.__version__}
+    return result
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     sub = parser.add_subparsers(dest="what", required=True)
@@ -312,8 +359,15 @@ def main(argv: list[str] | None = None) -> int:
     q = sub.add_parser("pbrdf", help="PCA error vs components, validity-filter throughput, expansion speed")
     q.add_argument("--count", type=int, default=40, help="tables generated to time the expansion (default 40)")
     q.add_argument("--out", type=Path, help="also write the JSON here")
+    nb = sub.add_parser("network", help="forward/step time per model config on this machine")
+    nb.add_argument("--configs", nargs="+", default=["toy", "small"], help="configs (default toy small)")
+    nb.add_argument("--size", type=int, help="input size (default: the config's)")
+    nb.add_argument("--skip-dense", action="store_true", help="skip the dense (all-pixels) forward except for toy")
+    nb.add_argument("--out", type=Path, help="also write the JSON here")
     args = parser.parse_args(argv)
-    if args.what == "pbrdf":
+    if args.what == "network":
+        result = bench_network(args)
+    elif args.what == "pbrdf":
         result = bench_pbrdf(args)
     elif args.what == "decode":
         if args.height % 4 or args.width % 4 or min(args.height, args.width) < 32:

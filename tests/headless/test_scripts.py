@@ -81,3 +81,11 @@ def test_bench_render_default_beats_naive(tmp_path):
     for d, n in zip(default["points"], naive["points"], strict=True):
         assert d["rel_rmse_unpol_lp"] < 0.5 * n["rel_rmse_unpol_lp"]
     assert result["speedup_default_over_naive_at_2pct"] > 5
+
+
+def test_bench_network_toy(tmp_path):
+    out = tmp_path / "net.json"
+    proc = _run("headless/bench.py", "network", "--configs", "toy", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    toy = json.loads(out.read_text())["configs"]["toy"]
+    assert toy["parameters"] > 1000 and toy["train_step_seconds"] > 0 and toy["decoder_pixels_per_second"] > 0
