@@ -416,18 +416,24 @@ def write_sample(
     return paths.sidecar
 
 
-def _load_sidecar(path: Path, index: int | None = None) -> dict[str, Any]:
-    """Read and check a sidecar's own fields (not the EXR); ValueError / FileNotFoundError."""
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: sample sidecar not found (sample missing or incomplete)")
+def _read_json_object(path: Path, fmt: str) -> dict[str, Any]:
+    """A JSON object whose ``format`` is ``fmt``; one-line ValueError naming the file otherwise."""
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except (UnicodeDecodeError, json.JSONDecodeError) as e:
         raise ValueError(f"{path}: invalid JSON ({e})") from e
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object; got {type(data).__name__}")
-    if data.get("format") != SAMPLE_FORMAT:
-        raise ValueError(f"{path}: unsupported format {data.get('format')!r}; expected {SAMPLE_FORMAT!r}")
+    if data.get("format") != fmt:
+        raise ValueError(f"{path}: unsupported format {data.get('format')!r}; expected {fmt!r}")
+    return data
+
+
+def _load_sidecar(path: Path, index: int | None = None) -> dict[str, Any]:
+    """Read and check a sidecar's own fields (not the EXR); ValueError / FileNotFoundError."""
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: sample sidecar not found (sample missing or incomplete)")
+    data = _read_json_object(path, SAMPLE_FORMAT)
     for key, typ in (("index", int), ("exr", str), ("sha256", str), ("exr_bytes", int), ("channels", list)):
         if not isinstance(data.get(key), typ) or isinstance(data.get(key), bool):
             raise ValueError(f"{path}: key {key!r} missing or not a {typ.__name__}")
@@ -681,14 +687,7 @@ def read_manifest(root: str | os.PathLike) -> dict[str, Any]:
     path = p / MANIFEST_JSON if p.is_dir() else p
     if not path.is_file():
         raise FileNotFoundError(f"{path}: dataset manifest not found")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path}: invalid JSON ({e})") from e
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object; got {type(data).__name__}")
-    if data.get("format") != MANIFEST_FORMAT:
-        raise ValueError(f"{path}: unsupported format {data.get('format')!r}; expected {MANIFEST_FORMAT!r}")
+    data = _read_json_object(path, MANIFEST_FORMAT)
     done = data.get("completed")
     if not isinstance(done, list) or not all(isinstance(i, int) and not isinstance(i, bool) for i in done):
         raise ValueError(f"{path}: 'completed' must be a list of sample indices")

@@ -10,11 +10,10 @@ import math
 
 import numpy as np
 import pytest
-import trimesh
 
 pytest.importorskip("mitsuba")
 
-from blender_addon.core import assets, render  # noqa: E402
+from blender_addon.core import render  # noqa: E402
 from blender_addon.core.rig import DisplaySpec, Rig  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
 from pbrdf import dataset, fresnel  # noqa: E402
@@ -25,18 +24,6 @@ def _translate(x, y, z, scale=1.0):
     m[:3, :3] *= scale
     m[:3, 3] = (x, y, z)
     return tuple(map(tuple, m))
-
-
-@pytest.fixture(scope="module")
-def slab_path(tmp_path_factory):
-    """A 0.3 m square, 1 cm thick slab facing +z (toward the camera), finely subdivided so the
-    front face's vertex normals are exactly +z."""
-    box = trimesh.creation.box(extents=(0.3, 0.3, 0.01))
-    for _ in range(4):
-        box = box.subdivide()
-    path = tmp_path_factory.mktemp("mesh") / "slab.ply"
-    assets.write_ply(box, path)
-    return str(path)
 
 
 def _spec(objects, materials, rig=None, seed=0):

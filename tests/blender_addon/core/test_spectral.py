@@ -21,11 +21,10 @@ import math
 
 import numpy as np
 import pytest
-import trimesh
 
 pytest.importorskip("mitsuba")
 
-from blender_addon.core import assets, render, spectral  # noqa: E402
+from blender_addon.core import render, spectral  # noqa: E402
 from blender_addon.core.mitsuba_scene import CHANNEL_WAVELENGTHS_NM  # noqa: E402
 from blender_addon.core.rig import DisplaySpec, Rig  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
@@ -122,17 +121,6 @@ def _predicted_gold_ratio(quadrant_colours):
 
 
 # --------------------------------------------------------------------------- the display's spectra
-
-
-@pytest.fixture(scope="module")
-def slab_path(tmp_path_factory):
-    """A 0.3 m square slab facing the camera, subdivided so the front face's normals are exact."""
-    box = trimesh.creation.box(extents=(0.3, 0.3, 0.01))
-    for _ in range(4):
-        box = box.subdivide()
-    path = tmp_path_factory.mktemp("mesh") / "slab.ply"
-    assets.write_ply(box, path)
-    return str(path)
 
 
 @pytest.mark.parametrize("pattern", ["white", "image"])
