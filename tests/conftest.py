@@ -47,3 +47,18 @@ try:
         settings.load_profile("ci")
 except ImportError:  # pragma: no cover - hypothesis is a dev dependency
     pass
+
+
+@pytest.fixture(scope="session")
+def slab_path(tmp_path_factory):
+    """A 0.3 m square, 1 cm thick slab (PLY) facing +z (toward the camera), finely subdivided so
+    the front face's vertex normals are exactly +z."""
+    trimesh = pytest.importorskip("trimesh")
+    from blender_addon.core import assets
+
+    box = trimesh.creation.box(extents=(0.3, 0.3, 0.01))
+    for _ in range(4):
+        box = box.subdivide()
+    path = tmp_path_factory.mktemp("mesh") / "slab.ply"
+    assets.write_ply(box, path)
+    return str(path)
