@@ -1,0 +1,43 @@
+"""Metrics against hand-computed values; the photometric-stereo baseline against physics."""
+
+import numpy as np
+import pytest
+
+from network import baseline, metrics
+
+
+def test_metrics_hand_computed():
+    t = np.zeros((2, 2, 1))
+    p = np.full((2, 2, 1), 0.1)
+    m = np.array([[True, True], [False, True]])
+    assert metrics.rmse(p, t, m) == pytest.approx(0.1)
+    assert metrics.psnr(p, t, m) == pytest.approx(20.0)  # 20 log10(1 / 0.1)
+    y = np.array([[[0.2], [0.4]], [[9.0], [0.6]]])
+    x = y / 2  # half as bright: scale-invariant metrics forgive it
+    assert metrics.ls_scale(x, y, m) == pytest.approx(2.0)
+    assert metrics.si_rmse(x, y, m) == pytest.approx(0.0, abs=1e-12)
+    assert metrics.si_psnr(x, y, m) == float("inf")
+    n1 = np.array([[[0, 0, 1.0]]])
+    n2 = np.array([[[0, 1.0, 1.0]]])
+    assert metrics.normal_mae_deg(n2, n1, np.ones((1, 1), bool)) == pytest.approx(45.0)
+    with pytest.raises(ValueError, match="empty mask"):
+        metrics.rmse(p, t, np.zeros((2, 2), bool))
+
+
+def test_photometric_stereo_inverts_its_own_model():
+    """With distant lights and a grey Lambertian sphere, the baseline recovers normals exactly."""
+    rig = pytest.importorskip("blender_addon.core.rig")
+    display = rig.DisplaySpec()
+    dirs, scale = baseline.region_light_directions(display, np.array([0.0, 0.0, -0.7]))
+    # Red lights from the display's right half (world -x), green from world +x, blue from above.
+    assert dirs[0, 0] < 0 < dirs[1, 0] and dirs[2, 1] > 0 and np.all(dirs[:, 2] > 0)
+    yy, xx = np.mgrid[0:32, 0:32]
+    x, y = (xx + 0.5) / 16 - 1, 1 - (yy + 0.5) / 16
+    inside = x**2 + y**2 < 0.8
+    n = np.stack([x, y, np.sqrt(np.clip(1 - x**2 - y**2, 0, 1))], -1)
+    rho = 0.6
+    unpol = rho / np.pi * scale * np.clip(n @ dirs.T, 0, None)
+    lit = inside & np.all(n @ dirs.T > 0.05, axis=-1)
+    out = baseline.photometric_stereo(unpol, lit, dirs, scale)
+    assert metrics.normal_mae_deg(out["normal"], n, lit) < 1e-3
+    np.testing.assert_allclose(out["albedo"][lit], rho, atol=1e-4)
