@@ -8,12 +8,15 @@ up on resume.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
 import secrets
+from collections.abc import Iterator
 from pathlib import Path
+from typing import BinaryIO
 
-__all__ = ["temporary_path", "temporary_target", "fsync_path", "atomic_write_bytes", "atomic_write_text"]
+__all__ = ["temporary_path", "temporary_target", "fsync_path", "atomic_open", "atomic_write_bytes", "atomic_write_text"]
 
 # ".<target>.tmp-<pid>-<8 hex>" (files being written) or ".<target>.old-<pid>-<8 hex>" (set aside).
 _TEMP_RE = re.compile(r"^\.(?P<target>.+)\.(?:tmp|old)-\d+-[0-9a-f]{8}$")
@@ -63,18 +66,20 @@ def fsync_path(path: str | os.PathLike, *, directory: bool = False) -> None:
         os.close(fd)
 
 
-def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temporary sibling, fsync and ``os.replace``.
+@contextlib.contextmanager
+def atomic_open(path: str | os.PathLike) -> Iterator[BinaryIO]:
+    """Open ``path`` for binary writing through a temporary sibling; rename into place on success.
 
-    A reader never sees a half-written file; a crash leaves the old file (or none). Missing
-    parent folders are created; the file gets mode 0644.
+    The data is fsynced and the file gets mode 0644 before ``os.replace``; on any exception
+    (KeyboardInterrupt included) the temporary file is removed and ``path`` is untouched.
+    Missing parent folders are created.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = temporary_path(path)
     try:
         with open(tmp, "wb") as f:
-            f.write(data)
+            yield f
             f.flush()
             os.fsync(f.fileno())
         os.chmod(tmp, 0o644)
@@ -83,7 +88,16 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
         tmp.unlink(missing_ok=True)
         raise
     fsync_path(path.parent, directory=True)
-    return path
+
+
+def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (:func:`atomic_open`).
+
+    A reader never sees a half-written file; a crash leaves the old file (or none).
+    """
+    with atomic_open(path) as f:
+        f.write(data)
+    return Path(path)
 
 
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:

@@ -72,7 +72,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .atomic import fsync_path, temporary_path
+from .atomic import atomic_open
 from .mueller import rotate_mueller_basis, stokes_basis
 
 __all__ = [
@@ -207,26 +207,15 @@ def _write_fields(
 
     if target.is_dir():
         raise IsADirectoryError(f"{target}: is a folder")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_path(target)
-    try:
-        with open(tmp, "wb") as f:
-            f.write(header)
-            pos = len(header)
-            for (label, arr, _), offset in zip(prepared, offsets, strict=True):
-                if arr.nbytes == 0:
-                    continue  # no padding either: Mitsuba's writer seeks, so a trailing empty field adds no bytes
-                f.write(b"\x00" * (offset - pos))
-                _write_array(f, arr, chunk_fns.get(label.decode("utf-8")))
-                pos = offset + arr.nbytes
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, target)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    fsync_path(target.parent, directory=True)
+    with atomic_open(target) as f:
+        f.write(header)
+        pos = len(header)
+        for (label, arr, _), offset in zip(prepared, offsets, strict=True):
+            if arr.nbytes == 0:
+                continue  # no padding either: Mitsuba's writer seeks, so a trailing empty field adds no bytes
+            f.write(b"\x00" * (offset - pos))
+            _write_array(f, arr, chunk_fns.get(label.decode("utf-8")))
+            pos = offset + arr.nbytes
     return target
 
 

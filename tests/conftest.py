@@ -10,29 +10,26 @@ def rng():
     return np.random.default_rng(1234)
 
 
-@pytest.fixture
-def mitsuba_rgb():
-    """Mitsuba 3 in ``scalar_rgb`` (float32); restores the process-wide variant afterwards."""
+def _mitsuba_variant(name):
+    """Mitsuba 3 in variant ``name``; skips without mitsuba; restores the process-wide variant."""
     mi = pytest.importorskip("mitsuba")
     previous = mi.variant()
-    mi.set_variant("scalar_rgb")
+    mi.set_variant(name)
     yield mi
     if previous is not None:
         mi.set_variant(previous)
+
+
+@pytest.fixture
+def mitsuba_rgb():
+    """Mitsuba 3 in ``scalar_rgb`` (float32)."""
+    yield from _mitsuba_variant("scalar_rgb")
 
 
 @pytest.fixture
 def mitsuba_polarized():
-    """Mitsuba 3 in ``scalar_spectral_polarized`` (float32); skips when mitsuba is not installed.
-
-    The previous variant is restored afterwards: the variant is process-wide state.
-    """
-    mi = pytest.importorskip("mitsuba")
-    previous = mi.variant()
-    mi.set_variant("scalar_spectral_polarized")
-    yield mi
-    if previous is not None:
-        mi.set_variant(previous)
+    """Mitsuba 3 in ``scalar_spectral_polarized`` (float32)."""
+    yield from _mitsuba_variant("scalar_spectral_polarized")
 
 
 # Property tests explore new examples on developer machines but replay a fixed sequence under CI
