@@ -8,7 +8,7 @@ STAMP := $(VENV)/.installed
 LLVM_STAMP := $(VENV)/.llvm-ok
 OUT ?= out
 
-.PHONY: setup demo test test-fast bench lint format clean help
+.PHONY: setup demo test test-fast bench lint format clean help addon train-model
 
 help:  ## list targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -47,5 +47,8 @@ format: setup  ## apply ruff formatting and safe fixes
 	$(VENV)/bin/ruff check --fix .
 	$(VENV)/bin/ruff format .
 
+addon: setup  ## build the Blender extension zip into dist/
+	$(PY) tools/build_addon.py --out dist
+
 clean:  ## remove outputs (keeps .venv)
-	rm -rf $(OUT) .pytest_cache .ruff_cache
+	rm -rf $(OUT) dist .pytest_cache .ruff_cache

@@ -17,7 +17,7 @@ from torch.utils.data import Dataset
 
 from pbrdf import dataset as pdataset
 
-__all__ = ["normalize_maps", "sample_to_tensors", "SampleDataset", "resize_batch"]
+__all__ = ["normalize_maps", "sample_to_tensors", "SampleDataset", "resize_batch", "gather_pixels"]
 
 TARGET_KEYS = ("normal", "albedo", "roughness", "metallic")
 
@@ -42,6 +42,12 @@ def normalize_maps(maps: torch.Tensor, mask: torch.Tensor, *, quantile: float = 
     scale = torch.stack(scales).reshape(*total.shape[:-1], 1, 1, 1).clamp_min(1e-8)
     out = torch.cat([maps[..., :6, :, :] / scale, maps[..., 6:, :, :]], dim=-3)
     return out * m
+
+
+def gather_pixels(maps: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
+    """``(B, C, H, W)`` maps at flat pixel indices ``(B, P)`` -> ``(B, C, P)``."""
+    b, c = maps.shape[:2]
+    return maps.reshape(b, c, -1).gather(2, pixels[:, None, :].expand(-1, c, -1))
 
 
 def sample_to_tensors(sample: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:

@@ -7,6 +7,7 @@ synthetic data did. Outputs are full-size ``(H, W, C)`` float32 maps, zero outsi
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import numpy as np
@@ -15,11 +16,17 @@ import torch.nn.functional as F  # noqa: N812
 
 from pbrdf import capture as pcapture
 from pbrdf import dataset as pdataset
+from pbrdf.atomic import atomic_write_bytes
+from pbrdf.exr import write_exr
 
 from .data import normalize_maps
+from .inputs import apply_inputs
 from .model import PolarInverseModel
 
-__all__ = ["OUTPUTS", "load_input", "predict", "mask_bbox"]
+__all__ = ["OUTPUTS", "load_input", "predict", "mask_bbox", "write_predictions", "DEFAULT_CHECKPOINT"]
+
+#: The shipped model (``make train-model``; see models/small/MODEL_CARD.md).
+DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "models" / "small" / "model.pt"
 
 #: Output maps and their channel counts.
 OUTPUTS = {"normal": 3, "albedo": 3, "roughness": 1, "metallic": 1}
@@ -52,11 +59,14 @@ def mask_bbox(mask: np.ndarray, margin: float = 0.05) -> tuple[int, int, int, in
 
 
 @torch.no_grad()
-def predict(model: PolarInverseModel, maps: np.ndarray, mask: np.ndarray) -> dict[str, np.ndarray]:
+def predict(
+    model: PolarInverseModel, maps: np.ndarray, mask: np.ndarray, *, inputs: str = "full"
+) -> dict[str, np.ndarray]:
     """Normal, albedo, roughness, metallic ``(H, W, C)`` for nine maps of any size.
 
     The masked region is cropped (square), resized to the model's input size, decoded (masked
-    pixels only, in chunks) and resized back into the full frame.
+    pixels only, in chunks) and resized back into the full frame. ``inputs`` is the checkpoint's
+    input variant (:mod:`network.inputs`): the maps it was not trained on are zeroed here too.
     """
     if maps.ndim != 3 or maps.shape[-1] != 9 or mask.shape != maps.shape[:2]:
         raise ValueError(f"expected maps (H, W, 9) and mask (H, W); got {maps.shape} and {mask.shape}")
@@ -69,7 +79,7 @@ def predict(model: PolarInverseModel, maps: np.ndarray, mask: np.ndarray) -> dic
     m = F.interpolate(m, size=(size, size), mode="bilinear", align_corners=False)
     k = F.interpolate(k, size=(size, size), mode="nearest")
     model.eval()
-    pred = model(normalize_maps(m, k), k)
+    pred = model(apply_inputs(normalize_maps(m, k), inputs), k)
     h, w = mask.shape
     out = {}
     for name, c in OUTPUTS.items():
@@ -82,3 +92,40 @@ def predict(model: PolarInverseModel, maps: np.ndarray, mask: np.ndarray) -> dic
         out[name] = full
     out["mask"] = mask.astype(np.float32)[..., None]
     return out
+
+
+def _png(img: np.ndarray) -> bytes:
+    from PIL import Image  # noqa: PLC0415
+
+    a = np.clip(np.nan_to_num(img), 0, 1)
+    a = (a[..., 0] if a.shape[-1] == 1 else a) * 255
+    buf = io.BytesIO()
+    Image.fromarray(np.rint(a).astype(np.uint8)).save(buf, format="PNG")
+    return buf.getvalue()
+
+
+def write_predictions(out: str | Path, name: str, pred: dict[str, np.ndarray]) -> list[Path]:
+    """Write ``<name>_<map>.exr`` (float32) and ``.png`` previews for every predicted map.
+
+    File names follow the Blender import's token rules (``_normal``, ``_albedo``, ``_roughness``,
+    ``_metallic``, ``_mask``). Normals are camera-space unit vectors (x right, y up, z toward the
+    camera; channels X, Y, Z); the PNG preview maps them from [-1, 1] to [0, 1].
+
+    Returns:
+        The written paths (EXR then PNG per map).
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    mask = pred["mask"][..., 0] > 0 if "mask" in pred else None
+    paths = []
+    for key, img in pred.items():
+        chans = "XYZ" if key == "normal" else ("RGB" if img.shape[-1] == 3 else "Y")
+        exr = out / f"{name}_{key}.exr"
+        write_exr(exr, {f"{key}.{c}": img[..., i] for i, c in enumerate(chans)})
+        preview = img * 0.5 + 0.5 if key == "normal" else img
+        if mask is not None:
+            preview = preview * mask[..., None]
+        png = out / f"{name}_{key}.png"
+        atomic_write_bytes(png, _png(preview))
+        paths += [exr, png]
+    return paths

@@ -77,6 +77,7 @@ __all__ = [
     "FitResult",
     "disney_brdf",
     "disney_diffuse",
+    "disney_lobes",
     "disney_specular",
     "fit_disney",
     "ggx_ndf",
@@ -314,12 +315,15 @@ def _dot3(a: Any, b: Any) -> Any:
     return a[..., 0] * b[..., 0] + a[..., 1] * b[..., 1] + a[..., 2] * b[..., 2]
 
 
-def _half_vector_cosines(ops: _Ops, wi: Any, wo: Any) -> tuple[Any, Any, Any, Any, Any]:
+def _half_vector_cosines(
+    ops: _Ops, wi: Any, wo: Any, cos_i: Any = None, cos_o: Any = None
+) -> tuple[Any, Any, Any, Any, Any]:
     """``(cos_i, cos_o, n_dot_h, i_dot_h, above)`` for unit directions ``(..., 3)``.
 
-    For unit vectors ``wi . h = wo . h = |wi + wo| / 2``; computing it that way, and ``n . h`` from
-    ``wi.z + wo.z``, makes every quantity symmetric in ``wi`` and ``wo`` to the last bit, so
-    swapping them gives the identical value (exact reciprocity).
+    ``cos_i`` and ``cos_o`` are the directions' cosines with the normal (default: their z
+    components, the local frame). For unit vectors ``wi . h = wo . h = |wi + wo| / 2``; computing
+    it that way, and ``n . h`` from ``cos_i + cos_o``, makes every quantity symmetric in ``wi`` and
+    ``wo`` to the last bit, so swapping them gives the identical value (exact reciprocity).
     """
     h = wi + wo
     len2 = _dot3(h, h)
@@ -327,7 +331,8 @@ def _half_vector_cosines(ops: _Ops, wi: Any, wo: Any) -> tuple[Any, Any, Any, An
     # wi = -wo only happens on the horizon, where the BRDF is masked to 0: any finite length will do,
     # and the sqrt never sees 0 (whose derivative is infinite).
     length = ops.sqrt(ops.where(nonzero, len2, 1.0))
-    cos_i, cos_o = wi[..., 2], wo[..., 2]
+    cos_i = wi[..., 2] if cos_i is None else cos_i
+    cos_o = wo[..., 2] if cos_o is None else cos_o
     n_dot_h = (cos_i + cos_o) / length
     i_dot_h = ops.where(nonzero, 0.5 * length, 0.0)
     return cos_i, cos_o, n_dot_h, i_dot_h, (cos_i > 0) & (cos_o > 0)
@@ -371,6 +376,58 @@ def disney_brdf(
     cos_i, cos_o, n_dot_h, i_dot_h, above = _half_vector_cosines(ops, wi_, wo_)
     fd = disney_diffuse(cos_i, cos_o, i_dot_h, albedo, roughness, metallic)
     fs = disney_specular(cos_i, cos_o, n_dot_h, i_dot_h, albedo, roughness, metallic, specular=specular)
+    above = above[..., None]
+    return ops.out(ops.where(above, fd, 0.0)), ops.out(ops.where(above, fs, 0.0))
+
+
+def disney_lobes(
+    normal: Any,
+    wi: Any,
+    wo: Any,
+    albedo: Any,
+    roughness: Any,
+    metallic: Any,
+    *,
+    specular: Any = 0.5,
+    specular_roughness: Any = None,
+) -> tuple[Any, Any]:
+    """Disney BRDF ``(diffuse, specular)`` for directions and normals in any common frame.
+
+    The frame-free form of :func:`disney_brdf` (equal to it in the local frame, where ``normal``
+    is ``(0, 0, 1)``): the cosines are dot products with ``normal``. Used by the network's
+    differentiable re-renderer, where normals, light and view directions are all camera-frame.
+    ``diffuse + specular`` is the full BRDF; the two parts are returned separately because they
+    interact differently with the display's polarization (see :mod:`network.rerender`).
+
+    Args:
+        normal: unit surface normal, ``(..., 3)``. Not normalised here.
+        wi: unit direction (light or view) pointing away from the surface, ``(..., 3)``.
+        wo: the other unit direction, ``(..., 3)``; the BRDF is symmetric in ``wi`` and ``wo``.
+        albedo: base colour, linear RGB in [0, 1], ``(..., 3)``.
+        roughness: perceptual roughness in [0, 1], shape ``(...)``.
+        metallic: metallic weight in [0, 1], shape ``(...)``.
+        specular: Disney "specular" in [0, 1] (0.5 = F0 0.04), shape ``(...)``.
+        specular_roughness: roughness of the specular lobe, shape ``(...)``, when it differs from
+            the diffuse lobe's (e.g. a lobe widened by a quadrature's patch size); default
+            ``roughness``.
+
+    Returns:
+        ``(diffuse, specular)``, each ``(..., 3)`` in 1/sr, 0 where either direction is at or
+        below the horizon of ``normal``; finite values and torch gradients everywhere.
+
+    Raises:
+        ValueError: if ``normal``, ``wi``, ``wo`` or ``albedo`` does not end in 3 components.
+    """
+    spec_r = roughness if specular_roughness is None else specular_roughness
+    ops, (n, wi_, wo_, albedo, roughness, metallic, specular, spec_r) = _backend(
+        normal, wi, wo, albedo, roughness, metallic, specular, spec_r
+    )
+    for name, arr in (("normal", n), ("wi", wi_), ("wo", wo_)):
+        if arr.ndim < 1 or arr.shape[-1] != 3:
+            raise ValueError(f"{name} must have shape (..., 3); got {tuple(arr.shape)}")
+    cos_i, cos_o, n_dot_h, i_dot_h, above = _half_vector_cosines(ops, wi_, wo_, _dot3(n, wi_), _dot3(n, wo_))
+    fd = disney_diffuse(cos_i, cos_o, i_dot_h, albedo, roughness, metallic)
+    fs = disney_specular(cos_i, cos_o, n_dot_h, i_dot_h, albedo, spec_r, metallic, specular=specular)
     above = above[..., None]
     return ops.out(ops.where(above, fd, 0.0)), ops.out(ops.where(above, fs, 0.0))
 

@@ -37,7 +37,7 @@ def test_bench_rejects_bad_size():
 
 
 def test_demo_round_trip(tmp_path):
-    proc = _run("headless/demo.py", "--out", str(tmp_path), "--height", "192", "--width", "256")
+    proc = _run("headless/optics_check.py", "--out", str(tmp_path), "--height", "192", "--width", "256")
     assert proc.returncode == 0, proc.stderr
     for name in ("inputs.png", "nine_maps.png", "metrics.json", "maps.npy", "mask.npy"):
         assert (tmp_path / name).is_file(), name
@@ -59,7 +59,7 @@ def test_demo_round_trip(tmp_path):
     assert not list(tmp_path.glob("*.tmp*")), "temporary files left behind"
 
 
-@pytest.mark.parametrize("script", ["headless/bench.py", "headless/demo.py"])
+@pytest.mark.parametrize("script", ["headless/bench.py", "headless/optics_check.py", "headless/demo.py"])
 def test_help(script):
     proc = _run(script, "--help")
     assert proc.returncode == 0

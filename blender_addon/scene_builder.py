@@ -1,0 +1,368 @@
+"""Objaverse-like scenes in Blender: assets from a folder, random poses in view, pBRDF materials.
+
+:func:`build_scene` imports assets with Blender's own importers, joins each file's meshes into one
+object, normalises it (centred on its bounding box, unit bounding-box diagonal), places it with
+:func:`.core.assets.place` 50-100 cm from the camera with every corner of its bounding box inside
+the view (so every vertex is), and assigns a material: an entry of a pBRDF library
+(``materials.json`` read by :func:`.core.scenegen.load_material_library`) or, without one, a
+random analytic material exactly as :func:`.core.scenegen.random_scene` draws it
+(:func:`.core.scenegen.random_material`). The Blender material is a Principled BSDF preview of
+the material's Disney parameters (base colour = albedo, roughness, metallic).
+
+Convention (custom properties, read by the exporter):
+    - object ``pdir_role = "scene_object"``, ``pdir_material`` = the material name,
+      ``pdir_asset`` = the source file;
+    - material ``pdir_material`` = JSON of :meth:`.core.spec.MaterialSpec.to_dict`;
+    - scene ``pdir_seed`` = the seed of the last build.
+    Objects are children of the rig root, so their pose in the rig frame is
+    :func:`.rig_bpy.to_rig_frame` (rotation times a uniform scale equal to the bounding-box
+    diagonal in metres, plus the translation).
+
+Randomness: one ``numpy.random.default_rng(seed)`` draws, per object in order: the asset file,
+the pose (redrawn while its bounding sphere overlaps an earlier object's, at most
+:data:`MAX_OVERLAP_TRIES` times) and the material. Same inputs and seed, same scene.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from pathlib import Path
+from types import ModuleType, SimpleNamespace
+from typing import TYPE_CHECKING
+
+import bmesh
+import bpy
+import numpy as np
+from bpy.props import BoolProperty, IntProperty, StringProperty
+from mathutils import Matrix
+from numpy.typing import NDArray
+
+from . import rig_bpy
+from .core.rig import Rig
+
+if TYPE_CHECKING:
+    from .core.spec import MaterialSpec
+
+__all__ = ["CLASSES", "IMPORTERS", "MAX_OVERLAP_TRIES", "build_scene", "import_asset", "list_asset_files"]
+
+#: File suffix -> Blender import operator (``bpy.ops`` path), as named in Blender 4.2-5.0.
+IMPORTERS = {
+    ".glb": "import_scene.gltf",
+    ".gltf": "import_scene.gltf",
+    ".obj": "wm.obj_import",
+    ".ply": "wm.ply_import",
+    ".fbx": "import_scene.fbx",
+    ".stl": "wm.stl_import",
+}
+#: Core add-ons providing the importers that are add-ons rather than built-in operators.
+_IMPORTER_ADDONS = {"import_scene.gltf": "io_scene_gltf2", "import_scene.fbx": "io_scene_fbx"}
+#: Pose redraws while an object's bounding sphere overlaps an earlier one's; then it is kept.
+MAX_OVERLAP_TRIES = 20
+
+ROLE_OBJECT = "scene_object"
+ROLE_COLLECTION = "scene_objects"
+MATERIAL_KEY = "pdir_material"
+ASSET_KEY = "pdir_asset"
+SEED_KEY = "pdir_seed"
+# Data-blocks an importer may create; those left over after joining are removed.
+_IMPORT_DATA = ("objects", "meshes", "materials", "images", "textures", "cameras", "lights", "armatures", "actions")
+
+
+def _core() -> tuple[ModuleType, ModuleType]:
+    """``(core.assets, core.scenegen)``, or a RuntimeError naming the missing package."""
+    try:
+        from .core import assets, scenegen  # noqa: PLC0415 - optional third-party imports inside
+    except ImportError as e:
+        name = e.name or "a dependency"
+        raise RuntimeError(
+            f"the scene builder needs the Python package '{name}': run '{sys.executable} -m pip install {name}'"
+        ) from None
+    return assets, scenegen
+
+
+def list_asset_files(folder: str | os.PathLike) -> list[Path]:
+    """Files under ``folder`` (recursively) that an importer of :data:`IMPORTERS` reads, sorted.
+
+    Raises:
+        FileNotFoundError: the folder does not exist or holds no such file.
+        NotADirectoryError: it is a file.
+    """
+    root = Path(folder)
+    if not root.exists():
+        raise FileNotFoundError(f"{root}: asset folder not found")
+    if not root.is_dir():
+        raise NotADirectoryError(f"{root}: not a folder")
+    files = [p for p in root.rglob("*") if p.is_file() and p.suffix.lower() in IMPORTERS]
+    if not files:
+        raise FileNotFoundError(f"{root}: no assets ({', '.join(sorted(IMPORTERS))}) in the folder")
+    return sorted(files, key=lambda p: p.relative_to(root).as_posix())
+
+
+def _importer(path: Path) -> object:
+    op_path = IMPORTERS[path.suffix.lower()]
+    group, name = op_path.split(".")
+    op = getattr(getattr(bpy.ops, group), name)
+    try:
+        op.get_rna_type()
+    except KeyError:  # an importer add-on that is not enabled: enable the core add-on
+        import addon_utils  # noqa: PLC0415
+
+        addon_utils.enable(_IMPORTER_ADDONS.get(op_path, ""), default_set=True)
+        op.get_rna_type()
+    return op
+
+
+def _world(obj: bpy.types.Object) -> Matrix:
+    """World matrix from the parent chain (valid right after an import, without a depsgraph update)."""
+    m = obj.matrix_parent_inverse @ obj.matrix_basis
+    return m if obj.parent is None else _world(obj.parent) @ m
+
+
+def import_asset(path: str | os.PathLike, name: str | None = None) -> bpy.types.Mesh:
+    """Import one asset file into a new mesh: all its meshes joined in world space, then normalised.
+
+    Normalised: centred on its axis-aligned bounding box, scaled to a unit bounding-box diagonal.
+    Everything else the importer created (objects, materials, images, ...) is removed again.
+
+    Raises:
+        ValueError: unsupported suffix, a failed import, or no non-degenerate mesh in the file.
+    """
+    path = Path(path)
+    if path.suffix.lower() not in IMPORTERS:
+        raise ValueError(f"{path}: unsupported asset type; supported: {sorted(IMPORTERS)}")
+    op = _importer(path)
+    before = {attr: set(getattr(bpy.data, attr)) for attr in _IMPORT_DATA}
+    try:
+        op(filepath=str(path))
+    except RuntimeError as e:
+        raise ValueError(f"{path}: import failed: {str(e).strip()}") from None
+    finally:
+        created = {attr: [i for i in getattr(bpy.data, attr) if i not in before[attr]] for attr in _IMPORT_DATA}
+    try:
+        bm = bmesh.new()
+        for obj in created["objects"]:
+            if obj.type != "MESH":
+                continue
+            tmp = obj.data.copy()
+            tmp.transform(_world(obj))
+            bm.from_mesh(tmp)
+            bpy.data.meshes.remove(tmp)
+        mesh = bpy.data.meshes.new(name or path.stem)
+        bm.to_mesh(mesh)
+        bm.free()
+    finally:
+        bpy.data.batch_remove([i for attr in _IMPORT_DATA for i in created[attr]])
+    mesh.materials.clear()
+    v = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+    mesh.vertices.foreach_get("co", v)
+    v = v.reshape(-1, 3).astype(np.float64)
+    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if len(v) else 0.0
+    if len(mesh.polygons) == 0 or not diag > 0:
+        bpy.data.meshes.remove(mesh)
+        raise ValueError(f"{path}: no mesh with faces and a non-zero size in the file")
+    v = (v - (v.min(axis=0) + v.max(axis=0)) / 2) / diag
+    mesh.vertices.foreach_set("co", v.astype(np.float32).ravel())
+    mesh.update()
+    return mesh
+
+
+def _bbox_corners(mesh: bpy.types.Mesh) -> NDArray[np.float64]:
+    v = np.empty(3 * len(mesh.vertices), dtype=np.float32)
+    mesh.vertices.foreach_get("co", v)
+    v = v.reshape(-1, 3).astype(np.float64)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    return np.array([[(lo, hi)[i >> k & 1][k] for k in range(3)] for i in range(8)])
+
+
+def material_from_spec(spec: MaterialSpec) -> bpy.types.Material:
+    """A Principled BSDF material previewing ``spec``'s Disney parameters (reused if identical)."""
+    payload = json.dumps(spec.to_dict(), sort_keys=True)
+    for mat in bpy.data.materials:
+        if mat.get(MATERIAL_KEY) == payload:
+            return mat
+    mat = bpy.data.materials.new(f"PDIR {spec.name}")
+    mat[MATERIAL_KEY] = payload
+    if mat.node_tree is None:  # Blender < 5.0 creates the node tree on request only
+        mat.use_nodes = True
+    bsdf = next((n for n in mat.node_tree.nodes if n.type == "BSDF_PRINCIPLED"), None)
+    if bsdf is None:
+        bsdf = mat.node_tree.nodes.new("ShaderNodeBsdfPrincipled")
+        out = next(n for n in mat.node_tree.nodes if n.type == "OUTPUT_MATERIAL")
+        mat.node_tree.links.new(bsdf.outputs["BSDF"], out.inputs["Surface"])
+    bsdf.inputs["Base Color"].default_value = (*spec.albedo, 1.0)  # linear RGB, as the spec
+    bsdf.inputs["Roughness"].default_value = spec.roughness
+    bsdf.inputs["Metallic"].default_value = spec.metallic
+    mat.diffuse_color = (*spec.albedo, 1.0)  # solid-mode viewport colour
+    mat.roughness, mat.metallic = spec.roughness, spec.metallic
+    return mat
+
+
+def material_spec_of(mat: bpy.types.Material) -> MaterialSpec:
+    """The :class:`~.core.spec.MaterialSpec` stored on a material by :func:`material_from_spec`.
+
+    Raises:
+        ValueError: the material carries no (valid) spec.
+    """
+    from .core.spec import MaterialSpec  # noqa: PLC0415
+
+    payload = mat.get(MATERIAL_KEY)
+    if payload is None:
+        raise ValueError(
+            f"material {mat.name!r} has no pBRDF material ({MATERIAL_KEY}); build the scene with the add-on"
+        )
+    return MaterialSpec.from_dict(json.loads(payload))
+
+
+def _objects_collection(scene: bpy.types.Scene) -> bpy.types.Collection:
+    for coll in scene.collection.children:
+        if coll.get(rig_bpy.ROLE_KEY) == ROLE_COLLECTION:
+            return coll
+    coll = bpy.data.collections.new("PDIR Objects")
+    coll[rig_bpy.ROLE_KEY] = ROLE_COLLECTION
+    scene.collection.children.link(coll)
+    return coll
+
+
+def clear_scene_objects(scene: bpy.types.Scene) -> int:
+    """Remove the objects a previous :func:`build_scene` made in ``scene``; returns how many."""
+    objs = [o for o in scene.objects if o.get(rig_bpy.ROLE_KEY) == ROLE_OBJECT]
+    meshes = {o.data for o in objs}
+    bpy.data.batch_remove(objs)
+    bpy.data.batch_remove([m for m in meshes if m.users == 0])
+    bpy.data.batch_remove([m for m in bpy.data.materials if MATERIAL_KEY in m and m.users == 0])
+    return len(objs)
+
+
+def _overlaps(centre: NDArray, radius: float, placed: list[tuple[NDArray, float]]) -> bool:
+    return any(np.linalg.norm(centre - c) < radius + r for c, r in placed)
+
+
+def build_scene(
+    scene: bpy.types.Scene,
+    folder: str | os.PathLike,
+    count: int,
+    seed: int,
+    library: str | os.PathLike | None = None,
+    *,
+    distance: tuple[float, float] = (0.5, 1.0),
+    size: tuple[float, float] = (0.15, 0.35),
+    replace: bool = True,
+) -> list[bpy.types.Object]:
+    """Place ``count`` random assets from ``folder`` in front of the rig's camera (see the module docstring).
+
+    Args:
+        scene: the scene; a default rig is added when it has none.
+        folder: asset folder (GLB/GLTF/OBJ/PLY/FBX/STL, recursive).
+        count: number of objects (assets drawn with replacement).
+        seed: random seed (non-negative integer).
+        library: folder with ``materials.json`` (pBRDF tables with Disney parameters); None or
+            empty: random analytic materials.
+        distance: (min, max) distance in m from the camera centre to an object's bounding-box centre.
+        size: (min, max) bounding-box diagonal of an object in m.
+        replace: remove the objects of the previous build first.
+
+    Returns:
+        The new objects, in draw order.
+
+    Raises:
+        ValueError: bad count or seed, a failed import, an asset that cannot fit in view.
+        FileNotFoundError: missing asset folder, no assets, missing library or tables.
+        RuntimeError: a Python package the core needs is missing (the message says which).
+    """
+    if isinstance(count, bool) or not isinstance(count, int) or count < 1:
+        raise ValueError(f"count must be a positive integer, got {count!r}")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    assets, scenegen = _core()
+    files = list_asset_files(folder)
+    materials = scenegen.load_material_library(library) if library else None
+    root = rig_bpy.find_rig_root(scene) or rig_bpy.add_rig(scene)
+    rig: Rig = rig_bpy.rig_from_blender(root)
+    if replace:
+        clear_scene_objects(scene)
+    coll = _objects_collection(scene)
+    rng = np.random.default_rng(seed)
+    meshes: dict[Path, bpy.types.Mesh] = {}  # one import per file; objects get copies
+    placed: list[tuple[NDArray, float]] = []
+    out = []
+    try:
+        for i in range(count):
+            path = files[int(rng.integers(len(files)))]
+            if path not in meshes:
+                meshes[path] = import_asset(path, name=f"PDIR source {path.stem}")
+            corners = SimpleNamespace(vertices=_bbox_corners(meshes[path]))
+            for _ in range(MAX_OVERLAP_TRIES):
+                pose = assets.place(corners, rig, rng, distance=distance, size=size)
+                centre, radius = pose[:3, 3], float(np.cbrt(abs(np.linalg.det(pose[:3, :3])))) / 2
+                if not _overlaps(centre, radius, placed):
+                    break
+            placed.append((centre, radius))
+            spec = (
+                materials[int(rng.integers(len(materials)))]
+                if materials
+                else scenegen.random_material(rng, name=f"obj{i:02d}")
+            )
+            mesh = meshes[path].copy()
+            mesh.name = f"{path.stem}_{i:02d}"
+            mesh.materials.append(material_from_spec(spec))
+            obj = bpy.data.objects.new(mesh.name, mesh)
+            obj[rig_bpy.ROLE_KEY] = ROLE_OBJECT
+            obj[MATERIAL_KEY] = spec.name
+            obj[ASSET_KEY] = str(path)
+            coll.objects.link(obj)
+            obj.parent = root
+            obj.matrix_parent_inverse = Matrix.Identity(4)
+            obj.matrix_basis = Matrix(pose.tolist())
+            out.append(obj)
+    finally:
+        bpy.data.batch_remove(list(meshes.values()))
+    scene[SEED_KEY] = int(seed)
+    return out
+
+
+class PDIR_OT_build_scene(bpy.types.Operator):
+    """Import random assets from a folder at random poses in the camera's view, with pBRDF materials."""
+
+    bl_idname = "pdir.build_scene"
+    bl_label = "Build Scene"
+    bl_options = {"REGISTER", "UNDO"}
+
+    folder: StringProperty(
+        name="Assets", description="Folder of GLB/GLTF/OBJ/PLY/FBX/STL assets", subtype="DIR_PATH", default=""
+    )
+    count: IntProperty(name="Objects", description="How many objects to place", default=3, min=1, max=100)
+    seed: IntProperty(name="Seed", description="Random seed of the scene", default=0, min=0)
+    library: StringProperty(
+        name="pBRDF Library",
+        description="Folder with materials.json (empty: random analytic materials)",
+        subtype="DIR_PATH",
+        default="",
+    )
+    replace: BoolProperty(name="Replace", description="Remove the objects of the previous build first", default=True)
+
+    def execute(self, context: bpy.types.Context) -> set[str]:
+        """Build the scene and report what was placed."""
+        if not self.folder.strip():
+            self.report({"ERROR"}, "Choose an asset folder")
+            return {"CANCELLED"}
+        library = bpy.path.abspath(self.library.strip()) if self.library.strip() else None
+        try:
+            objs = build_scene(
+                context.scene,
+                bpy.path.abspath(self.folder.strip()),
+                self.count,
+                self.seed,
+                library,
+                replace=self.replace,
+            )
+        except (ValueError, OSError, RuntimeError) as e:
+            self.report({"ERROR"}, str(e))
+            return {"CANCELLED"}
+        source = "pBRDF library" if library else "random analytic materials"
+        self.report({"INFO"}, f"Placed {len(objs)} objects (seed {self.seed}, {source})")
+        return {"FINISHED"}
+
+
+CLASSES = (PDIR_OT_build_scene,)

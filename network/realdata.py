@@ -1,0 +1,223 @@
+"""Real captures (and rendered samples without their ground truth) for the re-rendering loss.
+
+:class:`RealDataset` reads a folder of capture folders (``pdir-capture/1``, decoded with
+:func:`pbrdf.capture.decode_capture` exactly like the synthetic data) and/or rendered datasets
+(``pdir-dataset/1``; only their nine maps, mask, depth and sidecar geometry are used). Every item
+is cropped to a square around the mask (:func:`network.infer.mask_bbox`, as at inference),
+resized to the model size ``S`` and normalised (:func:`network.data.normalize_maps`); the camera
+geometry follows the crop and the resize, so the re-renderer sees the right rays.
+
+Items (all tensors, so ``torch.stack`` collates them):
+
+=============  ============  ===================================================================
+key            shape         meaning
+=============  ============  ===================================================================
+``maps``       (9, S, S)     normalised nine maps, 0 outside the mask
+``mask``       (1, S, S)     0/1
+``points``     (3, S, S)     camera-frame surface points in m (OpenGL axes; camera at origin)
+``patches``    (N, 11)       display quadrature patches, camera frame
+                             (:meth:`network.rerender.Patches.pack`, ``N = 3 nx ny``)
+``intrinsics`` (3, 3)        pinhole matrix of the ``S x S`` grid (OpenCV axes, pixel centres
+                             at ``i + 0.5``)
+=============  ============  ===================================================================
+
+Geometry per source:
+
+* rendered sample: the sidecar's ``rig`` and ``intrinsics`` (of the rendered crop, which is the
+  maps' grid) and, with ``use_depth``, the sample's ``depth`` map as the depth prior;
+* capture folder: optional keys of ``capture.json`` (kept as :attr:`pbrdf.capture.Capture.metadata`):
+  ``rig`` (a partial rig dict, :meth:`blender_addon.core.rig.Rig.from_dict`; default the
+  default rig), ``intrinsics`` (3x3 pinhole matrix of the raw mosaic's pixel grid; default the
+  rig camera's focal length with the principal point at the raw image's centre) and
+  ``distance_m`` (object distance along the viewing axis; default ``distance``). The decoder's
+  half grid has the intrinsics of the raw grid halved (pixel ``(i, j)`` is raw block
+  ``(2i..2i+1, 2j..2j+1)``). Without a depth prior every pixel sits on the fronto-parallel plane
+  at that distance (the approximation discussed in :mod:`network.rerender`).
+
+Background depth is filled with the median depth of the mask before resizing, so bilinear
+resizing never mixes in zeros at the silhouette.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import torch.nn.functional as F  # noqa: N812
+from numpy.typing import NDArray
+from torch.utils.data import Dataset
+
+from blender_addon.core.rig import Rig
+from pbrdf import capture as pcapture
+from pbrdf import dataset as pdataset
+
+from .data import normalize_maps
+from .infer import mask_bbox
+from .rerender import DEFAULT_PATCHES, crop_intrinsics, display_patches, points_from_depth
+
+__all__ = ["DEFAULT_DISTANCE", "RealDataset", "find_real_inputs", "load_real_input"]
+
+#: Default object distance in m without a depth prior: the middle of scenegen's 0.5 - 1.0 m.
+DEFAULT_DISTANCE = 0.75
+
+
+def _is_capture(path: Path) -> bool:
+    return path.is_dir() and (path / pcapture.CAPTURE_JSON).is_file()
+
+
+def _is_dataset(path: Path) -> bool:
+    return path.is_dir() and (path / pdataset.SAMPLES_DIR).is_dir()
+
+
+def _dataset_samples(root: Path) -> list[Path]:
+    return [pdataset.sample_paths(root, i).sidecar for i in sorted(pdataset.completed_indices(root))]
+
+
+def find_real_inputs(root: str | Path) -> list[Path]:
+    """Capture folders and sample sidecars under ``root``, sorted.
+
+    ``root`` may itself be a capture folder or a rendered dataset, or hold such folders one level
+    down (other entries are ignored).
+
+    Raises:
+        FileNotFoundError: ``root`` is not a folder.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: real-data folder not found")
+    if _is_capture(root):
+        return [root]
+    if _is_dataset(root):
+        return _dataset_samples(root)
+    out: list[Path] = []
+    for sub in sorted(root.iterdir()):
+        if _is_capture(sub):
+            out.append(sub)
+        elif _is_dataset(sub):
+            out.extend(_dataset_samples(sub))
+    return out
+
+
+def load_real_input(
+    path: Path, *, use_depth: bool = True
+) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float64], Rig, NDArray[np.float32] | None, float | None]:
+    """One input at its own resolution.
+
+    Returns:
+        ``(maps (H, W, 9), mask (H, W), intrinsics (3, 3) of the maps' grid, rig, depth (H, W) or
+        None, distance_m or None)``.
+
+    Raises:
+        FileNotFoundError, ValueError: unreadable input or bad geometry keys (message names the path).
+    """
+    if _is_capture(path):
+        cap = pcapture.load_capture(path)
+        dec = pcapture.decode_capture(cap)
+        meta = cap.metadata
+        try:
+            rig = Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()
+            h, w = cap.raws.shape[1:]
+            if "intrinsics" in meta:
+                k = np.asarray(meta["intrinsics"], dtype=np.float64)
+                if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+                    raise ValueError(f"intrinsics must be a finite 3x3 matrix, got shape {k.shape}")
+            else:
+                f = rig.camera.focal_length_px
+                k = np.array([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]])
+            distance = float(meta["distance_m"]) if "distance_m" in meta else None
+            if distance is not None and not distance > 0:
+                raise ValueError(f"distance_m must be > 0, got {distance}")
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{path / pcapture.CAPTURE_JSON}: {exc}") from None
+        k = k.copy()
+        k[:2] *= dec.maps.shape[0] / h  # half grid: pixel centres scale with the grid
+        return dec.maps, dec.mask, k, rig, None, distance
+    keys = ("maps", "mask", "depth") if use_depth else ("maps", "mask")
+    sample, meta = pdataset.read_sample(path, keys=keys)
+    try:
+        rig = Rig.from_dict(meta["rig"])
+        k = np.asarray(meta["intrinsics"], dtype=np.float64)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: sidecar lacks a valid rig/intrinsics: {exc}") from None
+    return sample["maps"], sample["mask"], k, rig, sample.get("depth"), None
+
+
+class RealDataset(Dataset):
+    """Captures and rendered samples as items for :func:`network.losses.real_loss` (module docs).
+
+    Args:
+        root: folder (see :func:`find_real_inputs`).
+        size: model input size ``S``.
+        distance: object distance in m where an input has no depth prior and no ``distance_m``.
+        use_depth: use a rendered sample's depth map as the depth prior (False: fixed distance).
+        patches: ``(nx, ny)`` display patches per colour region.
+        margin: crop margin around the mask (as :func:`network.infer.mask_bbox`).
+
+    Raises:
+        FileNotFoundError: ``root`` is missing.
+        ValueError: nothing usable under ``root``, or bad ``size``/``distance``.
+    """
+
+    def __init__(
+        self,
+        root: str | Path,
+        size: int,
+        *,
+        distance: float = DEFAULT_DISTANCE,
+        use_depth: bool = True,
+        patches: tuple[int, int] = DEFAULT_PATCHES,
+        margin: float = 0.05,
+    ) -> None:
+        if int(size) < 1:
+            raise ValueError(f"size must be >= 1, got {size}")
+        if not distance > 0:
+            raise ValueError(f"distance must be > 0 m, got {distance}")
+        self.root = Path(root)
+        self.paths = find_real_inputs(self.root)
+        if not self.paths:
+            raise ValueError(f"{self.root}: no capture folders ({pcapture.CAPTURE_JSON}) or rendered samples found")
+        self.size = int(size)
+        self.distance = float(distance)
+        self.use_depth = use_depth
+        self.patches = tuple(patches)
+        self.margin = margin
+        self._patch_cache: dict[str, torch.Tensor] = {}
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def _patches(self, rig: Rig) -> torch.Tensor:
+        key = json.dumps(rig.to_dict(), sort_keys=True)
+        if key not in self._patch_cache:
+            self._patch_cache[key] = display_patches(rig, self.patches).pack()
+        return self._patch_cache[key]
+
+    def __getitem__(self, i: int) -> dict[str, Any]:
+        path = self.paths[i]
+        maps, mask, k, rig, depth, distance = load_real_input(path, use_depth=self.use_depth)
+        try:
+            y0, x0, y1, x1 = mask_bbox(mask, self.margin)
+        except ValueError as exc:
+            raise ValueError(f"{path}: {exc}") from None
+        s = self.size
+        m = torch.from_numpy(np.ascontiguousarray(maps[y0:y1, x0:x1].transpose(2, 0, 1))).float()[None]
+        kmask = torch.from_numpy(mask[y0:y1, x0:x1].astype(np.float32))[None, None]
+        m = F.interpolate(m, size=(s, s), mode="bilinear", align_corners=False)
+        kmask = F.interpolate(kmask, size=(s, s), mode="nearest")
+        k_out = crop_intrinsics(k, (y0, x0, y1, x1), (s, s))
+        if depth is not None and np.any(mask & (depth > 0)):
+            d = np.where(mask & (depth > 0), depth, np.median(depth[mask & (depth > 0)]))[y0:y1, x0:x1]
+            d_t = F.interpolate(torch.from_numpy(np.ascontiguousarray(d, dtype=np.float32))[None, None],
+                                size=(s, s), mode="bilinear", align_corners=False)[0]  # fmt: skip
+        else:
+            d_t = torch.full((1, s, s), distance or self.distance)
+        return {
+            "maps": normalize_maps(m, kmask)[0],
+            "mask": kmask[0],
+            "points": points_from_depth(d_t, k_out),
+            "patches": self._patches(rig),
+            "intrinsics": torch.as_tensor(k_out, dtype=torch.float32),
+        }
