@@ -6,6 +6,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 LLVM_STAMP := $(VENV)/.llvm-ok
+CHROMIUM_STAMP := $(VENV)/.chromium-ok
 OUT ?= out
 
 .PHONY: setup demo test test-fast bench lint format clean help addon train-model
@@ -27,7 +28,11 @@ $(LLVM_STAMP): $(STAMP) tools/ensure_llvm.sh
 	bash tools/ensure_llvm.sh $(PY)
 	@touch $@
 
-setup: $(STAMP) $(LLVM_STAMP)  ## create .venv with all extras; install libllvm19 if Dr.Jit needs it
+$(CHROMIUM_STAMP): $(STAMP) tools/ensure_chromium.sh
+	bash tools/ensure_chromium.sh
+	@touch $@
+
+setup: $(STAMP) $(LLVM_STAMP) $(CHROMIUM_STAMP)  ## create .venv with all extras; libllvm19 and chromium if missing
 
 demo: setup  ## set-up, then the main job on built-in defaults (writes $(OUT)/demo)
 	$(PY) headless/demo.py --out $(OUT)/demo

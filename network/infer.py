@@ -80,10 +80,21 @@ def predict(
     k = F.interpolate(k, size=(size, size), mode="nearest")
     model.eval()
     pred = model(apply_inputs(normalize_maps(m, k), inputs), k)
+    # Extend the predictions past the (downsampled) mask with their nearest valid value, so that
+    # upsampling never blends in the zeros outside it: thin parts of the full-size mask that the
+    # network's grid lost still get a prediction (and normals stay unit length).
+    from scipy import ndimage  # noqa: PLC0415
+
+    invalid = k[0, 0].numpy() == 0
+    if invalid.all():
+        raise ValueError("the mask vanishes at the network's input size: nothing to reconstruct")
+    _, (iy, ix) = ndimage.distance_transform_edt(invalid, return_indices=True)
+    iy, ix = torch.from_numpy(iy), torch.from_numpy(ix)
     h, w = mask.shape
     out = {}
     for name, c in OUTPUTS.items():
-        x = F.interpolate(pred[name], size=(y1 - y0, x1 - x0), mode="bilinear", align_corners=False)[0]
+        filled = pred[name][:, :, iy, ix]
+        x = F.interpolate(filled, size=(y1 - y0, x1 - x0), mode="bilinear", align_corners=False)[0]
         if name == "normal":
             x = x / x.norm(dim=0, keepdim=True).clamp_min(1e-8)
         full = np.zeros((h, w, c), np.float32)
