@@ -5,6 +5,7 @@ the camera model and the decoder.
 
     python headless/render.py --out DIR --count N [--resolution 384] [--seed S] [--spp 32]
         [--assets DIR] [--pbrdfs DIR] [--rig FILE] [--resume] [--shard K/N]
+        [--scene SPEC.json] [--via-blender] [--npz]
 
 Each sample is DIR/samples/NNNNNN.exr (nine maps, mask, normal, albedo, roughness, metallic,
 depth; optionally Stokes) plus a JSON sidecar (rig, pose, material, Disney parameters, seeds,
@@ -13,8 +14,21 @@ versions); DIR/manifest.json lists the completed samples. Every sample is a pure
 a job array, into the same folder), --resume skips completed samples after a kill.
 
 Without --assets the built-in procedural shapes are used; without --pbrdfs, analytic
-polarimetric materials (pplastic and rough conductors) with random parameters.
-(The Blender route, `blender -b -P headless/render.py -- ...`, is planned.)
+polarimetric materials (pplastic and rough conductors) with random parameters. --scene renders
+one given scene spec (e.g. exported by the Blender add-on) instead of random scenes (--count
+defaults to 1). --npz also writes DIR/arrays/NNNNNN.npz (numpy only, read by the add-on).
+
+Two routes, same arguments, same files for the same seeds:
+  - bpy-free (default): python headless/render.py ...
+  - Blender: every scene is laid out in Blender (rig, objects, materials, lights) and exported
+    back to a spec before rendering (blender_addon.export.roundtrip_spec). Either
+        blender -b -P headless/render.py -- --out DIR --count N ...   (Blender 4.2+; the
+            arguments follow "--"; Blender's Python needs mitsuba, scipy, trimesh, OpenEXR,
+            tqdm: <blender python> -m pip install ...)
+    or, with the bpy wheel (pip install bpy, Python 3.11):
+        python headless/render.py --via-blender --out DIR --count N ...
+    Inside the Blender binary the Blender route is always taken.
+One process renders a whole batch (start one process per shard).
 """
 
 from __future__ import annotations
@@ -27,18 +41,31 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
+def script_args(argv: list[str]) -> list[str]:
+    """The script's own arguments: those after ``--`` (``blender -b -P script -- ...``), else ``argv[1:]``."""
+    return argv[argv.index("--") + 1 :] if "--" in argv else argv[1:]
+
+
+def _in_blender_binary() -> bool:
+    bpy = sys.modules.get("bpy")
+    return bpy is not None and bool(getattr(bpy.app, "binary_path", ""))
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(
         prog="render.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--out", type=Path, required=True, help="dataset folder")
-    parser.add_argument("--count", type=int, required=True, help="total number of samples in the dataset")
+    parser.add_argument("--count", type=int, help="total number of samples in the dataset (default 1 with --scene)")
     parser.add_argument("--resolution", type=int, default=384, help="sample size in pixels (default 384)")
     parser.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
     parser.add_argument("--spp", type=int, default=32, help="samples per pixel per colour pass (default 32)")
     parser.add_argument("--assets", type=Path, help="folder of GLB/GLTF/OBJ/PLY assets (default: procedural shapes)")
     parser.add_argument("--pbrdfs", type=Path, help="folder with materials.json and pBRDF tables (default: analytic)")
     parser.add_argument("--rig", type=Path, help="rig JSON overriding the default rig (calibrated rigs)")
+    parser.add_argument("--scene", type=Path, help="render this scene spec JSON instead of random scenes")
+    parser.add_argument("--via-blender", action="store_true", help="lay every scene out in Blender (bpy) first")
+    parser.add_argument("--npz", action="store_true", help="also write DIR/arrays/NNNNNN.npz (numpy only)")
     parser.add_argument("--resume", action="store_true", help="continue a killed run: skip completed samples")
     parser.add_argument("--shard", default="0/1", help="K/N: render only indices i with i %% N == K (default 0/1)")
     parser.add_argument("--keep-stokes", action="store_true", help="also store the rendered Stokes images")
@@ -46,16 +73,28 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-noise", action="store_true", help="noise-free camera model")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("-v", "--verbose", action="store_true", help="log tracebacks of failed samples")
-    args = parser.parse_args(argv)
+    args = parser.parse_args(script_args(sys.argv) if argv is None else argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
 
     from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
     from pbrdf.dataset import parse_shard  # noqa: PLC0415
 
     try:
+        if args.count is None and args.scene is None:
+            raise ValueError("--count is required (unless --scene is given)")
+        spec_hook = None
+        if args.via_blender or _in_blender_binary():
+            try:
+                from blender_addon.export import roundtrip_spec  # noqa: PLC0415 - imports bpy
+            except ImportError as e:
+                raise ValueError(
+                    f"--via-blender needs bpy ({e}): run under 'blender -b -P headless/render.py -- ...' "
+                    "or pip install bpy (Python 3.11)"
+                ) from None
+            spec_hook = roundtrip_spec
         cfg = GenerateConfig(
             out=args.out,
-            count=args.count,
+            count=1 if args.count is None else args.count,
             resolution=args.resolution,
             seed=args.seed,
             spp=args.spp,
@@ -67,8 +106,10 @@ def main(argv: list[str] | None = None) -> int:
             keep_stokes=args.keep_stokes,
             keep_raw=args.keep_raw,
             noise=not args.no_noise,
+            scene=args.scene,
+            npz=args.npz,
         )
-        report = generate(cfg, progress=not args.quiet)
+        report = generate(cfg, progress=not args.quiet, spec_hook=spec_hook)
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
@@ -77,4 +118,11 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    code = main()
+    if _in_blender_binary():
+        # `blender -b -P` ignores the script's exit status; quit Blender with it instead.
+        sys.stdout.flush()
+        import os  # noqa: PLC0415
+
+        os._exit(code)
+    raise SystemExit(code)

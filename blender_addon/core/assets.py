@@ -12,6 +12,10 @@ e.g. ``builtin:torus?seed=3&minor=0.3``; values parse as int, then float, else s
 Convention (size): a mesh's *diameter* is twice the largest distance of a vertex from the centre
 of its axis-aligned bounding box (:func:`diameter`); :func:`normalize` and :func:`place` use it.
 It bounds the minimal enclosing sphere from above, so a normalised mesh fits in a unit sphere.
+
+trimesh is needed to build or load meshes (:func:`procedural`, :func:`load_mesh`); without it
+the rest (mesh references, :func:`place`, :func:`write_ply_arrays`) still imports and works, so
+the Blender add-on can use the scene spec in a Python without trimesh.
 """
 
 from __future__ import annotations
@@ -23,8 +27,12 @@ from typing import Any
 from urllib.parse import parse_qsl
 
 import numpy as np
-import trimesh
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
+
+try:
+    import trimesh
+except ModuleNotFoundError:  # Blender's Python: specs, placement and PLY output work without it
+    trimesh = None
 
 from .rig import Rig, atomic_write_bytes
 
@@ -41,6 +49,7 @@ __all__ = [
     "procedural",
     "random_rotation",
     "write_ply",
+    "write_ply_arrays",
 ]
 
 #: File types :func:`load_mesh` reads (lower case).
@@ -52,6 +61,13 @@ _BUILTIN_PREFIX = "builtin:"
 
 
 # --------------------------------------------------------------------------- procedural shapes
+
+
+def _require_trimesh() -> None:
+    if trimesh is None:
+        raise ModuleNotFoundError(
+            "building or loading meshes needs the Python package 'trimesh' (pip install trimesh)", name="trimesh"
+        )
 
 
 def _orient_outward(vertices: NDArray, faces: NDArray) -> NDArray:
@@ -250,6 +266,7 @@ def procedural(shape: str, *, seed: int = 0, **params: Any) -> trimesh.Trimesh:
     Raises:
         ValueError: unknown shape or parameter (listing the valid ones), or a value out of range.
     """
+    _require_trimesh()
     if shape not in _SHAPES:
         raise ValueError(f"unknown procedural shape {shape!r}; valid: {list(PROCEDURAL_SHAPES)}")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
@@ -353,6 +370,7 @@ def load_mesh(path_or_builtin: str | os.PathLike) -> trimesh.Trimesh:
             for an empty file, no triangles, fewer than 4 faces, NaN vertices, or a flat or
             zero-extent bounding box.
     """
+    _require_trimesh()
     builtin = parse_builtin(str(path_or_builtin)) if isinstance(path_or_builtin, str) else None
     if builtin is not None:
         shape, params = builtin
@@ -567,29 +585,59 @@ def write_ply(mesh: trimesh.Trimesh, path: str | os.PathLike) -> None:
     Vertex properties: ``x y z nx ny nz`` (float32) plus ``u v`` when the mesh has per-vertex
     UVs (as stored by trimesh, v up); faces as ``list uchar uint vertex_indices``.
     """
-    v = np.asarray(mesh.vertices, dtype=np.float64)
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    if len(v) == 0 or len(faces) == 0:
+    uv = np.asarray(mesh.visual.uv, dtype=np.float64) if _has_uv(mesh) else None
+    if len(mesh.vertices) == 0 or len(mesh.faces) == 0:
         raise ValueError("write_ply: the mesh has no triangles")
-    normals = np.asarray(mesh.vertex_normals, dtype=np.float64)
-    fields = [(k, "<f4") for k in ("x", "y", "z", "nx", "ny", "nz")]
-    has_uv = _has_uv(mesh)
-    if has_uv:
+    write_ply_arrays(path, mesh.vertices, mesh.faces, normals=mesh.vertex_normals, uvs=uv)
+
+
+def write_ply_arrays(
+    path: str | os.PathLike,
+    vertices: ArrayLike,
+    faces: ArrayLike,
+    *,
+    normals: ArrayLike | None = None,
+    uvs: ArrayLike | None = None,
+) -> None:
+    """Write triangles as a binary little-endian PLY (Mitsuba 3's ``ply`` plugin reads it), atomically.
+
+    Args:
+        path: output file.
+        vertices: ``(N, 3)`` positions.
+        faces: ``(F, 3)`` vertex indices, counter-clockwise seen from the front.
+        normals: optional ``(N, 3)`` vertex normals (``nx ny nz``); without them Mitsuba shades flat.
+        uvs: optional ``(N, 2)`` texture coordinates (``u v``, v up).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
+        raise ValueError(f"write_ply: need vertices (N, 3) and faces (F, 3), got {v.shape} and {f.shape}")
+    if len(v) == 0 or len(f) == 0:
+        raise ValueError("write_ply: the mesh has no triangles")
+    if f.min() < 0 or f.max() >= len(v):
+        raise ValueError(f"write_ply: face indices must be in [0, {len(v)}), got [{f.min()}, {f.max()}]")
+    extra = {"n": normals, "uv": uvs}
+    fields = [(k, "<f4") for k in ("x", "y", "z")]
+    if normals is not None:
+        extra["n"] = np.asarray(normals, dtype=np.float64).reshape(len(v), 3)
+        fields += [(k, "<f4") for k in ("nx", "ny", "nz")]
+    if uvs is not None:
+        extra["uv"] = np.asarray(uvs, dtype=np.float64).reshape(len(v), 2)
         fields += [("u", "<f4"), ("v", "<f4")]
     vert = np.empty(len(v), dtype=fields)
     for i, k in enumerate("xyz"):
         vert[k] = v[:, i]
-        vert["n" + k] = normals[:, i]
-    if has_uv:
-        uv = np.asarray(mesh.visual.uv, dtype=np.float64)
-        vert["u"], vert["v"] = uv[:, 0], uv[:, 1]
-    face = np.empty(len(faces), dtype=[("n", "u1"), ("i", "<u4", (3,))])
+        if normals is not None:
+            vert["n" + k] = extra["n"][:, i]
+    if uvs is not None:
+        vert["u"], vert["v"] = extra["uv"][:, 0], extra["uv"][:, 1]
+    face = np.empty(len(f), dtype=[("n", "u1"), ("i", "<u4", (3,))])
     face["n"] = 3
-    face["i"] = faces
+    face["i"] = f
     props = "".join(f"property float {k}\n" for k, _ in fields)
     header = (
         "ply\nformat binary_little_endian 1.0\ncomment written by blender_addon.core.assets\n"
         f"element vertex {len(v)}\n{props}"
-        f"element face {len(faces)}\nproperty list uchar uint vertex_indices\nend_header\n"
+        f"element face {len(f)}\nproperty list uchar uint vertex_indices\nend_header\n"
     )
     atomic_write_bytes(path, header.encode("ascii") + vert.tobytes() + face.tobytes())

@@ -4,25 +4,37 @@ One process renders a list of sample indices (a shard). Every sample is a pure f
 run seed and its index (:func:`.scenegen.sample_seed`), so shards, resumed runs and reruns all
 produce identical samples; writes are atomic (:mod:`pbrdf.dataset`), so a killed run resumes
 without losing or duplicating work.
+
+Instead of random scenes, ``GenerateConfig.scene`` renders one given scene spec (the Blender
+add-on's exported scene). ``generate(..., spec_hook=...)`` passes every scene through a function
+before rendering: the Blender route (``headless/render.py --via-blender``) lays the scene out in
+Blender and exports it back there (:func:`blender_addon.export.roundtrip_spec`).
 """
 
 from __future__ import annotations
 
+import io
 import logging
 import platform
 import time
 import traceback
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 
 from pbrdf import dataset
+from pbrdf.atomic import atomic_write_bytes
 
 from . import assets, render, scenegen
 from .rig import Rig
+from .spec import SceneSpec
 
-__all__ = ["GenerateConfig", "GenerateReport", "generate", "versions"]
+__all__ = ["ARRAYS_DIR", "GenerateConfig", "GenerateReport", "generate", "render_sample", "versions", "write_arrays"]
+
+#: Folder of a dataset holding the optional ``NNNNNN.npz`` copies of the samples (``--npz``).
+ARRAYS_DIR = "arrays"
 
 log = logging.getLogger(__name__)
 
@@ -44,14 +56,18 @@ class GenerateConfig:
     keep_stokes: bool = False
     keep_raw: bool = False
     noise: bool = True
+    scene: Path | None = None
+    npz: bool = False
 
     def __post_init__(self) -> None:
         if self.count < 1:
             raise ValueError(f"--count must be >= 1, got {self.count}")
-        for name in ("assets", "pbrdfs", "rig"):
+        for name in ("assets", "pbrdfs", "rig", "scene"):
             p = getattr(self, name)
             if p is not None and not Path(p).exists():
                 raise FileNotFoundError(f"--{name} {p}: does not exist")
+        if self.scene is not None and (self.assets is not None or self.pbrdfs is not None):
+            raise ValueError("--scene renders the given scene: it cannot be combined with --assets or --pbrdfs")
 
 
 @dataclass
@@ -89,9 +105,79 @@ def versions() -> dict[str, str]:
     return out
 
 
-def generate(cfg: GenerateConfig, *, progress: bool = True) -> GenerateReport:
-    """Render ``cfg.count`` samples (this process's shard of them) into ``cfg.out``."""
+def render_sample(
+    spec: SceneSpec,
+    settings: render.RenderSettings,
+    *,
+    sample_seed: int,
+    noise: bool = True,
+    keep_stokes: bool = False,
+    keep_raw: bool = False,
+) -> tuple[dict, dict, dict[str, float]]:
+    """Render one scene spec into a dataset sample: polarized render, camera model, decode.
+
+    The camera noise is drawn from ``numpy.random.default_rng([sample_seed, 1])``; the render's
+    own seeds come from ``spec.seed``. The Blender add-on calls this too, so its in-process
+    render equals ``headless/render.py --scene`` with the same seeds.
+
+    Returns:
+        ``(sample, metadata, seconds)``: the :mod:`pbrdf.dataset` sample, its sidecar metadata
+        and the wall time of the stages ``render`` and ``camera+decode``.
+    """
+    t0 = time.perf_counter()
+    result = render.render_stokes(spec, settings)
+    t1 = time.perf_counter()
+    sample, meta = render.synthesize_sample(
+        spec, result, rng=np.random.default_rng([sample_seed, 1]), noise=noise, keep_stokes=keep_stokes,
+        keep_raw=keep_raw,
+    )  # fmt: skip
+    return sample, meta, {"render": t1 - t0, "camera+decode": time.perf_counter() - t1}
+
+
+def write_arrays(root: str | Path, index: int, sample: dict, meta: dict) -> Path:
+    """Write a sample's arrays as ``root/arrays/NNNNNN.npz`` (numpy only), atomically.
+
+    For readers without OpenEXR (Blender's Python): keys are the sample's arrays, plus
+    ``map_names`` (the nine maps' names) and ``metadata`` (the sidecar metadata as JSON).
+    """
+    import json  # noqa: PLC0415
+
+    from pbrdf.decode import NINE_MAP_NAMES  # noqa: PLC0415
+
+    buf = io.BytesIO()
+    arrays = {k: np.asarray(v) for k, v in sample.items() if k != "raw"}
+    np.savez_compressed(
+        buf, **arrays, map_names=np.asarray(NINE_MAP_NAMES), metadata=np.asarray(json.dumps(meta, default=str))
+    )
+    path = Path(root) / ARRAYS_DIR / f"{index:06d}.npz"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, buf.getvalue())
+    return path
+
+
+def generate(
+    cfg: GenerateConfig,
+    *,
+    progress: bool = True,
+    spec_hook: Callable[[SceneSpec], SceneSpec] | None = None,
+) -> GenerateReport:
+    """Render ``cfg.count`` samples (this process's shard of them) into ``cfg.out``.
+
+    Args:
+        cfg: what to generate.
+        progress: show a progress bar.
+        spec_hook: applied to every scene spec before rendering (the Blender route); the
+            sidecar records the spec it returns.
+    """
     rig = Rig.load(cfg.rig) if cfg.rig else Rig()
+    fixed = SceneSpec.load(cfg.scene) if cfg.scene else None
+    if fixed is not None:
+        if cfg.rig:
+            fixed = replace(fixed, rig=rig)
+        try:
+            fixed.validate()
+        except ValueError as e:
+            raise ValueError(f"--scene {cfg.scene}: {e}") from None
     asset_files = assets.list_assets(cfg.assets) if cfg.assets else None
     if cfg.assets and not asset_files:
         raise ValueError(f"--assets {cfg.assets}: no GLB/GLTF/OBJ/PLY files found")
@@ -111,6 +197,8 @@ def generate(cfg: GenerateConfig, *, progress: bool = True) -> GenerateReport:
         "rig": rig.to_dict(),
         "versions": versions(),
     }
+    if spec_hook is not None:
+        info["spec_hook"] = f"{spec_hook.__module__}.{spec_hook.__qualname__}"
     bar = None
     if progress:
         from tqdm import tqdm  # noqa: PLC0415
@@ -120,21 +208,22 @@ def generate(cfg: GenerateConfig, *, progress: bool = True) -> GenerateReport:
         t0 = time.perf_counter()
         seed = scenegen.sample_seed(cfg.seed, index)
         try:
-            spec = scenegen.random_scene(rig, seed, asset_files=asset_files, materials=materials)
+            if fixed is not None:
+                spec = fixed
+            else:
+                spec = scenegen.random_scene(rig, seed, asset_files=asset_files, materials=materials)
+            if spec_hook is not None:
+                spec = spec_hook(spec)
             t1 = time.perf_counter()
-            result = render.render_stokes(spec, settings)
-            t2 = time.perf_counter()
-            sample, meta = render.synthesize_sample(
-                spec,
-                result,
-                rng=np.random.default_rng([seed, 1]),
-                noise=cfg.noise,
-                keep_stokes=cfg.keep_stokes,
-                keep_raw=cfg.keep_raw,
+            sample, meta, stages = render_sample(
+                spec, settings, sample_seed=seed, noise=cfg.noise, keep_stokes=cfg.keep_stokes, keep_raw=cfg.keep_raw
             )
             meta.update(sample_seed=seed, run_seed=cfg.seed, versions=info["versions"], spec=spec.to_dict())
             t3 = time.perf_counter()
+            t2 = t1 + stages["render"]
             dataset.write_sample(out, index, sample, meta)
+            if cfg.npz:
+                write_arrays(out, index, sample, meta)
             t4 = time.perf_counter()
         except Exception as exc:  # noqa: BLE001 - one bad sample must not stop a long run
             report.failed[index] = f"{type(exc).__name__}: {exc}"

@@ -39,6 +39,10 @@ __all__ = [
     "render_stokes",
     "synthesize_sample",
     "ground_truth",
+    "PreviewSettings",
+    "PreviewResult",
+    "choose_rgb_variant",
+    "render_preview",
 ]
 
 log = logging.getLogger(__name__)
@@ -124,13 +128,11 @@ def choose_variant(preferred: str = "llvm_ad_mono_polarized") -> str:
     """
     if preferred in _VARIANT_CACHE:
         return _VARIANT_CACHE[preferred]
-    import drjit as dr  # noqa: PLC0415
     import mitsuba as mi  # noqa: PLC0415
 
     variant = preferred
     if preferred.startswith("llvm"):
-        ok = dr.has_backend(dr.JitBackend.LLVM) and tuple(dr.detail.llvm_version()) >= (16, 0, 0)
-        if not ok:
+        if not _llvm_ok():
             warnings.warn(
                 "Dr.Jit's LLVM backend is inactive or older than LLVM 16 (install Debian's libllvm19, "
                 "or run `make setup`); falling back to the slow scalar_spectral_polarized variant",
@@ -142,6 +144,23 @@ def choose_variant(preferred: str = "llvm_ad_mono_polarized") -> str:
         raise RuntimeError(f"Mitsuba variant {variant!r} is not available; have {mi.variants()}")
     _VARIANT_CACHE[preferred] = variant
     return variant
+
+
+def _llvm_ok() -> bool:
+    """Dr.Jit's LLVM backend works and is LLVM >= 16 (older versions abort on polarized kernels)."""
+    import drjit as dr  # noqa: PLC0415
+
+    return bool(dr.has_backend(dr.JitBackend.LLVM)) and tuple(dr.detail.llvm_version()) >= (16, 0, 0)
+
+
+def choose_rgb_variant() -> str:
+    """``llvm_ad_rgb`` when the LLVM backend works (:func:`choose_variant`'s test), else ``scalar_rgb``."""
+    import mitsuba as mi  # noqa: PLC0415
+
+    for variant in ("llvm_ad_rgb", "scalar_rgb"):
+        if variant in mi.variants() and (not variant.startswith("llvm") or _llvm_ok()):
+            return variant
+    raise RuntimeError(f"no RGB Mitsuba variant is available; have {mi.variants()}")
 
 
 def _set_variant(variant: str):
@@ -376,3 +395,71 @@ def synthesize_sample(
         "mask_fraction": float(mask.mean()),
     }
     return sample, meta
+
+
+# --------------------------------------------------------------------------- RGB preview
+
+
+@dataclass(frozen=True)
+class PreviewSettings:
+    """How to render the RGB preview of a scene (:func:`render_preview`).
+
+    Attributes:
+        resolution: film ``(W, H)``, a width (sensor aspect), or None (the camera's sensor size).
+        spp: samples per pixel.
+        max_depth: path length limit.
+        display: include the rig's display as an (unpolarized) light.
+        variant: Mitsuba RGB variant, or None (:func:`choose_rgb_variant`).
+        seed: sampler seed.
+    """
+
+    resolution: tuple[int, int] | int | None = 256
+    spp: int = 64
+    max_depth: int = 8
+    display: bool = True
+    variant: str | None = None
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if self.spp < 1:
+            raise ValueError(f"spp must be >= 1, got {self.spp}")
+        if self.max_depth < 1:
+            raise ValueError(f"max_depth must be >= 1, got {self.max_depth}")
+
+
+@dataclass
+class PreviewResult:
+    """An RGB preview render: ``rgb (H, W, 3)`` linear radiance, ``alpha (H, W)`` coverage, the scene dict."""
+
+    rgb: NDArray[np.float32]
+    alpha: NDArray[np.float32]
+    scene: dict
+    variant: str
+    seconds: float
+
+    @property
+    def mask(self) -> NDArray[np.bool_]:
+        """Pixels at least half covered by geometry (objects, or lights seen by the camera)."""
+        return self.alpha >= 0.5
+
+
+def render_preview(spec: SceneSpec, files_dir, settings: PreviewSettings = PreviewSettings()) -> PreviewResult:
+    """Render the RGB (non-polarized) preview of a scene spec with Mitsuba.
+
+    Args:
+        spec: the scene; its lights and environment are used, and its rig camera.
+        files_dir: folder for the files the scene refers to (converted meshes, display pattern).
+        settings: resolution, samples, display on/off.
+    """
+    variant = settings.variant or choose_rgb_variant()
+    mi = _set_variant(variant)
+    t0 = time.perf_counter()
+    scene = ms.preview_scene_dict(
+        spec, files_dir, resolution=settings.resolution, spp=settings.spp, max_depth=settings.max_depth,
+        display=settings.display,
+    )  # fmt: skip
+    img = np.asarray(mi.render(mi.load_dict(scene), seed=int(settings.seed), spp=settings.spp), dtype=np.float32)
+    return PreviewResult(
+        rgb=img[..., :3].copy(), alpha=img[..., 3].copy(), scene=scene, variant=variant,
+        seconds=time.perf_counter() - t0,
+    )  # fmt: skip

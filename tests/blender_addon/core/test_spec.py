@@ -129,8 +129,8 @@ class TestJson:
             SceneSpec(metadata={"x": object()})
 
     def test_errors(self, tmp_path):
-        with pytest.raises(ValueError, match=r"unknown scene keys \['lights'\]"):
-            SceneSpec.from_dict({"lights": []})
+        with pytest.raises(ValueError, match=r"unknown scene keys \['lamps'\]"):
+            SceneSpec.from_dict({"lamps": []})
         with pytest.raises(ValueError, match=r"missing required keys \['material'\]"):
             SceneSpec.from_dict({"objects": [{"name": "o", "mesh": "builtin:sphere"}]})
         with pytest.raises(ValueError, match="unknown object keys"):
