@@ -1,34 +1,83 @@
-"""Train the feed-forward network on rendered samples.
+"""Train the feed-forward network on rendered samples (and real captures).
 
-    python headless/train.py --data DIR --config toy|small|paper --out DIR [--steps N] [--resume]
+    python headless/train.py --data DIR [--real DIR] --config toy|small|paper --out DIR [--steps N] [--resume]
 
-Writes OUT/checkpoint.pt (model, optimizer, step, RNG state; resumable), OUT/model.pt (state
-dict plus config, what infer.py loads) and OUT/log.csv (loss per step and per term). --resume
-continues a killed run exactly where its last checkpoint was.
+Writes OUT/checkpoint.pt (model, optimizer, step, per-rank RNG states; resumable), OUT/model.pt
+(state dict, config and input variant: what infer.py loads), OUT/log.csv (one row per step:
+losses, learning rate, real-loss weight, gradient norm), OUT/val.csv (with --val) and
+TensorBoard events in OUT/tb (when tensorboard is installed). --resume continues a killed run
+exactly where its last checkpoint was.
+
+Several GPUs or machines: launch the same command with torchrun, e.g.
+
+    torchrun --standalone --nproc_per_node 4 headless/train.py --data DIR --config paper --out DIR
+
+(--batch-size is per process; gloo on CPUs, nccl on GPUs; only rank 0 writes files).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
+import os
 import sys
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+INPUTS = ("white", "spectral", "polar", "full")  # network.inputs.INPUT_VARIANTS (not imported: --help stays fast)
+
+
+class _Parser(argparse.ArgumentParser):
+    """Bad arguments give one line on stderr (``error: ...``) and exit status 2."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"error: {message} (see {self.prog} --help)\n")
+
+
+def _override(text: str) -> tuple[str, object]:
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected key=value, got {text!r}")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value  # a plain string, e.g. cross_observation=token
+
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+    parser = _Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--data", type=Path, required=True, help="dataset folder from headless/render.py")
+    parser.add_argument("--real", type=Path, help="folder of real captures (capture folders and/or samples)")
+    parser.add_argument("--val", type=Path, help="held-out rendered dataset: normal MAE every --val-every steps")
     parser.add_argument("--config", default="toy", choices=["toy", "small", "paper"], help="model size (default toy)")
+    parser.add_argument(
+        "--overrides", nargs="+", type=_override, default=[], metavar="KEY=VALUE",
+        help="ModelConfig fields to replace, e.g. image_size=128 train_pixels=1024 (JSON values)",
+    )  # fmt: skip
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--steps", type=int, default=100, help="total steps (default 100)")
-    parser.add_argument("--batch-size", type=int, default=1, help="samples per step (default 1)")
-    parser.add_argument("--lr", type=float, default=8e-5, help="AdamW learning rate (default 8e-5)")
+    parser.add_argument("--batch-size", type=int, default=1, help="samples per step and process (default 1)")
+    parser.add_argument("--lr", type=float, default=8e-5, help="AdamW peak learning rate (default 8e-5)")
+    parser.add_argument("--weight-decay", type=float, default=0.05, help="AdamW weight decay (default 0.05)")
+    parser.add_argument("--lr-warmup", type=int, default=0, help="linear learning-rate warm-up steps (default 0)")
+    parser.add_argument("--lr-decay-steps", type=int, help="cosine decay horizon (default --steps)")
+    parser.add_argument("--min-lr-ratio", type=float, default=0.1, help="final lr / peak lr (default 0.1)")
+    parser.add_argument("--clip", type=float, default=1.0, help="gradient-norm clipping (default 1.0)")
+    parser.add_argument("--real-weight", type=float, default=0.1, help="real-loss weight after warm-up (default 0.1)")
+    parser.add_argument("--real-start", type=int, default=0, help="step where the real-loss ramp starts (default 0)")
+    parser.add_argument("--real-warmup", type=int, default=0, help="steps of the linear real-weight ramp (default 0)")
+    parser.add_argument("--inputs", default="full", choices=INPUTS, help="input variant (Table 3; default full)")
+    parser.add_argument("--bf16", action="store_true", help="bf16 autocast for the forward pass (for GPUs)")
+    parser.add_argument("--device", default="auto", choices=["cpu", "cuda", "auto"], help="device (default auto)")
     parser.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     parser.add_argument("--checkpoint-every", type=int, default=50, help="steps between checkpoints (default 50)")
+    parser.add_argument("--val-every", type=int, default=0, help="steps between validations (default: checkpoints)")
+    parser.add_argument("--val-samples", type=int, default=8, help="validation samples (default 8)")
+    parser.add_argument("--max-skipped", type=int, default=10, help="non-finite steps tolerated (default 10)")
+    parser.add_argument("--workers", type=int, default=0, help="data-loading processes per loader (default 0)")
+    parser.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard events")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
@@ -36,17 +85,21 @@ def main(argv: list[str] | None = None) -> int:
     from network.train import TrainConfig, train  # noqa: PLC0415
 
     try:
-        losses = train(
-            TrainConfig(
-                data=args.data, out=args.out, config=args.config, steps=args.steps, batch_size=args.batch_size,
-                lr=args.lr, seed=args.seed, resume=args.resume, checkpoint_every=args.checkpoint_every,
-            ),
-            progress=not args.quiet,
+        cfg = TrainConfig(
+            data=args.data, out=args.out, config=args.config, steps=args.steps, batch_size=args.batch_size,
+            lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.lr_warmup, decay_steps=args.lr_decay_steps,
+            min_lr_ratio=args.min_lr_ratio, clip=args.clip, seed=args.seed, resume=args.resume,
+            checkpoint_every=args.checkpoint_every, overrides=dict(args.overrides), real=args.real,
+            real_weight=args.real_weight, real_start=args.real_start, real_warmup=args.real_warmup,
+            inputs=args.inputs, bf16=args.bf16, device=args.device, val=args.val, val_every=args.val_every,
+            val_samples=args.val_samples, max_skipped=args.max_skipped, workers=args.workers,
+            tensorboard=not args.no_tensorboard,
         )  # fmt: skip
+        losses = train(cfg, progress=not args.quiet)
     except (ValueError, OSError, FloatingPointError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    if losses:
+    if losses and os.environ.get("RANK", "0") == "0":
         print(f"steps {len(losses)}, loss first {losses[0]:.4f}, last {losses[-1]:.4f}; model: {args.out / 'model.pt'}")
     return 0
 

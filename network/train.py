@@ -1,40 +1,134 @@
-"""Training on synthetic samples: AdamW, gradient clipping, NaN/Inf guards, exact resume.
+"""Training: synthetic (and real) batches, AdamW, schedules, guards, exact resume, DDP.
 
-One step = one batch of rendered samples (:class:`network.data.SampleDataset`), the model decodes
-``train_pixels`` random masked pixels per image, and :func:`network.losses.synthetic_loss`
-compares them with the ground truth gathered at the same pixels. A checkpoint holds the model
-and optimizer state dicts, the model config as a plain dict, the step, the loss history and the
-torch RNG state (pixel sampling) and data order, so a resumed run continues the same loss curve
-(on the CPU). Logs go to ``log.csv`` (one row per step) and, when available, TensorBoard.
+One step = one batch of rendered samples (:class:`network.data.SampleDataset`) and, with a real
+folder (:class:`network.realdata.RealDataset`) and a real-loss weight above 0, one batch of real
+captures. The model decodes ``train_pixels`` random masked pixels per image;
+:func:`network.losses.synthetic_loss` compares them with the ground truth gathered at the same
+pixels and :func:`network.losses.real_loss` with the re-rendered captures. The two passes run one
+after the other (forward, backward, forward, backward, one optimizer step), so only one graph is
+alive at a time; the real pass is skipped entirely (not even loaded) while its weight is 0.
+An input variant (:func:`network.inputs.apply_inputs`) changes what the network sees, not what the
+losses compare with (the real loss always uses the measured unpol and LP maps).
+
+Schedules (pure functions of the step, so resuming needs no scheduler state):
+
+- learning rate (:func:`learning_rate`): linear warm-up over ``warmup_steps``, then a cosine from
+  ``lr`` down to ``min_lr_ratio * lr`` at ``decay_steps`` (default: ``steps``);
+- real-loss weight (:func:`real_loss_weight`): 0 before ``real_start``, then a linear ramp to
+  ``real_weight`` over ``real_warmup`` steps (0 at ``real_start`` itself).
+
+Determinism. The model is initialised from ``torch.manual_seed(seed)``. Data order: the samples of
+epoch ``e`` are a permutation drawn from ``random.Random(f"{seed}:{loader}:{e}")``; the sample at
+global position ``k`` is that of epoch ``k // n``, slot ``k % n``. Step ``s`` on rank ``r`` of ``W``
+with per-rank batch ``B`` takes positions ``(s W + r) B + j``, ``j < B``: the ranks see disjoint
+slices, and a ``W``-process run with batch ``B`` sees the same samples at every step as a
+1-process run with batch ``W B``. Pixel sampling: sample ``j`` of a batch draws its pixels from its
+own generator seeded with :func:`pixel_seed` ``(seed, loader, step, position)``, so a sample gets
+the same pixels however the global batch is split over processes. Resuming therefore only needs
+the step; the checkpoint also keeps every rank's torch RNG state (anything else random, e.g. in a
+loss) so a resumed run continues the same loss curve exactly (on the CPU).
+
+Mixed precision. With ``bf16`` the forward pass runs under ``torch.autocast(bfloat16)``; the model
+returns float32, the losses are computed in float32 outside autocast and the backward pass runs
+outside it (a backward inside bf16 autocast is a known NaN source).
+
+Guards. A batch with NaN/Inf inputs is skipped before the forward pass; a non-finite loss or
+gradient norm skips the optimizer step. Each skip is logged as a warning naming the step, and
+more than ``max_skipped`` skips stop the run with :class:`FloatingPointError`.
+
+Distributed. Under ``torchrun`` (``WORLD_SIZE > 1``) the process group is initialised from the
+environment (``gloo`` on the CPU, ``nccl`` on CUDA, one GPU per local rank), the model is wrapped
+in :class:`~torch.nn.parallel.DistributedDataParallel` (gradients averaged over ranks), logged
+losses are averaged over ranks, only rank 0 writes the checkpoint, ``model.pt``, ``log.csv``,
+``val.csv`` and TensorBoard (``OUT/tb``), and the others wait at a barrier. Every checkpoint
+records a SHA-256 of each rank's parameters; different values stop the run. Resuming restores
+every rank (weights, optimizer, its own RNG state).
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import logging
 import math
+import os
 import random
 import time
-from dataclasses import dataclass, field
+import warnings
+from collections.abc import Iterator
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import torch
+import torch.distributed as dist
+from torch import nn
+from torch.utils.data import DataLoader, Dataset, Sampler
 
 from pbrdf.atomic import temporary_path
 
 from .config import ModelConfig, get_config
-from .data import TARGET_KEYS, SampleDataset
+from .data import TARGET_KEYS, SampleDataset, gather_pixels
+from .inputs import INPUT_VARIANTS, apply_inputs, checkpoint_inputs
 from .losses import LossWeights, synthetic_loss
-from .model import PolarInverseModel
+from .metrics import normal_mae_deg
+from .model import PolarInverseModel, sample_pixels
 
-__all__ = ["TrainConfig", "train", "gather_pixels", "load_checkpoint"]
+__all__ = [
+    "TrainConfig",
+    "train",
+    "gather_pixels",
+    "load_checkpoint",
+    "learning_rate",
+    "real_loss_weight",
+    "pixel_seed",
+    "sample_order",
+    "params_sha256",
+]
 
 log = logging.getLogger(__name__)
+
+#: Columns of ``log.csv`` (one row per step; a skipped step has ``skipped`` = its reason).
+LOG_COLUMNS = (
+    "step",
+    "loss",
+    "synthetic",
+    "real",
+    "real_weight",
+    "lr",
+    "grad_norm",
+    "seconds",
+    *TARGET_KEYS,
+    "chromaticity",
+    "skipped",
+)
+CHECKPOINT_FORMAT = 2
 
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Flags of ``headless/train.py``."""
+    """Flags of ``headless/train.py`` (see the module docs for the schedules).
+
+    Attributes:
+        data: rendered dataset folder (``headless/render.py``).
+        out: output folder (checkpoint, model, logs).
+        config: model preset (``toy``, ``small``, ``paper``); ``overrides`` replace fields of it.
+        steps: total optimizer steps of the run (a resumed run continues up to it).
+        batch_size: samples per step and process (the global batch is ``batch_size * WORLD_SIZE``).
+        lr, weight_decay: AdamW; ``warmup_steps``, ``decay_steps`` (None: ``steps``), ``min_lr_ratio``:
+            the learning-rate schedule.
+        clip: gradient-norm clipping threshold.
+        real: folder of real captures (None: synthetic only); ``real_weight``, ``real_start``,
+            ``real_warmup``: the real-loss weight schedule.
+        inputs: input variant (:data:`network.inputs.INPUT_VARIANTS`), applied to every batch.
+        bf16: bf16 autocast for the forward pass (meant for CUDA; allowed on the CPU).
+        device: ``"cpu"``, ``"cuda"`` or ``"auto"`` (CUDA when available).
+        val: held-out rendered dataset; normal MAE every ``val_every`` steps (0: at checkpoints)
+            on its first ``val_samples`` samples.
+        max_skipped: more skipped steps than this stop the run.
+        workers: data-loading worker processes per loader.
+        tensorboard: write TensorBoard events to ``OUT/tb`` (when tensorboard is installed).
+    """
 
     data: Path
     out: Path
@@ -43,23 +137,203 @@ class TrainConfig:
     batch_size: int = 1
     lr: float = 8e-5
     weight_decay: float = 0.05
+    warmup_steps: int = 0
+    decay_steps: int | None = None
+    min_lr_ratio: float = 0.1
     clip: float = 1.0
     seed: int = 0
     resume: bool = False
     checkpoint_every: int = 50
     weights: LossWeights = field(default_factory=LossWeights)
     overrides: dict = field(default_factory=dict)
+    real: Path | None = None
+    real_weight: float = 0.1
+    real_start: int = 0
+    real_warmup: int = 0
+    inputs: str = "full"
+    bf16: bool = False
+    device: str = "auto"
+    val: Path | None = None
+    val_every: int = 0
+    val_samples: int = 8
+    max_skipped: int = 10
+    workers: int = 0
+    tensorboard: bool = True
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "checkpoint_every", "val_samples"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"{name} must be a positive integer. Got {value!r}")
+        for name in ("warmup_steps", "real_start", "real_warmup", "val_every", "max_skipped", "workers", "seed"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 0:
+                raise ValueError(f"{name} must be a non-negative integer. Got {value!r}")
+        if self.decay_steps is not None and self.decay_steps < 1:
+            raise ValueError(f"decay_steps must be a positive integer or None. Got {self.decay_steps!r}")
+        for name in ("lr", "clip"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) > 0):
+                raise ValueError(f"{name} must be a finite number > 0. Got {getattr(self, name)!r}")
+        for name in ("weight_decay", "real_weight"):
+            if not (math.isfinite(getattr(self, name)) and getattr(self, name) >= 0):
+                raise ValueError(f"{name} must be a finite number >= 0. Got {getattr(self, name)!r}")
+        if not 0.0 <= self.min_lr_ratio <= 1.0:
+            raise ValueError(f"min_lr_ratio must be in [0, 1]. Got {self.min_lr_ratio!r}")
+        if self.inputs not in INPUT_VARIANTS:
+            raise ValueError(f"unknown input variant {self.inputs!r}; choose one of {INPUT_VARIANTS}")
+        if self.device not in ("cpu", "cuda", "auto"):
+            raise ValueError(f"device must be 'cpu', 'cuda' or 'auto'. Got {self.device!r}")
 
 
-def gather_pixels(maps: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
-    """``(B, C, H, W)`` maps at flat pixel indices ``(B, P)`` -> ``(B, C, P)``."""
-    b, c = maps.shape[:2]
-    return maps.reshape(b, c, -1).gather(2, pixels[:, None, :].expand(-1, c, -1))
+# ------------------------------------------------------------------------------------------------
+# Schedules and seeds (pure functions of the step)
 
 
-def _batch(ds: SampleDataset, order: list[int], step: int, size: int) -> dict[str, torch.Tensor]:
-    items = [ds[order[(step * size + j) % len(order)]] for j in range(size)]
-    return {k: torch.stack([it[k] for it in items]) for k in items[0]}
+def learning_rate(step: int, lr: float, warmup: int, total: int, min_ratio: float = 0.1) -> float:
+    """Learning rate of (0-based) ``step``: linear warm-up, then cosine decay.
+
+    ``lr * (step + 1) / warmup`` for ``step < warmup``; afterwards
+    ``lr * (m + (1 - m) (1 + cos(pi t)) / 2)`` with ``t = (step - warmup) / (total - warmup)``
+    clipped to [0, 1] and ``m = min_ratio`` (constant ``lr`` when ``total <= warmup``).
+
+    Example:
+        >>> learning_rate(0, 1.0, 4, 12), learning_rate(4, 1.0, 4, 12), learning_rate(12, 1.0, 4, 12, 0.1)
+        (0.25, 1.0, 0.1)
+    """
+    if step < warmup:
+        return lr * (step + 1) / warmup
+    if total <= warmup:
+        return lr
+    t = min(1.0, (step - warmup) / (total - warmup))
+    return lr * (min_ratio + (1.0 - min_ratio) * 0.5 * (1.0 + math.cos(math.pi * t)))
+
+
+def real_loss_weight(step: int, weight: float, start: int, warmup: int) -> float:
+    """Weight of the real loss at ``step``: 0 before ``start``, a linear ramp to ``weight`` over ``warmup`` steps.
+
+    ``weight * clip((step - start) / warmup, 0, 1)`` (a step at ``step >= start`` when ``warmup`` is 0), so the
+    weight is still 0 at ``step = start`` and reaches ``weight`` at ``start + warmup``.
+
+    Example:
+        >>> [real_loss_weight(s, 0.1, 2, 4) for s in (0, 2, 3, 6, 9)]
+        [0.0, 0.0, 0.025, 0.1, 0.1]
+    """
+    if step < start:
+        return 0.0
+    if warmup == 0:
+        return float(weight)
+    return float(weight) * min(1.0, (step - start) / warmup)
+
+
+def pixel_seed(seed: int, loader: str, step: int, position: int) -> int:
+    """Seed of the pixel-sampling generator of the sample at global data ``position`` in ``step``."""
+    digest = hashlib.blake2b(f"{seed}:{loader}:{step}:{position}".encode(), digest_size=8).digest()
+    return int.from_bytes(digest, "little") >> 1  # torch seeds are < 2**63 here
+
+
+def sample_order(n: int, seed: int, loader: str, position: int) -> int:
+    """Dataset index at global data ``position`` (a fresh permutation of ``range(n)`` every epoch)."""
+    epoch, slot = divmod(position, n)
+    return _epoch_permutation(n, seed, loader, epoch)[slot]
+
+
+_PERMUTATIONS: dict[tuple[int, int, str, int], list[int]] = {}
+
+
+def _epoch_permutation(n: int, seed: int, loader: str, epoch: int) -> list[int]:
+    key = (n, seed, loader, epoch)
+    if key not in _PERMUTATIONS:
+        if len(_PERMUTATIONS) > 64:
+            _PERMUTATIONS.clear()
+        order = list(range(n))
+        random.Random(f"{seed}:{loader}:{epoch}").shuffle(order)
+        _PERMUTATIONS[key] = order
+    return _PERMUTATIONS[key]
+
+
+def params_sha256(state: dict[str, torch.Tensor]) -> str:
+    """SHA-256 over the bytes of every tensor of a state dict, in its order (bitwise identity check)."""
+    h = hashlib.sha256()
+    for key, value in state.items():
+        h.update(key.encode())
+        h.update(value.detach().cpu().contiguous().view(-1).view(torch.uint8).numpy().tobytes())
+    return h.hexdigest()
+
+
+# ------------------------------------------------------------------------------------------------
+# Data
+
+
+class _StepBatches(Sampler):
+    """Batches of dataset indices for the given steps, this rank's slice of the global batch."""
+
+    def __init__(self, n: int, seed: int, loader: str, steps: list[int], batch: int, rank: int, world: int) -> None:
+        self.n, self.seed, self.loader, self.steps = n, seed, loader, steps
+        self.batch, self.rank, self.world = batch, rank, world
+
+    def positions(self, step: int) -> list[int]:
+        first = (step * self.world + self.rank) * self.batch
+        return list(range(first, first + self.batch))
+
+    def __iter__(self) -> Iterator[list[int]]:
+        for step in self.steps:
+            yield [sample_order(self.n, self.seed, self.loader, p) for p in self.positions(step)]
+
+    def __len__(self) -> int:
+        return len(self.steps)
+
+
+def _collate(items: list[dict[str, Any]]) -> dict[str, Any]:
+    return {
+        k: torch.stack([it[k] for it in items]) if isinstance(items[0][k], torch.Tensor) else [it[k] for it in items]
+        for k in items[0]
+    }
+
+
+def _loader(ds: Dataset, sampler: _StepBatches, workers: int) -> Iterator[dict[str, Any]]:
+    return iter(DataLoader(ds, batch_sampler=sampler, num_workers=workers, collate_fn=_collate))
+
+
+def _sample_batch_pixels(mask: torch.Tensor, count: int, seeds: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-sample :func:`network.model.sample_pixels` with its own generator; padded with invalid pixels.
+
+    Args:
+        mask: ``(B, 1, H, W)`` on the CPU.
+        count: pixels per image.
+        seeds: one generator seed per sample.
+
+    Returns:
+        ``pixels (B, P)`` long and ``valid (B, P)`` bool, ``P`` = the largest per-sample count.
+    """
+    parts = [sample_pixels(mask[i : i + 1], count, torch.Generator().manual_seed(s)) for i, s in enumerate(seeds)]
+    p = max(px.shape[1] for px, _ in parts)
+    pixels = torch.zeros(len(seeds), p, dtype=torch.long)
+    valid = torch.zeros(len(seeds), p, dtype=torch.bool)
+    for i, (px, ok) in enumerate(parts):
+        pixels[i, : px.shape[1]], valid[i, : px.shape[1]] = px[0], ok[0]
+    return pixels, valid
+
+
+def _nonfinite_keys(batch: dict[str, Any]) -> list[str]:
+    return [
+        k for k, v in batch.items() if isinstance(v, torch.Tensor) and v.is_floating_point() and not v.isfinite().all()
+    ]
+
+
+class _PixelModel(nn.Module):
+    """Training forward at given pixels (what DDP wraps): encode, then decode the sampled pixels."""
+
+    def __init__(self, model: PolarInverseModel) -> None:
+        super().__init__()
+        self.model = model
+
+    def forward(self, maps: torch.Tensor, mask: torch.Tensor, pixels: torch.Tensor, valid: torch.Tensor) -> dict:
+        features = self.model.encode(maps, mask)
+        return self.model.decode_pixels(features, maps, pixels, valid)
+
+
+# ------------------------------------------------------------------------------------------------
+# Checkpoints
 
 
 def _save(path: Path, state: dict) -> None:
@@ -69,7 +343,10 @@ def _save(path: Path, state: dict) -> None:
 
 
 def load_checkpoint(path: str | Path) -> tuple[PolarInverseModel, dict]:
-    """Model (eval mode) and the raw checkpoint dict from a file written by :func:`train`."""
+    """Model (eval mode) and the checkpoint dict from ``checkpoint.pt`` or ``model.pt`` written by :func:`train`.
+
+    The dict always has ``"inputs"`` (the input variant; ``"full"`` for files written before variants existed).
+    """
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: checkpoint not found")
@@ -77,87 +354,415 @@ def load_checkpoint(path: str | Path) -> tuple[PolarInverseModel, dict]:
         ckpt = torch.load(path, weights_only=True, map_location="cpu")
         model = PolarInverseModel(ModelConfig.from_dict(ckpt["config"]))
         model.load_state_dict(ckpt["model"])
-    except (KeyError, RuntimeError, TypeError, ValueError) as exc:
+        ckpt["inputs"] = checkpoint_inputs(ckpt)
+    except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"{path}: not a model checkpoint: {exc}") from None
     model.eval()
     return model, ckpt
 
 
-def train(cfg: TrainConfig, *, progress: bool = True) -> list[float]:
-    """Train (or resume) and return the loss per step of the whole run."""
+# ------------------------------------------------------------------------------------------------
+# Distributed helpers
+
+
+@dataclass
+class _Dist:
+    rank: int = 0
+    world: int = 1
+    local_rank: int = 0
+    owned: bool = False
+
+    @property
+    def active(self) -> bool:
+        return self.world > 1
+
+    def barrier(self) -> None:
+        if self.active:
+            dist.barrier()
+
+    def any_true(self, flag: bool, device: torch.device) -> bool:
+        if not self.active:
+            return flag
+        t = torch.tensor([1.0 if flag else 0.0], device=device)
+        dist.all_reduce(t, op=dist.ReduceOp.MAX)
+        return bool(t.item() > 0)
+
+    def mean(self, values: list[float], device: torch.device) -> list[float]:
+        if not self.active:
+            return values
+        t = torch.tensor(values, dtype=torch.float64, device=device)
+        dist.all_reduce(t)
+        return (t / self.world).tolist()
+
+    def gather(self, obj: Any) -> list[Any]:
+        if not self.active:
+            return [obj]
+        out: list[Any] = [None] * self.world
+        dist.all_gather_object(out, obj)
+        return out
+
+
+def _resolve_device(name: str) -> torch.device:
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device cuda: CUDA is not available on this machine (use --device cpu or auto)")
+    return torch.device("cuda" if name == "cuda" or (name == "auto" and torch.cuda.is_available()) else "cpu")
+
+
+def _init_distributed(device: torch.device) -> tuple[_Dist, torch.device]:
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world <= 1:
+        return _Dist(), device
+    local_rank = int(os.environ.get("LOCAL_RANK", "0"))
+    if device.type == "cuda":
+        torch.cuda.set_device(local_rank)
+        device = torch.device("cuda", local_rank)
+    owned = not dist.is_initialized()
+    if owned:
+        dist.init_process_group(backend="nccl" if device.type == "cuda" else "gloo", init_method="env://")
+    return _Dist(dist.get_rank(), dist.get_world_size(), local_rank, owned), device
+
+
+def _rng_state(device: torch.device) -> dict[str, torch.Tensor | None]:
+    return {"torch": torch.get_rng_state(), "cuda": torch.cuda.get_rng_state(device) if device.type == "cuda" else None}
+
+
+def _set_rng_state(state: dict, device: torch.device) -> None:
+    torch.set_rng_state(state["torch"])
+    if device.type == "cuda" and state.get("cuda") is not None:
+        torch.cuda.set_rng_state(state["cuda"], device)
+
+
+# ------------------------------------------------------------------------------------------------
+# Logging
+
+
+class _Logs:
+    """``log.csv``, ``val.csv`` and TensorBoard; only rank 0 writes."""
+
+    def __init__(self, out: Path, start: int, resume: bool, enabled: bool, tensorboard: bool) -> None:
+        self.enabled = enabled
+        self.tb = None
+        self.file = None
+        if not enabled:
+            return
+        self.path = out / "log.csv"
+        self.val_path = out / "val.csv"
+        if resume and self.path.is_file():
+            _truncate_log(self.path, start)
+        else:
+            self.path.write_text(",".join(LOG_COLUMNS) + "\n")
+        if resume and self.val_path.is_file():
+            _truncate_log(self.val_path, start + 1)  # val rows are numbered by completed steps
+        elif self.val_path.is_file():
+            self.val_path.unlink()
+        self.file = open(self.path, "a", newline="")  # closed in close()
+        self.writer = csv.writer(self.file)
+        if tensorboard:
+            try:
+                from torch.utils.tensorboard import SummaryWriter  # noqa: PLC0415
+
+                self.tb = SummaryWriter(log_dir=str(out / "tb"), purge_step=start if resume else None)
+            except ImportError as exc:
+                warnings.warn(f"TensorBoard logging off ({exc}); `pip install tensorboard` to enable it", stacklevel=3)
+
+    def step(self, row: dict[str, Any], scalars: dict[str, float]) -> None:
+        if not self.enabled:
+            return
+        self.writer.writerow(["" if row.get(k) is None else row[k] for k in LOG_COLUMNS])
+        self.file.flush()
+        if self.tb is not None:
+            for k, v in scalars.items():
+                self.tb.add_scalar(k, v, row["step"])
+
+    def val(self, step: int, mae: float, count: int) -> None:
+        if not self.enabled:
+            return
+        new = not self.val_path.is_file()
+        with open(self.val_path, "a", newline="") as f:
+            if new:
+                f.write("step,normal_mae_deg,samples\n")
+            csv.writer(f).writerow([step, mae, count])
+        if self.tb is not None:
+            self.tb.add_scalar("val/normal_mae_deg", mae, step)
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.file.close()
+        if self.tb is not None:
+            self.tb.close()
+
+
+def _truncate_log(path: Path, start: int) -> None:
+    """Drop rows of steps >= ``start`` (written after the checkpoint by a killed run)."""
+    lines = path.read_text().splitlines()
+    keep = lines[:1] + [
+        ln for ln in lines[1:] if ln and ln.split(",", 1)[0].isdigit() and int(ln.split(",", 1)[0]) < start
+    ]
+    path.write_text("\n".join(keep) + "\n")
+
+
+# ------------------------------------------------------------------------------------------------
+# Validation
+
+
+@torch.no_grad()
+def _validate(model: PolarInverseModel, ds: SampleDataset, count: int, inputs: str, device: torch.device) -> float:
+    """Mean normal MAE (degrees) of dense predictions over the first ``count`` samples."""
+    was_training = model.training
+    model.eval()
+    errors = []
+    for i in range(min(count, len(ds))):
+        item = ds[i]
+        maps = apply_inputs(item["maps"][None].to(device), inputs)
+        pred = model(maps, item["mask"][None].to(device))
+        mask = item["mask"][0].numpy() > 0
+        normal = pred["normal"][0].float().permute(1, 2, 0).cpu().numpy()
+        errors.append(normal_mae_deg(normal, item["normal"].permute(1, 2, 0).numpy(), mask))
+    model.train(was_training)
+    return float(sum(errors) / len(errors))
+
+
+# ------------------------------------------------------------------------------------------------
+# Training
+
+
+def _real_modules() -> tuple[Any, Any]:
+    try:
+        from .losses import real_loss  # noqa: PLC0415
+        from .realdata import RealDataset  # noqa: PLC0415
+    except ImportError as exc:
+        raise ValueError(f"real-data training needs network/realdata.py and network.losses.real_loss: {exc}") from None
+    return RealDataset, real_loss
+
+
+def train(cfg: TrainConfig, *, progress: bool = True, stats: dict | None = None) -> list[float]:
+    """Train (or resume) and return the loss per completed step of the whole run (skipped steps excluded).
+
+    Args:
+        cfg: the run's settings.
+        progress: show a progress bar (rank 0).
+        stats: filled in place with counters of this call: ``steps`` (optimizer steps), ``skipped`` (steps
+            skipped by the guards), ``synthetic_batches``, ``real_batches`` (real batches loaded),
+            ``real_passes`` (real forward/backward passes), ``rank``, ``world_size``.
+
+    Returns:
+        The (rank-averaged) total loss of every completed step since step 0.
+
+    Raises:
+        FileExistsError: ``out`` has a checkpoint and ``resume`` is off.
+        ValueError: bad settings, or a checkpoint that does not match them.
+        FloatingPointError: more than ``max_skipped`` steps were skipped.
+    """
+    stats = {} if stats is None else stats
+    stats.update(steps=0, skipped=0, synthetic_batches=0, real_batches=0, real_passes=0)
+    device = _resolve_device(cfg.device)
+    dd, device = _init_distributed(device)
+    stats.update(rank=dd.rank, world_size=dd.world)
+    try:
+        return _train(cfg, progress, stats, dd, device)
+    finally:
+        if dd.owned and dist.is_initialized():
+            dist.destroy_process_group()
+
+
+def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: _Dist, device: torch.device) -> list[float]:
     out = Path(cfg.out)
-    out.mkdir(parents=True, exist_ok=True)
     ckpt_path = out / "checkpoint.pt"
+    main = dd.rank == 0
     model_cfg = get_config(cfg.config, **cfg.overrides)
     ds = SampleDataset(cfg.data, size=model_cfg.image_size)
-    torch.manual_seed(cfg.seed)
-    model = PolarInverseModel(model_cfg)
+    real_ds, real_loss = None, None
+    if cfg.real is not None:
+        real_dataset_cls, real_loss = _real_modules()
+        real_ds = real_dataset_cls(cfg.real, size=model_cfg.image_size)
+        if len(real_ds) == 0:
+            raise ValueError(f"{cfg.real}: no real captures found")
+    val_ds = SampleDataset(cfg.val, size=model_cfg.image_size) if cfg.val is not None else None
+    if device.type == "cuda":
+        torch.backends.cuda.matmul.allow_tf32 = True
+        torch.backends.cudnn.allow_tf32 = True
+
+    torch.manual_seed(cfg.seed)  # identical initial weights on every rank
+    model = PolarInverseModel(model_cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    start, losses = 0, []
-    order = list(range(len(ds)))
-    random.Random(cfg.seed).shuffle(order)
+    torch.manual_seed(cfg.seed + 1 + dd.rank)  # per-rank stream for anything random after init
+    start, losses, skipped_total = 0, [], 0
     if cfg.resume and ckpt_path.is_file():
         ckpt = torch.load(ckpt_path, weights_only=True, map_location="cpu")
         if ckpt["config"] != model_cfg.to_dict():
-            raise ValueError(f"{ckpt_path}: checkpoint config differs from --config {cfg.config}")
+            raise ValueError(f"{ckpt_path}: checkpoint config differs from --config {cfg.config} (and --overrides)")
+        if checkpoint_inputs(ckpt) != cfg.inputs:
+            raise ValueError(
+                f"{ckpt_path}: checkpoint was trained with --inputs {checkpoint_inputs(ckpt)}, not {cfg.inputs}"
+            )
         model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
-        start, losses, order = ckpt["step"], list(ckpt["losses"]), list(ckpt["order"])
-        torch.set_rng_state(ckpt["torch_rng"])
+        start, losses, skipped_total = int(ckpt["step"]), list(ckpt["losses"]), int(ckpt.get("skipped", 0))
+        rngs = ckpt.get("rng")
+        if rngs is not None and len(rngs) == dd.world:
+            _set_rng_state(rngs[dd.rank], device)
+        elif "torch_rng" in ckpt and dd.world == 1:
+            torch.set_rng_state(ckpt["torch_rng"])
+        else:
+            log.warning("%s: saved RNG states are for another number of processes; resume is not bitwise", ckpt_path)
+        if "format" not in ckpt:
+            log.warning("%s: written by an older version: its data order differs from this one's", ckpt_path)
+        sizes = ckpt.get("data", {})
+        for name, d in (("synthetic", ds), ("real", real_ds)):
+            if d is not None and sizes.get(name) not in (None, len(d)):
+                log.warning("%s: the %s data had %s samples, now %d: the data order changes", ckpt_path, name,
+                            sizes.get(name), len(d))  # fmt: skip
     elif ckpt_path.exists() and not cfg.resume:
         raise FileExistsError(f"{ckpt_path}: exists; pass --resume to continue or choose another --out")
-    log_path = out / "log.csv"
-    new_log = not (cfg.resume and log_path.is_file())
-    if new_log:
-        log_path.write_text("step,loss,seconds," + ",".join(TARGET_KEYS) + ",chromaticity\n")
-    else:  # drop rows after the checkpoint (a kill between checkpoint and log)
-        rows = log_path.read_text().splitlines()
-        log_path.write_text("\n".join(rows[: start + 1]) + "\n")
+    starts = dd.gather(start)
+    if len(set(starts)) != 1:
+        raise ValueError(f"{ckpt_path}: ranks resume from different steps {starts}; every node must see the checkpoint")
+    if main:
+        out.mkdir(parents=True, exist_ok=True)
+    dd.barrier()
+    logs = _Logs(out, start, cfg.resume, main, cfg.tensorboard)
+
+    net: nn.Module = _PixelModel(model)
+    if dd.active:
+        net = nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)
+    decay = cfg.decay_steps or cfg.steps
+    steps = list(range(start, cfg.steps))
+    syn_sampler = _StepBatches(len(ds), cfg.seed, "synthetic", steps, cfg.batch_size, dd.rank, dd.world)
+    syn_batches = _loader(ds, syn_sampler, cfg.workers)
+    real_sampler = real_batches = None
+    if real_ds is not None:
+        real_steps = [s for s in steps if real_loss_weight(s, cfg.real_weight, cfg.real_start, cfg.real_warmup) > 0]
+        real_sampler = _StepBatches(len(real_ds), cfg.seed, "real", real_steps, cfg.batch_size, dd.rank, dd.world)
+        real_batches = _loader(real_ds, real_sampler, cfg.workers)
+
+    def prepare(batch: dict, loader: str, step: int, sampler: _StepBatches) -> tuple[dict, torch.Tensor, torch.Tensor]:
+        seeds = [pixel_seed(cfg.seed, loader, step, p) for p in sampler.positions(step)]
+        pixels, valid = _sample_batch_pixels(batch["mask"], model_cfg.train_pixels, seeds)
+        batch = {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
+        return batch, pixels.to(device), valid.to(device)
+
+    def forward(batch: dict, pixels: torch.Tensor, valid: torch.Tensor) -> dict:
+        with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=cfg.bf16):
+            # The network sees the variant's maps; the losses keep the measured ones.
+            pred = net(apply_inputs(batch["maps"], cfg.inputs), batch["mask"].to(batch["maps"].dtype), pixels, valid)
+        return {k: v.float() for k, v in pred.items()}  # losses and backward in float32, outside autocast
+
     bar = None
-    if progress:
+    if progress and main:
         from tqdm import tqdm  # noqa: PLC0415
 
         bar = tqdm(total=cfg.steps, initial=start, desc=f"train {cfg.config}", unit="step")
     model.train()
-    skipped = 0
-    with open(log_path, "a", newline="") as f:
-        writer = csv.writer(f)
-        for step in range(start, cfg.steps):
-            t0 = time.perf_counter()
-            batch = _batch(ds, order, step, cfg.batch_size)
-            pred = model(batch["maps"], batch["mask"])
-            pixels, valid = pred["pixels"], pred["valid"][:, None].to(batch["maps"].dtype)
-            target = {k: gather_pixels(batch[k], pixels) for k in TARGET_KEYS}
-            loss, parts = synthetic_loss(pred, target, valid, cfg.weights)
-            if not torch.isfinite(loss):
-                skipped += 1
-                log.warning("step %d: non-finite loss %s, step skipped (%d so far)", step, float(loss), skipped)
-                opt.zero_grad(set_to_none=True)
-                if skipped > 10:
-                    raise FloatingPointError(f"{skipped} non-finite losses; stopping (last at step {step})")
-                continue
-            opt.zero_grad(set_to_none=True)
-            loss.backward()
-            grad_norm = torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip)
-            if not math.isfinite(float(grad_norm)):
-                skipped += 1
-                log.warning("step %d: non-finite gradient norm, step skipped", step)
-                continue
-            opt.step()
-            losses.append(float(loss.detach()))
-            writer.writerow([step, losses[-1], time.perf_counter() - t0, *[parts.get(k, "") for k in TARGET_KEYS],
-                             parts.get("chromaticity", "")])  # fmt: skip
-            f.flush()
+
+    def skip(step: int, reason: str, row: dict) -> None:
+        nonlocal skipped_total
+        skipped_total += 1
+        stats["skipped"] += 1
+        log.warning("step %d: %s; step skipped (%d skipped so far)", step, reason, skipped_total)
+        opt.zero_grad(set_to_none=True)
+        logs.step({**row, "skipped": reason.replace(",", ";")}, {})
+        if skipped_total > cfg.max_skipped:
+            raise FloatingPointError(
+                f"{skipped_total} steps skipped for non-finite values (more than --max-skipped {cfg.max_skipped}); "
+                f"stopping at step {step}: {reason}"
+            )
+
+    def run_step(step: int) -> None:
+        """One optimizer step (or a reported skip)."""
+        t0 = time.perf_counter()
+        lr = learning_rate(step, cfg.lr, cfg.warmup_steps, decay, cfg.min_lr_ratio)
+        for group in opt.param_groups:
+            group["lr"] = lr
+        w_real = real_loss_weight(step, cfg.real_weight, cfg.real_start, cfg.real_warmup) if real_ds else 0.0
+        row: dict[str, Any] = {"step": step, "lr": lr, "real_weight": w_real}
+        syn, pix, valid = prepare(next(syn_batches), "synthetic", step, syn_sampler)
+        stats["synthetic_batches"] += 1
+        real = None
+        if w_real > 0:  # the real batch is loaded only when its pass runs
+            real, rpix, rvalid = prepare(next(real_batches), "real", step, real_sampler)
+            stats["real_batches"] += 1
+        bad = [f"synthetic {k}" for k in _nonfinite_keys(syn)]
+        bad += [f"real {k}" for k in _nonfinite_keys(real)] if real is not None else []
+        if dd.any_true(bool(bad), device):  # every rank skips together
+            skip(step, f"non-finite input ({', '.join(bad) or 'on another rank'})", row)
+            return
+
+        opt.zero_grad(set_to_none=True)
+        pred = forward(syn, pix, valid)
+        target = {k: gather_pixels(syn[k], pix) for k in TARGET_KEYS}
+        loss_syn, parts = synthetic_loss(pred, target, valid[:, None].float(), cfg.weights)
+        loss_syn.backward()
+        del pred
+        loss_real, real_parts = torch.zeros((), device=device), {}
+        if real is not None:
+            rpred = forward(real, rpix, rvalid)
+            loss_real, real_parts = real_loss(rpred, real, rpix, rvalid[:, None].float())
+            (w_real * loss_real).backward()  # gradients accumulate onto the synthetic ones
+            stats["real_passes"] += 1
+            del rpred
+        # After DDP's all-reduce the gradients, hence their norm, are the same on every rank.
+        grad_norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
+        mean_syn, mean_real = dd.mean([float(loss_syn.detach()), float(loss_real.detach())], device)
+        total = mean_syn + w_real * mean_real
+        row.update(loss=total, synthetic=mean_syn, real=mean_real if real is not None else None, grad_norm=grad_norm)
+        if not (math.isfinite(total) and math.isfinite(grad_norm)):
+            skip(step, f"non-finite loss {total} or gradient norm {grad_norm}", row)
+            return
+        opt.step()
+        losses.append(total)
+        stats["steps"] += 1
+        row["seconds"] = time.perf_counter() - t0
+        row.update({k: parts.get(k) for k in (*TARGET_KEYS, "chromaticity")})
+        scalars = {"loss/total": total, "loss/synthetic": mean_syn, "lr": lr, "grad_norm": grad_norm}
+        scalars.update({f"synthetic/{k}": v for k, v in parts.items()})
+        if real is not None:
+            scalars.update({"loss/real": mean_real, "real_weight": w_real})
+            scalars.update({f"real/{k}": v for k, v in real_parts.items()})
+        logs.step(row, scalars)
+        if bar is not None:
+            bar.set_postfix(loss=f"{total:.4f}")
+
+    def save(done: int) -> None:
+        state = model.state_dict()
+        shas = dd.gather(params_sha256(state))
+        rngs = dd.gather(_rng_state(device))
+        if len(set(shas)) != 1:
+            raise RuntimeError(f"step {done}: ranks hold different parameters (sha256 {shas})")
+        if main:
+            common = {"format": CHECKPOINT_FORMAT, "config": model_cfg.to_dict(), "inputs": cfg.inputs}
+            _save(ckpt_path, {
+                **common, "model": state, "optimizer": opt.state_dict(), "step": done, "losses": losses,
+                "skipped": skipped_total, "rng": rngs, "rank_params_sha256": shas, "world_size": dd.world,
+                "data": {"synthetic": len(ds), "real": len(real_ds) if real_ds is not None else None},
+                "train": _plain(cfg),
+            })  # fmt: skip
+            _save(out / "model.pt", {**common, "model": state})
+        dd.barrier()
+
+    try:
+        for step in steps:
+            run_step(step)
             if bar is not None:
-                bar.set_postfix(loss=f"{losses[-1]:.4f}")
                 bar.update()
-            if (step + 1) % cfg.checkpoint_every == 0 or step + 1 == cfg.steps:
-                _save(ckpt_path, {
-                    "config": model_cfg.to_dict(), "model": model.state_dict(), "optimizer": opt.state_dict(),
-                    "step": step + 1, "losses": losses, "order": order,
-                    "torch_rng": torch.get_rng_state(),
-                })  # fmt: skip
-                _save(out / "model.pt", {"config": model_cfg.to_dict(), "model": model.state_dict()})
-    if bar is not None:
-        bar.close()
+            done = step + 1
+            if val_ds is not None and (done % (cfg.val_every or cfg.checkpoint_every) == 0 or done == cfg.steps):
+                if main:
+                    mae = _validate(model, val_ds, cfg.val_samples, cfg.inputs, device)
+                    logs.val(done, mae, min(cfg.val_samples, len(val_ds)))
+                dd.barrier()
+            if done % cfg.checkpoint_every == 0 or done == cfg.steps:
+                save(done)
+    finally:
+        if bar is not None:
+            bar.close()
+        logs.close()
     return losses
+
+
+def _plain(cfg: TrainConfig) -> dict[str, Any]:
+    """The run's settings as plain values (for the record; ``weights_only`` loadable)."""
+    out = asdict(cfg)
+    for k, v in out.items():
+        if isinstance(v, Path):
+            out[k] = str(v)
+    return out

@@ -65,7 +65,8 @@ def test_dataset_reads_samples(tiny_dataset):
 
 
 def test_toy_model_overfits_and_resume_is_exact(tiny_dataset, tmp_path):
-    common = {"data": tiny_dataset, "config": "toy", "lr": 1e-3, "seed": 0, "checkpoint_every": 10}
+    # decay_steps fixes the cosine horizon, so the 20-step "killed" run has the 40-step run's schedule.
+    common = {"data": tiny_dataset, "config": "toy", "lr": 1e-3, "seed": 0, "checkpoint_every": 10, "decay_steps": 40}
     full = train(TrainConfig(out=tmp_path / "a", steps=40, **common), progress=False)
     assert len(full) == 40 and np.all(np.isfinite(full))
     assert np.mean(full[-5:]) < 0.5 * np.mean(full[:5])  # overfits three samples
