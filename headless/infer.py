@@ -31,6 +31,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--input", type=Path, required=True, help="capture folder or sample .exr/.json")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--blend", action="store_true", help="also save a Blender scene with the relightable asset")
+    parser.add_argument("--stride", type=int, default=1, choices=[1, 2, 4],
+                        help="decode every s-th pixel, interpolate the rest (faster)")  # fmt: skip
     args = parser.parse_args(argv)
     from network.infer import DEFAULT_CHECKPOINT, load_input, predict, write_predictions  # noqa: PLC0415
     from network.train import load_checkpoint  # noqa: PLC0415
@@ -39,7 +41,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         model, ckpt = load_checkpoint(ckpt_path)
         maps, mask = load_input(args.input)
-        pred = predict(model, maps, mask, inputs=ckpt.get("inputs", "full"))
+        pred = predict(model, maps, mask, inputs=ckpt.get("inputs", "full"), stride=args.stride)
         name = args.input.stem if args.input.is_file() else args.input.name
         write_predictions(args.out, name, pred)
     except (ValueError, OSError) as exc:

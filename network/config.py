@@ -13,17 +13,20 @@ preset  tokenizer  interleave  DPT      decoder  total    encoder  + train dec  
 ======  =========  ==========  =======  =======  =======  =======  ===========  ===========  ==================
 toy     0.018 M    0.051 M     0.078 M  0.044 M  0.19 M   0.15 GF  0.03 GF      1.65 GF      10 ms train,
                                                                                              32 ms train f+b
-small   0.83 M     1.59 M      1.14 M   0.30 M   3.85 M   24 GF    5.4 GF       391 GF       0.3 s train,
-                                                                                             8 s dense
-paper   21.58 M    28.41 M     31.48 M  12.55 M  94.0 M   1.83 TF  0.31 TF      22.2 TF      16 s train,
-                                                                                             5.8 min dense
+small   0.83 M     1.59 M      1.14 M   0.30 M   3.85 M   24 GF    5.4 GF       339 GF       0.3 s train,
+                                                                                             4.4 s dense
+paper   21.58 M    28.41 M     31.48 M  12.55 M  94.0 M   1.83 TF  0.31 TF      21.1 TF      16 s train,
+                                                                                             2.7 min dense
 ======  =========  ==========  =======  =======  =======  =======  ===========  ===========  ==================
 
 "encoder" = tokenizer + interleaved attention + DPT over the nine maps (paper: tokenizer 279 GF, interleaved
 315 GF, DPT 1234 GF); "train dec" decodes ``train_pixels`` sampled pixels; "dense dec" decodes every pixel of the
 image in chunks, each attending to ``train_pixels`` context pixels (cost linear in the masked pixel count: about
 150 MFLOP per pixel for ``paper``, 2.6 MFLOP for ``small``). "train" = training-mode forward (encoder + 2048
-pixels); "dense" = evaluation-mode forward with a full mask. The map embeddings (0.002 M) are not listed.
+pixels); "dense" = evaluation-mode forward with a full mask (decoder measured on a 50 % mask, 1 thread, by
+``headless/bench.py network``). ``stride`` 2 / 4 decodes a pixel grid and interpolates the rest: small 1.44 s /
+0.72 s, paper 61 s / 36 s per 384 x 384 capture (50 % mask), at 0.01-0.05 deg mean normal change against
+stride 1 (random weights; 0.2-0.5 deg with the shipped model). The map embeddings (0.002 M) are not listed.
 
 - ``toy``: 64 x 64 input, 4 x 4 tokens of dim 32, K = 1, D = 16, D_a = 32, 64 training pixels. For tests only.
 - ``small``: 384 x 384 input, tokenizer at 96 x 96 (12 x 12 tokens of dim 128, 4 blocks), K = 2, D = 64

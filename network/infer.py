@@ -58,15 +58,18 @@ def mask_bbox(mask: np.ndarray, margin: float = 0.05) -> tuple[int, int, int, in
     return y0, x0, min(y0 + side, h), min(x0 + side, w)
 
 
-@torch.no_grad()
+@torch.inference_mode()
 def predict(
-    model: PolarInverseModel, maps: np.ndarray, mask: np.ndarray, *, inputs: str = "full"
+    model: PolarInverseModel, maps: np.ndarray, mask: np.ndarray, *, inputs: str = "full", stride: int = 1
 ) -> dict[str, np.ndarray]:
     """Normal, albedo, roughness, metallic ``(H, W, C)`` for nine maps of any size.
 
     The masked region is cropped (square), resized to the model's input size, decoded (masked
     pixels only, in chunks) and resized back into the full frame. ``inputs`` is the checkpoint's
     input variant (:mod:`network.inputs`): the maps it was not trained on are zeroed here too.
+    ``stride`` trades accuracy for speed: s > 1 decodes every s-th row and column of the network's
+    input grid and interpolates the rest (:meth:`PolarInverseModel.decode_dense`), about s^2 times
+    less decoder work (``headless/bench.py network`` reports time and error per stride).
     """
     if maps.ndim != 3 or maps.shape[-1] != 9 or mask.shape != maps.shape[:2]:
         raise ValueError(f"expected maps (H, W, 9) and mask (H, W); got {maps.shape} and {mask.shape}")
@@ -79,7 +82,7 @@ def predict(
     m = F.interpolate(m, size=(size, size), mode="bilinear", align_corners=False)
     k = F.interpolate(k, size=(size, size), mode="nearest")
     model.eval()
-    pred = model(apply_inputs(normalize_maps(m, k), inputs), k)
+    pred = model(apply_inputs(normalize_maps(m, k), inputs), k, stride=stride)
     # Extend the predictions past the (downsampled) mask with their nearest valid value, so that
     # upsampling never blends in the zeros outside it: thin parts of the full-size mask that the
     # network's grid lost still get a prediction (and normals stay unit length).
