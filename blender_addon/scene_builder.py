@@ -89,15 +89,10 @@ def list_asset_files(folder: str | os.PathLike) -> list[Path]:
         FileNotFoundError: the folder does not exist or holds no such file.
         NotADirectoryError: it is a file.
     """
-    root = Path(folder)
-    if not root.exists():
-        raise FileNotFoundError(f"{root}: asset folder not found")
-    if not root.is_dir():
-        raise NotADirectoryError(f"{root}: not a folder")
-    files = [p for p in root.rglob("*") if p.is_file() and p.suffix.lower() in IMPORTERS]
+    files = _core()[0].list_assets(folder, suffixes=IMPORTERS)
     if not files:
-        raise FileNotFoundError(f"{root}: no assets ({', '.join(sorted(IMPORTERS))}) in the folder")
-    return sorted(files, key=lambda p: p.relative_to(root).as_posix())
+        raise FileNotFoundError(f"{folder}: no assets ({', '.join(sorted(IMPORTERS))}) in the folder")
+    return files
 
 
 def _importer(path: Path) -> object:

@@ -59,3 +59,27 @@ def slab_path(tmp_path_factory):
     path = tmp_path_factory.mktemp("mesh") / "slab.ply"
     assets.write_ply(box, path)
     return str(path)
+
+
+@pytest.fixture(scope="module")
+def addon_registered():
+    """The Blender add-on registered in a factory-fresh bpy session (per module); skips without bpy."""
+    bpy = pytest.importorskip("bpy")
+    import blender_addon
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender_addon.register()
+    yield blender_addon
+    blender_addon.unregister()
+
+
+@pytest.fixture(scope="module")
+def tiny_dataset(tmp_path_factory):
+    """Three rendered samples (32 x 32, 4 spp, seed 5) for training and evaluation tests."""
+    pytest.importorskip("mitsuba")
+    from blender_addon.core.generate import GenerateConfig, generate
+
+    root = tmp_path_factory.mktemp("ds")
+    report = generate(GenerateConfig(out=root, count=3, resolution=32, spp=4, seed=5), progress=False)
+    assert len(report.written) == 3
+    return root

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qsl
@@ -563,8 +564,8 @@ def place(
 # --------------------------------------------------------------------------- files
 
 
-def list_assets(folder: str | os.PathLike) -> list[Path]:
-    """Mesh files (:data:`MESH_SUFFIXES`, any case) under ``folder``, recursively, sorted by relative path.
+def list_assets(folder: str | os.PathLike, suffixes: Iterable[str] = MESH_SUFFIXES) -> list[Path]:
+    """Files under ``folder`` (recursively) with one of ``suffixes`` (any case), sorted by relative path.
 
     Raises:
         FileNotFoundError: the folder does not exist.
@@ -575,7 +576,8 @@ def list_assets(folder: str | os.PathLike) -> list[Path]:
         raise FileNotFoundError(f"{root}: asset folder not found")
     if not root.is_dir():
         raise NotADirectoryError(f"{root}: not a folder")
-    files = [p for p in root.rglob("*") if p.is_file() and p.suffix.lower() in MESH_SUFFIXES]
+    wanted = {x.lower() for x in suffixes}
+    files = [p for p in root.rglob("*") if p.is_file() and p.suffix.lower() in wanted]
     return sorted(files, key=lambda p: p.relative_to(root).as_posix())
 
 

@@ -8,7 +8,6 @@ trimesh = pytest.importorskip("trimesh")
 
 from mathutils import Euler, Matrix  # noqa: E402
 
-import blender_addon  # noqa: E402
 from blender_addon import bake  # noqa: E402
 from blender_addon.core import pbr_files  # noqa: E402
 from pbrdf.exr import read_exr, write_exr  # noqa: E402
@@ -18,11 +17,8 @@ CENTRE, RADIUS = np.array([0.02, -0.01, -2.0]), 0.35  # sphere in the camera fra
 
 
 @pytest.fixture(scope="module", autouse=True)
-def addon():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    blender_addon.register()
-    yield
-    blender_addon.unregister()
+def addon(addon_registered):
+    return addon_registered
 
 
 def _sphere_maps():

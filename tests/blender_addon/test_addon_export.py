@@ -25,14 +25,9 @@ mi = pytest.importorskip("mitsuba")
 
 
 @pytest.fixture(scope="module")
-def addon():
+def addon(addon_registered):
     """The add-on registered in the bpy wheel (skips without bpy); unregistered afterwards."""
-    pytest.importorskip("bpy")
-    import blender_addon
-
-    blender_addon.register()
-    yield blender_addon
-    blender_addon.unregister()
+    return addon_registered
 
 
 @pytest.fixture

@@ -8,7 +8,6 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-import blender_addon  # noqa: E402
 from blender_addon import pbr_import, relight  # noqa: E402
 from blender_addon.core import pbr_files  # noqa: E402
 from pbrdf.exr import read_exr, write_exr  # noqa: E402
@@ -17,11 +16,8 @@ H, W = 24, 32
 
 
 @pytest.fixture(scope="module", autouse=True)
-def addon():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    blender_addon.register()
-    yield
-    blender_addon.unregister()
+def addon(addon_registered):
+    return addon_registered
 
 
 @pytest.fixture(autouse=True)

@@ -14,17 +14,13 @@ import pytest
 
 bpy = pytest.importorskip("bpy")
 
-import blender_addon  # noqa: E402
 from blender_addon import rig_bpy  # noqa: E402
 from blender_addon.core.rig import CameraSpec, DisplaySpec, Rig  # noqa: E402
 
 
 @pytest.fixture(scope="module", autouse=True)
-def addon():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    blender_addon.register()
-    yield
-    blender_addon.unregister()
+def addon(addon_registered):
+    return addon_registered
 
 
 @pytest.fixture(autouse=True)

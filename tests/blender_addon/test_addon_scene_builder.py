@@ -9,18 +9,14 @@ import pytest
 bpy = pytest.importorskip("bpy")
 trimesh = pytest.importorskip("trimesh")
 
-import blender_addon  # noqa: E402
 from blender_addon import rig_bpy, scene_builder  # noqa: E402
 from blender_addon.core import scenegen  # noqa: E402
 from blender_addon.core.spec import MaterialSpec  # noqa: E402
 
 
 @pytest.fixture(scope="module", autouse=True)
-def addon():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    blender_addon.register()
-    yield
-    blender_addon.unregister()
+def addon(addon_registered):
+    return addon_registered
 
 
 @pytest.fixture(autouse=True)

@@ -35,16 +35,6 @@ from network.train import TrainConfig, train  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope="module")
-def tiny_dataset(tmp_path_factory):
-    from blender_addon.core.generate import GenerateConfig, generate
-
-    root = tmp_path_factory.mktemp("ds")
-    report = generate(GenerateConfig(out=root, count=3, resolution=32, spp=4, seed=5), progress=False)
-    assert len(report.written) == 3
-    return root
-
-
 def _has_real() -> bool:
     try:
         from network.losses import real_loss  # noqa: F401

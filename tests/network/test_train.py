@@ -10,16 +10,6 @@ from network import data, losses  # noqa: E402
 from network.train import TrainConfig, gather_pixels, train  # noqa: E402
 
 
-@pytest.fixture(scope="module")
-def tiny_dataset(tmp_path_factory):
-    from blender_addon.core.generate import GenerateConfig, generate
-
-    root = tmp_path_factory.mktemp("ds")
-    report = generate(GenerateConfig(out=root, count=3, resolution=32, spp=4, seed=5), progress=False)
-    assert len(report.written) == 3
-    return root
-
-
 def test_normalize_maps_is_scale_invariant_and_keeps_cp():
     g = torch.Generator().manual_seed(0)
     maps = torch.rand(2, 9, 8, 8, generator=g)

@@ -25,16 +25,6 @@ from pbrdf import exr  # noqa: E402
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(scope="module")
-def tiny_dataset(tmp_path_factory):
-    from blender_addon.core.generate import GenerateConfig, generate
-
-    root = tmp_path_factory.mktemp("ds")
-    report = generate(GenerateConfig(out=root, count=3, resolution=32, spp=4, seed=5), progress=False)
-    assert len(report.written) == 3
-    return root
-
-
 @pytest.fixture(autouse=True)
 def one_thread():
     """Two shared cores: one thread per process is several times faster than two here."""
