@@ -51,8 +51,8 @@ class DemoConfig:
     tables: int = 6
     checkpoint: Path | None = None
     relight_frames: int = 6
-    relight_size: int = 160
-    relight_samples: int = 16
+    relight_size: int = 256
+    relight_samples: int = 32
     seed: int = 0
     blender: bool = True
     progress: bool = True
