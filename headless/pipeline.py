@@ -263,27 +263,26 @@ def run_demo(cfg: DemoConfig) -> dict:
     blender_note = ""
     if cfg.blender:
         with timer.stage("Blender import + Cycles relight"):
-            first = samples[0]
-            maps_dir = out / "predictions" / names[first]
-            cmd = [sys.executable, str(ROOT / "headless" / "relight.py"), "--maps", str(maps_dir),
-                   "--name", names[first], "--out", str(out / "relit"), "--frames", str(cfg.relight_frames),
-                   "--size", str(cfg.relight_size), "--samples", str(cfg.relight_samples), "--save-blend",
-                   "--quiet"]  # fmt: skip
-            proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
-            if proc.returncode:
-                raise RuntimeError(f"Blender relighting failed: {proc.stderr.strip().splitlines()[-1:]}")
-            frames = sorted((out / "relit").glob("point_*.png"))
-            env = sorted((out / "relit").glob("env*.png"))
-            if frames or env:
-                imgs = [_read_png(p) for p in [*frames, *env]]
-                titles = [f"point light, frame {i}" for i in range(len(frames))] + ["environment map"] * len(env)
-                ncol = min(len(imgs), 4)
-                grid_rows = [imgs[i : i + ncol] for i in range(0, len(imgs), ncol)]
-                grid_titles = [titles[i : i + ncol] for i in range(0, len(titles), ncol)]
-                fig = report.image_grid(fig_dir / "relit.png", grid_rows, grid_titles, cell=(2.6, 2.6))
-                relit.append((fig.relative_to(out).as_posix(),
-                              f"{names[first]}: the predicted maps as a Principled BSDF asset in Blender, relit with "
-                              "Cycles under a rotating point light and an environment map"))  # fmt: skip
+            bar = _bar(len(samples), "relight", cfg.progress)
+            for s in samples:  # one Blender process per asset: bpy never shares a process with torch
+                name, dest = names[s], out / "relit" / names[s]
+                cmd = [sys.executable, str(ROOT / "headless" / "relight.py"), "--maps", str(out / "predictions" / name),
+                       "--name", name, "--out", str(dest), "--frames", str(cfg.relight_frames),
+                       "--size", str(cfg.relight_size), "--samples", str(cfg.relight_samples), "--save-blend",
+                       "--quiet"]  # fmt: skip
+                proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
+                if proc.returncode:
+                    raise RuntimeError(f"Blender relighting of {name} failed: {proc.stderr.strip().splitlines()[-1:]}")
+                frames, env = sorted(dest.glob("point_*.png")), sorted(dest.glob("env_*.png"))
+                if frames or env:
+                    imgs = [_read_png(p) for p in [*frames, *env]]
+                    titles = [f"point light {i + 1}/{len(frames)}" for i in range(len(frames))] + ["sky"] * len(env)
+                    fig = report.image_grid(fig_dir / f"{name}_relit.png", [imgs], [titles], cell=(2.2, 2.2))
+                    relit.append((fig.relative_to(out).as_posix(),
+                                  f"{name}: the predicted maps as a Principled BSDF asset in Blender ({name}.blend), "
+                                  "relit with Cycles under a rotating point light and a procedural sky"))  # fmt: skip
+                bar.update()
+            bar.close()
     else:
         blender_note = "Blender stage skipped (--no-blender)."
     overall.update()

@@ -60,8 +60,9 @@ def test_demo_outputs_and_summary(demo_out):
     # Predictions, raw captures, relit frames and the Blender file exist.
     assert len(list((out / "predictions").glob("*/*_normal.exr"))) == 2
     assert len(list((out / "data").glob("*/samples/*_raw/capture.json"))) == 2
-    frames = sorted((out / "relit").glob("point_*.png"))
-    assert len(frames) == 2 and list((out / "relit").glob("env_*.png")) and list((out / "relit").glob("*.blend"))
+    assert len(list((out / "relit").glob("*/*.blend"))) == 2 and len(list((out / "relit").glob("*/env_*.png"))) == 2
+    frames = sorted((out / "relit").glob("analytic_*/point_*.png"))
+    assert len(frames) == 2
     # The point light moves: the two relit frames differ.
     from PIL import Image
 
