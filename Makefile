@@ -54,13 +54,13 @@ format: setup  ## apply ruff formatting and safe fixes
 	$(VENV)/bin/ruff check --fix .
 	$(VENV)/bin/ruff format .
 
-# The shipped model (models/small/MODEL_CARD.md): 78 training scenes (seed 100) and 12 held-out
+# The shipped model (models/small/MODEL_CARD.md): 158 training scenes (seed 100) and 12 held-out
 # scenes (seed 9000) at 128x128, `small` at 128 px input, batch 4, constant lr 2e-4.
 MODEL_DATA := $(OUT)/model-data
 MODEL_RUN := $(OUT)/model-small
-MODEL_STEPS ?= 400
+MODEL_STEPS ?= 700
 train-model: setup  ## reproduce models/small/model.pt: render data, train `small`, evaluate on held-out scenes
-	$(PY) headless/render.py --out $(MODEL_DATA)/train --count 78 --resolution 128 --spp 16 --seed 100 --resume --quiet
+	$(PY) headless/render.py --out $(MODEL_DATA)/train --count 158 --resolution 128 --spp 16 --seed 100 --resume --quiet
 	$(PY) headless/render.py --out $(MODEL_DATA)/val --count 12 --resolution 128 --spp 16 --seed 9000 --resume --quiet
 	$(PY) headless/train.py --data $(MODEL_DATA)/train --val $(MODEL_DATA)/val --config small \
 	    --overrides image_size=128 canonical_size=64 train_pixels=1024 infer_chunk=4096 \
