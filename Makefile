@@ -24,11 +24,11 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q -e ".[bpy,dev,bench]"
 	@touch $@
 
-$(LLVM_STAMP): $(STAMP) tools/ensure_llvm.sh
+$(LLVM_STAMP): $(STAMP) tools/ensure_llvm.sh tools/apt_install.sh
 	bash tools/ensure_llvm.sh $(PY)
 	@touch $@
 
-$(CHROMIUM_STAMP): $(STAMP) tools/ensure_chromium.sh
+$(CHROMIUM_STAMP): $(STAMP) tools/ensure_chromium.sh tools/apt_install.sh
 	bash tools/ensure_chromium.sh
 	@touch $@
 

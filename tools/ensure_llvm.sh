@@ -28,14 +28,7 @@ if check; then
   exit 0
 fi
 echo "ensure_llvm: Dr.Jit's LLVM backend cannot render polarized scenes; installing libllvm19 (Debian)" >&2
-SUDO=""
-if [ "$(id -u)" != 0 ]; then
-  if command -v sudo >/dev/null; then SUDO="sudo"; else
-    echo "ensure_llvm: not root and no sudo: run 'apt-get install libllvm19' as root" >&2; exit 1; fi
-fi
-export DEBIAN_FRONTEND=noninteractive
-$SUDO apt-get update -qq
-$SUDO apt-get install -y -qq libllvm19 >/dev/null
+bash "$(dirname "$0")/apt_install.sh" libllvm19
 if ! check; then
   echo "ensure_llvm: LLVM rendering still fails after installing libllvm19;" \
        "set DRJIT_LIBLLVM_PATH to /usr/lib/x86_64-linux-gnu/libLLVM.so.19.1" >&2
