@@ -37,6 +37,7 @@ from .pbr_import import (
     image_from_array,
     read_channels,
 )
+from .ui import SidebarPanel
 
 __all__ = ["CLASSES", "VISIBLE_ATTRIBUTE", "unwrap_object", "vertex_visibility", "bake_to_mesh"]
 
@@ -430,15 +431,12 @@ class PDIR_OT_bake_to_mesh(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class PDIR_PT_bake(bpy.types.Panel):
+class PDIR_PT_bake(SidebarPanel, bpy.types.Panel):
     """Bake the captured maps onto the asset's mesh."""
 
     bl_label = "Bake to Mesh"
     bl_idname = "PDIR_PT_bake"
     bl_parent_id = "PDIR_PT_main"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Polarimetric"
     bl_order = 4
 
     def draw(self, context):

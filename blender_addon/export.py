@@ -63,6 +63,7 @@ from numpy.typing import NDArray
 from . import rig_bpy, scene_builder
 from .core.rig import CameraSpec, Rig
 from .core.spec import EnvironmentSpec, LightSpec, MaterialSpec, ObjectSpec, SceneSpec
+from .ui import SidebarPanel
 
 __all__ = [
     "CLASSES",
@@ -941,14 +942,11 @@ class PDIR_OT_render_polarized(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class PDIR_PT_export(bpy.types.Panel):
+class PDIR_PT_export(SidebarPanel, bpy.types.Panel):
     """Export to Mitsuba and render the polarized capture."""
 
     bl_label = "Export and Render"
     bl_idname = "PDIR_PT_export"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Polarimetric"
     bl_parent_id = "PDIR_PT_main"
     bl_order = 2
 

@@ -33,6 +33,8 @@ from mathutils import Vector
 
 from pbrdf.atomic import temporary_path
 
+from .ui import SidebarPanel
+
 __all__ = [
     "CLASSES",
     "RelightWarning",
@@ -408,15 +410,12 @@ class PDIR_OT_render_relit(bpy.types.Operator):
         return {"FINISHED"}
 
 
-class PDIR_PT_import_relight(bpy.types.Panel):
+class PDIR_PT_import_relight(SidebarPanel, bpy.types.Panel):
     """Import predicted PBR maps and relight them."""
 
     bl_label = "Import & Relight"
     bl_idname = "PDIR_PT_import_relight"
     bl_parent_id = "PDIR_PT_main"
-    bl_space_type = "VIEW_3D"
-    bl_region_type = "UI"
-    bl_category = "Polarimetric"
     bl_order = 3
 
     def draw(self, context):

@@ -17,13 +17,15 @@ __all__ = ["CLASSES", "PDIR_PT_main", "PDIR_PT_rig", "PDIR_PT_scene_builder"]
 _CATEGORY = "Polarimetric"
 
 
-class _SidebarPanel:
+class SidebarPanel:
+    """Mixin: a panel in the 3D view's sidebar tab; sub-panels add ``bl_parent_id = "PDIR_PT_main"``."""
+
     bl_space_type = "VIEW_3D"
     bl_region_type = "UI"
     bl_category = _CATEGORY
 
 
-class PDIR_PT_main(_SidebarPanel, bpy.types.Panel):
+class PDIR_PT_main(SidebarPanel, bpy.types.Panel):
     """Polarimetric inverse rendering: rig, synthetic scenes, Mitsuba export and re-import."""
 
     bl_idname = "PDIR_PT_main"
@@ -52,7 +54,7 @@ class PDIR_PT_main(_SidebarPanel, bpy.types.Panel):
         )
 
 
-class PDIR_PT_rig(_SidebarPanel, bpy.types.Panel):
+class PDIR_PT_rig(SidebarPanel, bpy.types.Panel):
     """The polarized display and the polarization camera."""
 
     bl_idname = "PDIR_PT_rig"
@@ -99,7 +101,7 @@ class PDIR_PT_rig(_SidebarPanel, bpy.types.Panel):
         sub.operator("pdir.rig_to_json", text="Export JSON", icon="EXPORT")
 
 
-class PDIR_PT_scene_builder(_SidebarPanel, bpy.types.Panel):
+class PDIR_PT_scene_builder(SidebarPanel, bpy.types.Panel):
     """Objaverse-like scenes: random assets at random poses in view with pBRDF materials."""
 
     bl_idname = "PDIR_PT_scene_builder"
