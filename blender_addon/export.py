@@ -644,6 +644,18 @@ def _set_world(scene: bpy.types.Scene, env: EnvironmentSpec, spec_to_world: NDAr
     world[SPEC_KEY] = json.dumps(env.to_dict())
 
 
+def _attach(obj, item, index: int, role: str, coll, root) -> None:
+    """Link ``obj`` under the rig root at ``item.to_world``, keeping ``item``'s exact spec in custom properties."""
+    obj[rig_bpy.ROLE_KEY] = role
+    obj[SPEC_KEY] = json.dumps(item.to_dict())
+    obj[INDEX_KEY] = index
+    obj["pdir_name"] = item.name
+    coll.objects.link(obj)
+    obj.parent = root
+    obj.matrix_parent_inverse = Matrix.Identity(4)
+    obj.matrix_basis = Matrix(np.asarray(item.to_world).tolist())
+
+
 def build_from_spec(scene: bpy.types.Scene, spec: SceneSpec) -> bpy.types.Object:
     """Lay a scene spec out in ``scene``: the rig, its objects, lights and world; returns the rig root.
 
@@ -667,27 +679,12 @@ def build_from_spec(scene: bpy.types.Scene, spec: SceneSpec) -> bpy.types.Object
         mesh = _mesh_from_arrays(o.name, np.asarray(tm.vertices), np.asarray(tm.faces))
         mesh.materials.append(scene_builder.material_from_spec(materials[o.material]))
         obj = bpy.data.objects.new(o.name, mesh)
-        obj[rig_bpy.ROLE_KEY] = scene_builder.ROLE_OBJECT
         obj[scene_builder.MATERIAL_KEY] = o.material
         obj[MESH_KEY] = o.mesh
         obj[MESH_CHECK_KEY] = _mesh_checksum(mesh)
-        obj[SPEC_KEY] = json.dumps(o.to_dict())
-        obj[INDEX_KEY] = i
-        obj["pdir_name"] = o.name
-        coll.objects.link(obj)
-        obj.parent = root
-        obj.matrix_parent_inverse = Matrix.Identity(4)
-        obj.matrix_basis = Matrix(np.asarray(o.to_world).tolist())
+        _attach(obj, o, i, scene_builder.ROLE_OBJECT, coll, root)
     for i, light in enumerate(spec.lights):
-        obj = bpy.data.objects.new(light.name, _light_data(light))
-        obj[rig_bpy.ROLE_KEY] = ROLE_LIGHT
-        obj[SPEC_KEY] = json.dumps(light.to_dict())
-        obj[INDEX_KEY] = i
-        obj["pdir_name"] = light.name
-        coll.objects.link(obj)
-        obj.parent = root
-        obj.matrix_parent_inverse = Matrix.Identity(4)
-        obj.matrix_basis = Matrix(np.asarray(light.to_world).tolist())
+        _attach(bpy.data.objects.new(light.name, _light_data(light)), light, i, ROLE_LIGHT, coll, root)
     if spec.environment is not None:
         _view_layer(scene).update()  # the root's matrix_world
         _set_world(scene, spec.environment, _np(root.matrix_world))

@@ -83,3 +83,10 @@ def tiny_dataset(tmp_path_factory):
     report = generate(GenerateConfig(out=root, count=3, resolution=32, spp=4, seed=5), progress=False)
     assert len(report.written) == 3
     return root
+
+
+@pytest.fixture
+def empty_blend_file():
+    """An empty Blender file before the test (the add-on stays registered)."""
+    bpy = pytest.importorskip("bpy")
+    bpy.ops.wm.read_homefile(use_empty=True)

@@ -24,9 +24,8 @@ def addon(addon_registered):
 
 
 @pytest.fixture(autouse=True)
-def empty_file():
-    bpy.ops.wm.read_homefile(use_empty=True)
-    yield
+def empty_file(empty_blend_file):
+    return empty_blend_file
 
 
 def _rot(axis, angle):
