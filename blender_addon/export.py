@@ -60,8 +60,9 @@ from bpy.props import BoolProperty, IntProperty, PointerProperty, StringProperty
 from mathutils import Matrix
 from numpy.typing import NDArray
 
+from pbrdf.sensor.rig import CameraSpec, Rig
+
 from . import rig_bpy, scene_builder
-from .core.rig import CameraSpec, Rig
 from .core.spec import EnvironmentSpec, LightSpec, MaterialSpec, ObjectSpec, SceneSpec
 from .ui import SidebarPanel
 

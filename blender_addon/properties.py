@@ -23,8 +23,9 @@ from bpy.props import (
     StringProperty,
 )
 
+from pbrdf.sensor.rig import CameraSpec, DisplaySpec
+
 from . import rig_bpy
-from .core.rig import CameraSpec, DisplaySpec
 
 __all__ = ["CLASSES", "PDIR_RigSettings", "PDIR_SceneBuilderSettings", "register_extra", "unregister_extra"]
 

@@ -31,7 +31,7 @@ import bpy
 from bpy.props import BoolProperty, EnumProperty, FloatProperty, IntProperty, PointerProperty, StringProperty
 from mathutils import Vector
 
-from pbrdf.atomic import temporary_path
+from pbrdf.io.atomic import temporary_path
 
 from .ui import SidebarPanel
 

@@ -44,7 +44,7 @@ from bpy_extras.io_utils import ExportHelper, ImportHelper
 from mathutils import Matrix
 from numpy.typing import NDArray
 
-from .core.rig import BUILTIN_PATTERNS, CameraSpec, DisplaySpec, Rig
+from pbrdf.sensor.rig import BUILTIN_PATTERNS, CameraSpec, DisplaySpec, Rig
 
 __all__ = [
     "CLASSES",

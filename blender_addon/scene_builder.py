@@ -39,8 +39,9 @@ from bpy.props import BoolProperty, IntProperty, StringProperty
 from mathutils import Matrix
 from numpy.typing import NDArray
 
+from pbrdf.sensor.rig import Rig
+
 from . import rig_bpy
-from .core.rig import Rig
 
 if TYPE_CHECKING:
     from .core.spec import MaterialSpec

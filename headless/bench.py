@@ -8,7 +8,7 @@ Usage:
                                      [--device cpu|cuda] [--out FILE]
 
 ``decode``: a 2448x2048 IMX250MYR raw bracket (four exposures) decoded into the nine maps by
-:func:`pbrdf.decode.decode` on the half and full grids, next to polanalyser 3.0's single-bracket
+:func:`pbrdf.sensor.decode.decode` on the half and full grids, next to polanalyser 3.0's single-bracket
 demosaic + Stokes of the same mosaic (the reference implementation; skipped with a note if it is
 not installed). Reports median wall time, peak traced memory, the speed ratio and the error of
 each route on a noise-free scene whose exact Stokes images are known.
@@ -40,8 +40,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from pbrdf import camera, decode  # noqa: E402
-from pbrdf import stokes as pstokes  # noqa: E402
+from pbrdf.polar import stokes as pstokes  # noqa: E402
+from pbrdf.sensor import camera, decode  # noqa: E402
 
 
 def _default_checkpoint() -> Path | None:
@@ -152,8 +152,8 @@ def bench_decode(args: argparse.Namespace) -> dict:
 
 
 def _bench_scene():
-    from blender_addon.core.rig import Rig  # noqa: PLC0415
     from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: PLC0415
+    from pbrdf.sensor.rig import Rig  # noqa: PLC0415
 
     m = np.eye(4)
     m[:3, :3] *= 0.25
@@ -255,8 +255,10 @@ def bench_render(args: argparse.Namespace) -> dict:
 
 
 def bench_pbrdf(args: argparse.Namespace) -> dict:
-    from pbrdf import expand, seeds, validity  # noqa: PLC0415
-    from pbrdf.expansion_run import ExpansionConfig, run_expansion  # noqa: PLC0415
+    from pbrdf.brdf import seeds  # noqa: PLC0415
+    from pbrdf.expansion import expand  # noqa: PLC0415
+    from pbrdf.expansion.run import ExpansionConfig, run_expansion  # noqa: PLC0415
+    from pbrdf.polar import validity  # noqa: PLC0415
 
     result: dict = {"benchmark": "pbrdf", "grid": list(seeds.DEFAULT_GRID)}
     tabs = seeds.seed_tables()

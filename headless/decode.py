@@ -25,9 +25,9 @@ if __package__ in (None, ""):  # run as a script: make the repository root impor
 
 import numpy as np  # noqa: E402
 
-from pbrdf.atomic import atomic_write_bytes  # noqa: E402
-from pbrdf.capture import CAPTURE_FORMAT, CAPTURE_JSON, decode_capture, load_capture  # noqa: E402
-from pbrdf.decode import NINE_MAP_NAMES  # noqa: E402
+from pbrdf.data.capture import CAPTURE_FORMAT, CAPTURE_JSON, decode_capture, load_capture  # noqa: E402
+from pbrdf.io.atomic import atomic_write_bytes  # noqa: E402
+from pbrdf.sensor.decode import NINE_MAP_NAMES  # noqa: E402
 
 EXIT_BAD_INPUT = 2
 

@@ -35,7 +35,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
-    from pbrdf.expansion_run import ExpansionConfig, run_expansion  # noqa: PLC0415
+    from pbrdf.expansion.run import ExpansionConfig, run_expansion  # noqa: PLC0415
 
     try:
         if args.count < 1:

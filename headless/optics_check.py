@@ -25,7 +25,8 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from headless.report import image_grid  # noqa: E402
-from pbrdf import camera, decode, fresnel, mueller  # noqa: E402
+from pbrdf.polar import fresnel, mueller  # noqa: E402
+from pbrdf.sensor import camera, decode  # noqa: E402
 
 # Rig (metres, camera frame: x right, y up, z toward the camera; the camera looks along -z).
 DISPLAY_SIZE = (1.2096, 0.6804)  # Samsung Odyssey Ark 55" active area
@@ -210,7 +211,7 @@ def main(argv: list[str] | None = None) -> int:
     np.save(out / "mask.npy", dec.mask)
     np.save(out / "truth_maps.npy", truth_maps.astype(np.float32))
     try:
-        from pbrdf import capture  # noqa: PLC0415
+        from pbrdf.data import capture  # noqa: PLC0415
 
         capture.save_capture(out / "capture", raws, model, overwrite=True)
     except ImportError:

@@ -3,13 +3,13 @@
 Stages, each timed and shown with a progress bar:
 
 1. ``pbrdf``: expand the built-in analytic seed set into new valid pBRDF tables
-   (:func:`pbrdf.expansion_run.run_expansion`).
+   (:func:`pbrdf.expansion.run.run_expansion`).
 2. ``render``: random Objaverse-like procedural scenes in front of the polarized display,
    rendered with Mitsuba 3 (analytic materials, and the expanded tables for a few scenes), passed
    through the camera model (four raw HDR brackets with noise, written as capture folders)
    (:func:`blender_addon.core.generate.generate`).
 3. ``decode``: each raw capture folder goes through the real-capture path (HDR merge,
-   demosaic, Stokes, nine maps: :func:`pbrdf.capture.decode_capture`).
+   demosaic, Stokes, nine maps: :func:`pbrdf.data.capture.decode_capture`).
 4. ``infer``: the shipped model predicts normal, albedo, roughness and metallic
    (:func:`network.infer.predict`).
 5. ``evaluate``: metrics against the ground truth and against the classical RGB
@@ -159,10 +159,10 @@ def run_demo(cfg: DemoConfig) -> dict:
     from network import evaluate as nevaluate  # noqa: PLC0415
     from network.infer import DEFAULT_CHECKPOINT, predict, write_predictions  # noqa: PLC0415
     from network.train import load_checkpoint  # noqa: PLC0415
-    from pbrdf import capture as pcapture  # noqa: PLC0415
-    from pbrdf import dataset as pdataset  # noqa: PLC0415
-    from pbrdf.atomic import atomic_write_text  # noqa: PLC0415
-    from pbrdf.expansion_run import ExpansionConfig, run_expansion  # noqa: PLC0415
+    from pbrdf.data import capture as pcapture  # noqa: PLC0415
+    from pbrdf.data import dataset as pdataset  # noqa: PLC0415
+    from pbrdf.expansion.run import ExpansionConfig, run_expansion  # noqa: PLC0415
+    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
 
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -312,7 +312,7 @@ def _mean(rows: list[dict], who: str, key: str) -> float:
 
 def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, variant, blender_note) -> dict:
     from network.evaluate import COLUMNS  # noqa: PLC0415
-    from pbrdf.atomic import atomic_write_text  # noqa: PLC0415
+    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
 
     fig_dir = out / "figures"
     keys = [k for k, _, _ in COLUMNS]

@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
 
     from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
-    from pbrdf.dataset import parse_shard  # noqa: PLC0415
+    from pbrdf.data.dataset import parse_shard  # noqa: PLC0415
 
     try:
         if args.count is None and args.scene is None:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pbrdf.atomic import atomic_write_text, temporary_path
+from pbrdf.io.atomic import atomic_write_text, temporary_path
 
 __all__ = ["image_grid", "timing_chart", "metric_chart", "markdown_table", "html_table", "write_report"]
 

@@ -23,7 +23,7 @@ def region_light_directions(display, point: NDArray, *, samples: int = 64) -> tu
     """Unit directions (3, 3) from ``point`` (world) to each colour region, and their irradiance scale (3,).
 
     Args:
-        display: a :class:`blender_addon.core.rig.DisplaySpec`-like object with ``width``,
+        display: a :class:`pbrdf.sensor.rig.DisplaySpec`-like object with ``width``,
             ``height``, ``pattern_rgb_at(xy)``, ``surface_points_world(xy)`` and ``normal_world()``.
         point: ``(3,)`` a representative object point (e.g. its centre) in world coordinates.
         samples: quadrature resolution along the display's width.

@@ -1,6 +1,6 @@
 """Dataset samples as tensors for the network (channel-first inside network/).
 
-Reads the renderer's samples (:mod:`pbrdf.dataset`) and, for real captures, the decoder's output.
+Reads the renderer's samples (:mod:`pbrdf.data.dataset`) and, for real captures, the decoder's output.
 Input normalisation lives here once (:func:`normalize_maps`), used by training and inference:
 the unpol and LP maps are radiometric and scale with exposure and display brightness, so they
 are divided by one robust scale per capture; CP is already a ratio in [-1, 1].
@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch.utils.data import Dataset
 
-from pbrdf import dataset as pdataset
+from pbrdf.data import dataset as pdataset
 
 __all__ = ["normalize_maps", "sample_to_tensors", "SampleDataset", "resize_batch", "gather_pixels"]
 
@@ -26,7 +26,7 @@ def normalize_maps(maps: torch.Tensor, mask: torch.Tensor, *, quantile: float = 
     """Scale unpol and LP maps by the ``quantile`` of their masked total; CP is kept.
 
     Args:
-        maps: ``(*, 9, H, W)`` nine maps in :data:`pbrdf.decode.NINE_MAP_NAMES` order.
+        maps: ``(*, 9, H, W)`` nine maps in :data:`pbrdf.sensor.decode.NINE_MAP_NAMES` order.
         mask: ``(*, 1, H, W)`` valid pixels.
         quantile: which quantile of ``unpol + LP`` (summed over colours) becomes 1.
 

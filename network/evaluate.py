@@ -38,8 +38,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from pbrdf import dataset as pdataset
-from pbrdf.atomic import atomic_write_text
+from pbrdf.data import dataset as pdataset
+from pbrdf.io.atomic import atomic_write_text
 
 from . import baseline, metrics
 from .infer import predict
@@ -99,7 +99,7 @@ def baseline_predict(maps: np.ndarray, mask: np.ndarray, meta: Mapping) -> dict[
     centre of the objects), rotated into the camera frame; the irradiance scale includes the
     display's radiance.
     """
-    from blender_addon.core.rig import Rig  # noqa: PLC0415  (bpy-free geometry)
+    from pbrdf.sensor.rig import Rig  # noqa: PLC0415  (bpy-free geometry)
 
     if _pattern(meta) == "white":
         raise ValueError("photometric stereo needs the display's colour regions, not the white pattern")

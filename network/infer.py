@@ -1,7 +1,7 @@
 """Inference at any input size: crop to the mask, resize to the network, decode masked pixels, map back.
 
 Inputs are either a dataset sample (EXR with the nine maps and mask) or a capture folder (raw
-HDR brackets + ``capture.json``), which goes through :mod:`pbrdf.decode` exactly like the
+HDR brackets + ``capture.json``), which goes through :mod:`pbrdf.sensor.decode` exactly like the
 synthetic data did. Outputs are full-size ``(H, W, C)`` float32 maps, zero outside the mask.
 """
 
@@ -14,10 +14,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F  # noqa: N812
 
-from pbrdf import capture as pcapture
-from pbrdf import dataset as pdataset
-from pbrdf.atomic import atomic_write_bytes
-from pbrdf.exr import write_exr
+from pbrdf.data import capture as pcapture
+from pbrdf.data import dataset as pdataset
+from pbrdf.io.atomic import atomic_write_bytes
+from pbrdf.io.exr import write_exr
 
 from .data import normalize_maps
 from .inputs import apply_inputs

@@ -1,6 +1,6 @@
 """Input variants of the ablation (Table 3 of the paper): which of the nine maps the network sees.
 
-The network always takes nine maps in :data:`pbrdf.decode.NINE_MAP_NAMES` order
+The network always takes nine maps in :data:`pbrdf.sensor.decode.NINE_MAP_NAMES` order
 ``[R,G,B unpol, R,G,B LP, R,G,B CP]``; a variant zeroes what its capture setup could not measure:
 
 ``"white"``
@@ -9,7 +9,7 @@ The network always takes nine maps in :data:`pbrdf.decode.NINE_MAP_NAMES` order
     the difference is in the DATA, which must be rendered with the rig's built-in ``white``
     pattern, e.g. ``headless/render.py --rig white.json`` with ``white.json`` =
     ``{"display": {"pattern": "white"}}`` (a partial rig override, see
-    :meth:`blender_addon.core.rig.Rig.from_dict`).
+    :meth:`pbrdf.sensor.rig.Rig.from_dict`).
 ``"spectral"``
     + spectral multiplexing: the RGB display pattern (``rgb_halves``), intensity only. Each
     colour's total intensity ``S0 = unpol + LP`` goes into its unpol slot; LP and CP are zero.

@@ -1,7 +1,7 @@
 """Real captures (and rendered samples without their ground truth) for the re-rendering loss.
 
 :class:`RealDataset` reads a folder of capture folders (``pdir-capture/1``, decoded with
-:func:`pbrdf.capture.decode_capture` exactly like the synthetic data) and/or rendered datasets
+:func:`pbrdf.data.capture.decode_capture` exactly like the synthetic data) and/or rendered datasets
 (``pdir-dataset/1``; only their nine maps, mask, depth and sidecar geometry are used). Every item
 is cropped to a square around the mask (:func:`network.infer.mask_bbox`, as at inference),
 resized to the model size ``S`` and normalised (:func:`network.data.normalize_maps`); the camera
@@ -25,8 +25,8 @@ Geometry per source:
 
 * rendered sample: the sidecar's ``rig`` and ``intrinsics`` (of the rendered crop, which is the
   maps' grid) and, with ``use_depth``, the sample's ``depth`` map as the depth prior;
-* capture folder: optional keys of ``capture.json`` (kept as :attr:`pbrdf.capture.Capture.metadata`):
-  ``rig`` (a partial rig dict, :meth:`blender_addon.core.rig.Rig.from_dict`; default the
+* capture folder: optional keys of ``capture.json`` (kept as :attr:`pbrdf.data.capture.Capture.metadata`):
+  ``rig`` (a partial rig dict, :meth:`pbrdf.sensor.rig.Rig.from_dict`; default the
   default rig), ``intrinsics`` (3x3 pinhole matrix of the raw mosaic's pixel grid; default the
   rig camera's focal length with the principal point at the raw image's centre) and
   ``distance_m`` (object distance along the viewing axis; default ``distance``). The decoder's
@@ -50,13 +50,14 @@ import torch.nn.functional as F  # noqa: N812
 from numpy.typing import NDArray
 from torch.utils.data import Dataset
 
-from blender_addon.core.rig import Rig
-from pbrdf import capture as pcapture
-from pbrdf import dataset as pdataset
+from pbrdf.data import capture as pcapture
+from pbrdf.data import dataset as pdataset
+from pbrdf.sensor.projection import crop_intrinsics
+from pbrdf.sensor.rig import Rig
 
 from .data import normalize_maps
 from .infer import mask_bbox
-from .rerender import DEFAULT_PATCHES, crop_intrinsics, display_patches, points_from_depth
+from .rerender import DEFAULT_PATCHES, display_patches, points_from_depth
 
 __all__ = ["DEFAULT_DISTANCE", "RealDataset", "find_real_inputs", "load_real_input"]
 

@@ -3,7 +3,7 @@
 Real captures have no ground truth, so the network's predicted normal, albedo, roughness and
 metallic maps are checked by rendering what the camera would have seen under the display and
 comparing with the decoded unpol and LP maps (:func:`network.losses.real_loss`). The BRDF is
-:func:`pbrdf.disney.disney_lobes`, the one Disney BRDF of the project, split into its diffuse
+:func:`pbrdf.brdf.disney.disney_lobes`, the one Disney BRDF of the project, split into its diffuse
 and specular parts.
 
 Model. A surface point ``p`` (camera frame, camera at the origin) with normal ``n`` is lit by
@@ -23,7 +23,7 @@ the built-in patterns).
 Polarization (the approximation). The display emits linearly polarized light, Stokes
 ``L [1, q cos 2psi, q sin 2psi, 0]`` in the camera frame (``q`` its degree of polarization,
 ``psi`` the angle of its field seen by the camera; vertical: ``psi = 90 deg``). The decoder gives
-``unpol = s0 + s1`` and ``LP = -s1`` (:mod:`pbrdf.decode`). Here
+``unpol = s0 + s1`` and ``LP = -s1`` (:mod:`pbrdf.sensor.decode`). Here
 
 * the diffuse lobe depolarizes completely: it adds ``f_d`` to ``s0`` and nothing to ``s1``;
 * the specular lobe keeps the display's linear polarization unchanged (a mirror at normal
@@ -63,14 +63,14 @@ inside a lit region keeps its energy, and the quadrature converges to the exact 
 patches shrink (tested against a brute-force integral and Mitsuba). Diffuse needs no such care.
 
 Geometry. Pixel ``(u, v)`` (u right, v down, centre of pixel ``(0, 0)`` at ``(0.5, 0.5)``) of an
-image with pinhole matrix ``K`` (OpenCV axes, :meth:`blender_addon.core.rig.CameraSpec.intrinsics`)
+image with pinhole matrix ``K`` (OpenCV axes, :meth:`pbrdf.sensor.rig.CameraSpec.intrinsics`)
 looks along ``((u - cx) / fx, -(v - cy) / fy, -1)`` in the camera frame (OpenGL: x right, y up, z
 toward the viewer); a point at depth ``z`` (distance along the viewing axis, as the dataset's
 ``depth``) is ``z`` times that ray. Without a depth prior a fixed distance is used (a
 fronto-parallel plane): the lighting directions are then off by the object's depth relief over
 the display distance (a few degrees for a 10 cm object at 0.75 m).
 
-Numerical guards: alpha is clamped (pbrdf.disney), the normal is renormalised with a floor,
+Numerical guards: alpha is clamped (pbrdf.brdf.disney), the normal is renormalised with a floor,
 back-facing patches (``-n_k . l <= 0``) and points below the horizon contribute exactly 0, every
 division has a floored denominator, so values and gradients are finite for any input (a
 hypothesis test).
@@ -87,10 +87,11 @@ from numpy.typing import ArrayLike, NDArray
 from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
-from pbrdf.disney import disney_lobes, roughness_to_alpha
+from pbrdf.brdf.disney import disney_lobes, roughness_to_alpha
+from pbrdf.sensor import projection
 
 if TYPE_CHECKING:
-    from blender_addon.core.rig import Rig
+    from pbrdf.sensor.rig import Rig
 
 __all__ = [
     "PATCH_COLUMNS",
@@ -98,7 +99,6 @@ __all__ = [
     "DEFAULT_PATCHES",
     "Patches",
     "display_patches",
-    "crop_intrinsics",
     "pixel_rays",
     "points_from_depth",
     "rerender",
@@ -233,39 +233,14 @@ def display_patches(
     return Patches(t(pts), t(nrm), t(area), t(rad), t(gain))
 
 
-def crop_intrinsics(
-    intrinsics: ArrayLike, box: tuple[int, int, int, int], size: tuple[int, int]
-) -> NDArray[np.float64]:
-    """Pinhole matrix ``(3, 3)`` after cropping to ``box`` and resizing the crop to ``size``.
-
-    Args:
-        intrinsics: ``(3, 3)`` matrix of the full image (pixel centres at ``i + 0.5``).
-        box: ``(y0, x0, y1, x1)`` crop in pixels of the full image (as ``network.infer.mask_bbox``).
-        size: ``(H, W)`` of the resized crop (bilinear with ``align_corners=False`` maps pixel edge
-            coordinates linearly, so the pixel-centre convention is kept).
-    """
-    k = np.array(intrinsics, dtype=np.float64)
-    y0, x0, y1, x1 = box
-    sx, sy = size[1] / (x1 - x0), size[0] / (y1 - y0)
-    k[0, 2] -= x0
-    k[1, 2] -= y0
-    k[0] *= sx
-    k[1] *= sy
-    return k
-
-
 def pixel_rays(intrinsics: ArrayLike, height: int, width: int, *, dtype: torch.dtype = torch.float32) -> Tensor:
     """Camera-frame rays ``(3, H, W)`` through the pixel centres, scaled to ``z = -1``.
 
-    A point at depth ``z`` (m, along the viewing axis) is ``z * ray``. Convention: see the module
-    docs; pixel ``(0, 0)``'s centre is ``(0.5, 0.5)``.
+    Channel-first :func:`pbrdf.sensor.projection.pixel_rays`: a point at depth ``z`` (m, along the
+    viewing axis) is ``z * ray``.
     """
-    k = np.asarray(intrinsics, dtype=np.float64)
-    u = (np.arange(width) + 0.5 - k[0, 2]) / k[0, 0]
-    v = (np.arange(height) + 0.5 - k[1, 2]) / k[1, 1]
-    gu, gv = np.meshgrid(u, v, indexing="xy")
-    rays = np.stack([gu, -gv, -np.ones_like(gu)], 0)
-    return torch.as_tensor(rays, dtype=dtype)
+    rays = projection.pixel_rays(intrinsics, height, width)
+    return torch.as_tensor(np.ascontiguousarray(np.moveaxis(rays, -1, 0)), dtype=dtype)
 
 
 def points_from_depth(depth: Tensor, intrinsics: ArrayLike) -> Tensor:

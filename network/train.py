@@ -65,7 +65,7 @@ import torch.distributed as dist
 from torch import nn
 from torch.utils.data import DataLoader, Dataset, Sampler
 
-from pbrdf.atomic import temporary_path
+from pbrdf.io.atomic import temporary_path
 
 from .config import ModelConfig, get_config
 from .data import TARGET_KEYS, SampleDataset, gather_pixels

@@ -1,8 +1,14 @@
-"""pbrdf: the bottom layer of the project.
+"""pbrdf: the bottom layer of the project, physics and file formats only.
 
-Polarized light (Stokes/Mueller algebra, Fresnel), Mueller-matrix validity, the display-camera
-measurement model and its decoder. Only numpy and scipy here (torch only for the pBRDF
-generator); never bpy or mitsuba.
+Sub-packages, in the order light flows through them:
 
-Import the modules directly: ``from pbrdf import camera, decode, fresnel, mueller, stokes, validity``.
+* :mod:`pbrdf.polar` - polarized light: Stokes vectors, Mueller matrices, Fresnel, validity.
+* :mod:`pbrdf.brdf` - materials: the Disney BRDF, polarimetric microfacet pBRDFs, measured tables.
+* :mod:`pbrdf.expansion` - growing a few measured pBRDFs into many (PCA, generator, filter).
+* :mod:`pbrdf.sensor` - the display-camera rig: geometry, projection, sensor model, decoding.
+* :mod:`pbrdf.data` - captures and dataset samples on disk.
+* :mod:`pbrdf.io` - atomic writes and EXR files.
+
+Only numpy and scipy here (torch only for the pBRDF generator); never bpy, mitsuba or anything
+from the layers above. Import modules from their sub-package: ``from pbrdf.polar import stokes``.
 """

@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parent.parent
 if str(ROOT) not in sys.path:  # run as a script: make the repository root importable
     sys.path.insert(0, str(ROOT))
 
-from pbrdf.atomic import atomic_write_bytes  # noqa: E402
+from pbrdf.io.atomic import atomic_write_bytes  # noqa: E402
 
 ADDON_DIR = ROOT / "blender_addon"
 VENDORED = {"pbrdf": ROOT / "pbrdf"}  # package name -> source folder, stored under _vendor/

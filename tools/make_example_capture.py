@@ -32,8 +32,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spp", type=int, default=64, help="samples per pixel per colour pass (default 64)")
     args = parser.parse_args(argv)
     from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
-    from pbrdf import capture, dataset  # noqa: PLC0415
-    from pbrdf.atomic import atomic_open  # noqa: PLC0415
+    from pbrdf.data import capture, dataset  # noqa: PLC0415
+    from pbrdf.io.atomic import atomic_open  # noqa: PLC0415
 
     with tempfile.TemporaryDirectory() as tmp:
         generate(GenerateConfig(out=Path(tmp), count=1, resolution=args.resolution, spp=args.spp, seed=args.seed,

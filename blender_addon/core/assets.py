@@ -35,7 +35,7 @@ try:
 except ModuleNotFoundError:  # Blender's Python: specs, placement and PLY output work without it
     trimesh = None
 
-from .rig import Rig, atomic_write_bytes
+from pbrdf.sensor.rig import Rig, atomic_write_bytes
 
 __all__ = [
     "MESH_SUFFIXES",

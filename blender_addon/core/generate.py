@@ -2,7 +2,7 @@
 
 One process renders a list of sample indices (a shard). Every sample is a pure function of the
 run seed and its index (:func:`.scenegen.sample_seed`), so shards, resumed runs and reruns all
-produce identical samples; writes are atomic (:mod:`pbrdf.dataset`), so a killed run resumes
+produce identical samples; writes are atomic (:mod:`pbrdf.data.dataset`), so a killed run resumes
 without losing or duplicating work.
 
 Instead of random scenes, ``GenerateConfig.scene`` renders one given scene spec (the Blender
@@ -24,11 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
-from pbrdf import dataset
-from pbrdf.atomic import atomic_write_bytes
+from pbrdf.data import dataset
+from pbrdf.io.atomic import atomic_write_bytes
+from pbrdf.sensor.rig import Rig
 
 from . import assets, render, scenegen
-from .rig import Rig
 from .spec import SceneSpec
 
 __all__ = ["ARRAYS_DIR", "GenerateConfig", "GenerateReport", "generate", "render_sample", "versions", "write_arrays"]
@@ -121,7 +121,7 @@ def render_sample(
     render equals ``headless/render.py --scene`` with the same seeds.
 
     Returns:
-        ``(sample, metadata, seconds)``: the :mod:`pbrdf.dataset` sample, its sidecar metadata
+        ``(sample, metadata, seconds)``: the :mod:`pbrdf.data.dataset` sample, its sidecar metadata
         and the wall time of the stages ``render`` and ``camera+decode``.
     """
     t0 = time.perf_counter()
@@ -142,7 +142,7 @@ def write_arrays(root: str | Path, index: int, sample: dict, meta: dict) -> Path
     """
     import json  # noqa: PLC0415
 
-    from pbrdf.decode import NINE_MAP_NAMES  # noqa: PLC0415
+    from pbrdf.sensor.decode import NINE_MAP_NAMES  # noqa: PLC0415
 
     buf = io.BytesIO()
     arrays = {k: np.asarray(v) for k, v in sample.items() if k != "raw"}

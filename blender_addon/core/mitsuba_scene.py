@@ -30,8 +30,11 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from pbrdf.sensor import projection
+
 if TYPE_CHECKING:
-    from .rig import CameraSpec, DisplaySpec
+    from pbrdf.sensor.rig import CameraSpec, DisplaySpec
+
     from .spec import EnvironmentSpec, LightSpec, MaterialSpec, ObjectSpec, SceneSpec
 
 __all__ = [
@@ -91,10 +94,11 @@ class CropWindow:
 
     def intrinsics(self, camera: CameraSpec) -> NDArray[np.float64]:
         """``(3, 3)`` pinhole matrix of the crop in its own pixels (row 0 = top)."""
-        f = camera.focal_length / (camera.pixel_pitch * self.binning)
-        cx = self.film_size[0] / 2 - self.offset[0]
-        cy = self.film_size[1] / 2 - self.offset[1]
-        return np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
+        film = projection.pinhole_intrinsics(
+            camera.focal_length / (camera.pixel_pitch * self.binning), self.film_size[0], self.film_size[1]
+        )
+        x0, y0 = self.offset
+        return projection.crop_intrinsics(film, (y0, x0, y0 + self.size[1], x0 + self.size[0]))
 
     def fov_x(self, camera: CameraSpec) -> float:
         """Horizontal field of view of the virtual film in radians."""
@@ -663,7 +667,7 @@ def write_xml(scene: dict, path: str | Path, *, variant: str | None = None) -> P
     """
     import mitsuba as mi  # noqa: PLC0415
 
-    from pbrdf.atomic import atomic_write_text  # noqa: PLC0415
+    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
 
     variant = variant or mi.variant()
     if variant is None:

@@ -41,6 +41,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from pbrdf.sensor import projection
+
 __all__ = [
     "MAP_KINDS",
     "SYNONYMS",
@@ -290,7 +292,7 @@ def srgb_to_linear(x: NDArray) -> NDArray:
 def read_channels(path: str | os.PathLike) -> tuple[dict[str, NDArray], bool]:
     """All channels of an image file as float32 ``(H, W)`` arrays.
 
-    EXR channels keep their names (via :func:`pbrdf.exr.read_exr`); 8/16-bit PNG/JPEG channels are
+    EXR channels keep their names (via :func:`pbrdf.io.exr.read_exr`); 8/16-bit PNG/JPEG channels are
     named ``R, G, B, A`` or ``Y`` (grey) and scaled to [0, 1].
 
     Returns:
@@ -306,7 +308,7 @@ def read_channels(path: str | os.PathLike) -> tuple[dict[str, NDArray], bool]:
     suffix = path.suffix.lower()
     if suffix == ".exr":
         try:
-            from pbrdf.exr import read_exr  # noqa: PLC0415 - OpenEXR only when an EXR is read
+            from pbrdf.io.exr import read_exr  # noqa: PLC0415 - OpenEXR only when an EXR is read
         except ImportError as e:  # Blender's bundled Python lacks OpenEXR
             raise ValueError(
                 f"{path}: reading EXR maps needs the OpenEXR package ({e}); install it with "
@@ -600,24 +602,28 @@ class Frustum:
     center_x: float = 0.0
     center_y: float = 0.0
 
+    def intrinsics(self) -> NDArray[np.float64]:
+        """Pinhole matrix ``K (3, 3)`` of this frustum (:mod:`pbrdf.sensor.projection` convention)."""
+        fx = self.width / (2.0 * self.half_width)
+        fy = self.height / (2.0 * self.half_height)
+        return np.array(
+            [
+                [fx, 0.0, self.width / 2 - self.center_x * fx],
+                [0.0, fy, self.height / 2 + self.center_y * fy],
+                [0, 0, 1.0],
+            ]
+        )
+
     def pixel_xy(self) -> NDArray[np.float64]:
         """``(H, W, 2)`` x, y of every pixel centre at ``z = -1`` (row 0 at the top)."""
-        u = (np.arange(self.width) + 0.5) / self.width
-        v = (np.arange(self.height) + 0.5) / self.height
-        x = self.center_x + (2.0 * u - 1.0) * self.half_width
-        y = self.center_y + (1.0 - 2.0 * v) * self.half_height
-        return np.stack(np.meshgrid(x, y, indexing="xy"), axis=-1)
+        return projection.pixel_rays(self.intrinsics(), self.height, self.width)[..., :2]
 
     def project(self, points: NDArray) -> NDArray[np.float64]:
         """Continuous pixel coordinates ``(..., 2)`` = (u right, v down) of camera-frame points ``(..., 3)``.
 
-        Points must lie in front of the camera (``z < 0``).
+        Points must lie in front of the camera (``z < 0``); others give NaN.
         """
-        p = np.asarray(points, dtype=np.float64)
-        x, y = p[..., 0] / -p[..., 2], p[..., 1] / -p[..., 2]
-        u = ((x - self.center_x) / self.half_width + 1.0) * 0.5 * self.width
-        v = (1.0 - (y - self.center_y) / self.half_height) * 0.5 * self.height
-        return np.stack([u, v], axis=-1)
+        return projection.camera_to_pixel(points, self.intrinsics())[0]
 
 
 def blender_frustum(

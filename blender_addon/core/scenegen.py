@@ -14,8 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from pbrdf.sensor.rig import Rig
+
 from . import assets
-from .rig import Rig
 from .spec import MaterialSpec, ObjectSpec, SceneSpec
 
 __all__ = ["METALS", "sample_seed", "random_material", "load_material_library", "random_scene"]

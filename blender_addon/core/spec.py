@@ -7,7 +7,7 @@ the material maps, beside what the renderer uses (an analytic polarimetric BSDF 
 pBRDF table).
 
 Convention: ``to_world`` matrices map object coordinates (metres after the transform) to the
-world frame of :mod:`blender_addon.core.rig` (the default camera frame: x right, y up, camera
+world frame of :mod:`pbrdf.sensor.rig` (the default camera frame: x right, y up, camera
 looking along -z). Relative file paths are relative to the current working directory.
 
 Lights and the environment (:class:`LightSpec`, :class:`EnvironmentSpec`) come from Blender
@@ -28,8 +28,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from . import assets
-from .rig import (
+from pbrdf.sensor.rig import (
     IDENTITY4,
     Rig,
     _as_float,
@@ -40,6 +39,8 @@ from .rig import (
     _read_json,
     atomic_write_text,
 )
+
+from . import assets
 
 __all__ = [
     "AREA_SHAPES",

@@ -3,7 +3,7 @@
 The default renderer (:func:`blender_addon.core.render.render_stokes`) multiplexes the colour
 channels with one ``*_mono_polarized`` pass per channel. :func:`render_stokes_spectral` renders
 the same scene once in ``llvm_ad_spectral_polarized`` (or ``scalar_spectral_polarized``) and
-returns the same :class:`~blender_addon.core.render.RenderResult`, so the two can be compared
+returns the same :class:`~blender_addon.core.passes.RenderResult`, so the two can be compared
 (``tests/blender_addon/core/test_spectral.py``) and the spectral variant serves as the fallback
 where the LLVM backend is missing.
 
@@ -61,10 +61,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from . import mitsuba_scene as ms
-from . import render
+from . import passes
 
 if TYPE_CHECKING:
-    from .rig import DisplaySpec
+    from pbrdf.sensor.rig import DisplaySpec
+
     from .spec import MaterialSpec, SceneSpec
 
 __all__ = ["SPECTRAL_VARIANTS", "choose_spectral_variant", "display_radiance", "bsdf_dict", "render_stokes_spectral"]
@@ -79,7 +80,7 @@ _STOKES_CHANNELS = 13
 
 def choose_spectral_variant() -> str:
     """``llvm_ad_spectral_polarized`` when Dr.Jit's LLVM backend works, else ``scalar_spectral_polarized``."""
-    return render.choose_variant("llvm_ad_spectral_polarized")
+    return passes.choose_variant("llvm_ad_spectral_polarized")
 
 
 def display_radiance(display: DisplaySpec) -> dict:
@@ -169,8 +170,8 @@ def bsdf_dict(material: MaterialSpec) -> dict:
 
 
 def render_stokes_spectral(
-    spec: SceneSpec, settings: render.RenderSettings | None = None, *, variant: str | None = None
-) -> render.RenderResult:
+    spec: SceneSpec, settings: passes.RenderSettings | None = None, *, variant: str | None = None
+) -> passes.RenderResult:
     """Render the Stokes images (per colour channel) and AOVs in one spectral-polarized pass.
 
     Same scene, crop window, AOVs and result type as :func:`render.render_stokes`; see the module
@@ -179,28 +180,28 @@ def render_stokes_spectral(
     Args:
         spec: validated scene spec.
         settings: resolution, samples (``spp`` for the single pass), cropping, integrator
-            (default :class:`render.RenderSettings`); ``settings.variant`` is used when it names
+            (default :class:`passes.RenderSettings`); ``settings.variant`` is used when it names
             a spectral variant.
         variant: Mitsuba variant (one of :data:`SPECTRAL_VARIANTS`); default
             :func:`choose_spectral_variant`.
 
     Returns:
-        :class:`render.RenderResult`; ``seconds`` holds ``load`` and ``pass_spectral``.
+        :class:`passes.RenderResult`; ``seconds`` holds ``load`` and ``pass_spectral``.
 
     Raises:
         ValueError: ``variant`` is not a spectral-polarized variant.
     """
-    settings = settings or render.RenderSettings()
+    settings = settings or passes.RenderSettings()
     if variant is None and settings.variant is not None and "spectral" in settings.variant:
         variant = settings.variant
     variant = variant or choose_spectral_variant()
     if variant not in SPECTRAL_VARIANTS:
         raise ValueError(f"variant must be one of {SPECTRAL_VARIANTS}, got {variant!r}")
-    mi = render._set_variant(variant)
+    mi = passes.set_variant(variant)
     rig = spec.rig
     cam = rig.camera
-    meshes = render._world_meshes(spec)
-    window = render.render_window(spec, settings, meshes)
+    meshes = passes.world_meshes(spec)
+    window = passes.render_window(spec, settings, meshes)
     materials = {m.name: m for m in spec.materials}
     names = [f"object_{i}" for i in range(len(spec.objects))]
 
@@ -232,8 +233,8 @@ def render_stokes_spectral(
     h, w = img.shape[:2]
     # [Y, S0.RGB, S1.RGB, S2.RGB, S3.RGB]: channel 1 + 3 i + c is S_i of colour c.
     stokes = img[..., 1:_STOKES_CHANNELS].reshape(h, w, 4, 3).transpose(0, 1, 3, 2)
-    aovs = render.aov_result(img[..., _STOKES_CHANNELS:], scene, spec, names)
-    return render.RenderResult(
+    aovs = passes.aov_result(img[..., _STOKES_CHANNELS:], scene, spec, names)
+    return passes.RenderResult(
         stokes=np.ascontiguousarray(stokes, dtype=np.float32),
         window=window,
         variant=variant,

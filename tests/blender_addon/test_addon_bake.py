@@ -10,7 +10,7 @@ from mathutils import Euler, Matrix  # noqa: E402
 
 from blender_addon import bake  # noqa: E402
 from blender_addon.core import pbr_files  # noqa: E402
-from pbrdf.exr import read_exr, write_exr  # noqa: E402
+from pbrdf.io.exr import read_exr, write_exr  # noqa: E402
 
 H, W = 48, 64
 CENTRE, RADIUS = np.array([0.02, -0.01, -2.0]), 0.35  # sphere in the camera frame

@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 
 from blender_addon.core import assets, mitsuba_scene, scenegen
-from blender_addon.core.rig import Rig
 from blender_addon.core.spec import EnvironmentSpec, LightSpec, MaterialSpec, ObjectSpec, SceneSpec
+from pbrdf.sensor.rig import Rig
 
 mi = pytest.importorskip("mitsuba")
 
@@ -61,7 +61,7 @@ def _rot_x(a: float) -> np.ndarray:
 
 def _cycles(bpy, path, samples: int, *, transparent: bool = False) -> np.ndarray:
     """Render the context scene with Cycles (CPU, 1 thread) to a linear EXR; returns (H, W, 4)."""
-    from pbrdf.exr import read_exr
+    from pbrdf.io.exr import read_exr
 
     scene = bpy.context.scene
     scene.render.engine = "CYCLES"
@@ -264,7 +264,7 @@ def test_brightness_matches_cycles(bpy, export, tmp_path, kind):
 
 def test_environment_map_orientation_matches_cycles(bpy, export, tmp_path):
     """An equirectangular map seen through a tilted camera: same background in Cycles and Mitsuba."""
-    from pbrdf.exr import write_exr
+    from pbrdf.io.exr import write_exr
 
     h, w = 64, 128
     u = (np.arange(w) + 0.5) / w
@@ -300,7 +300,7 @@ def test_environment_map_orientation_matches_cycles(bpy, export, tmp_path):
 
 
 def _full_spec(tmp_path) -> SceneSpec:
-    from pbrdf.exr import write_exr
+    from pbrdf.io.exr import write_exr
 
     spec = scenegen.random_scene(Rig(), 11)
     second = ObjectSpec("ring", "builtin:torus?seed=2", _pose((0.05, -0.05, -0.8), _rot_x(0.4) * 0.15), "chalk")

@@ -10,7 +10,7 @@ bpy = pytest.importorskip("bpy")
 
 from blender_addon import pbr_import, relight  # noqa: E402
 from blender_addon.core import pbr_files  # noqa: E402
-from pbrdf.exr import read_exr, write_exr  # noqa: E402
+from pbrdf.io.exr import read_exr, write_exr  # noqa: E402
 
 H, W = 24, 32
 

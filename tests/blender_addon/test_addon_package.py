@@ -46,7 +46,7 @@ def _registered():
 
 
 def test_package_imports_without_bpy():
-    code = "import sys; sys.modules['bpy'] = None; import blender_addon, blender_addon.core.rig; print('ok')"
+    code = "import sys; sys.modules['bpy'] = None; import blender_addon, pbrdf.sensor.rig; print('ok')"
     res = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and res.stdout.strip() == "ok", res.stderr
 
@@ -101,7 +101,8 @@ def test_zip_layout_and_manifest(zip_path, tmp_path):
         "scene_builder.py",
         "ui.py",
         "core/rig.py",
-        "_vendor/pbrdf/camera.py",
+        "_vendor/pbrdf/sensor/rig.py",
+        "_vendor/pbrdf/sensor/camera.py",
     ):
         assert required in names
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)

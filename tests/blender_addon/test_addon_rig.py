@@ -15,7 +15,7 @@ import pytest
 bpy = pytest.importorskip("bpy")
 
 from blender_addon import rig_bpy  # noqa: E402
-from blender_addon.core.rig import CameraSpec, DisplaySpec, Rig  # noqa: E402
+from pbrdf.sensor.rig import CameraSpec, DisplaySpec, Rig  # noqa: E402
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -45,7 +45,7 @@ def asset_dir(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def library_dir(tmp_path_factory):
-    from pbrdf import seeds, table
+    from pbrdf.brdf import seeds, table
 
     folder = tmp_path_factory.mktemp("library")
     entries = []

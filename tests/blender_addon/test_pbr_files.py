@@ -5,7 +5,7 @@ import pytest
 from PIL import Image
 
 from blender_addon.core import pbr_files as pf
-from pbrdf.exr import write_exr
+from pbrdf.io.exr import write_exr
 
 
 def _touch(folder, *names):

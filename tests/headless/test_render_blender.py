@@ -39,7 +39,7 @@ def _sidecar(path: Path) -> dict:
 
 
 def _assert_same_dataset(a: Path, b: Path, indices) -> None:
-    from pbrdf import dataset
+    from pbrdf.data import dataset
 
     for i in indices:
         sa, _ = dataset.read_sample(a, i)
@@ -81,7 +81,7 @@ def test_scene_file_via_blender_with_file_mesh_and_npz(tmp_path):
 
     from blender_addon.core import scenegen
     from blender_addon.core.generate import GenerateConfig, generate
-    from blender_addon.core.rig import Rig
+    from pbrdf.sensor.rig import Rig
 
     mesh = tmp_path / "ball.glb"
     trimesh.creation.icosphere(2).export(mesh)
@@ -93,7 +93,7 @@ def test_scene_file_via_blender_with_file_mesh_and_npz(tmp_path):
                          keep_stokes=True)  # fmt: skip
     assert generate(cfg, progress=False).written == [0]
     _assert_same_dataset(tmp_path / "plain", tmp_path / "blender", [0])
-    from pbrdf import dataset
+    from pbrdf.data import dataset
 
     sample, _ = dataset.read_sample(tmp_path / "blender", 0)
     with np.load(tmp_path / "blender" / "arrays" / "000000.npz") as npz:

@@ -57,11 +57,11 @@ def _variant_checkpoint(bench, variant):
 
 
 def test_table1_and_baseline_row(bench, tmp_path):
-    from blender_addon.core.rig import Rig
     from network import baseline, evaluate
     from network.infer import predict
     from network.train import load_checkpoint
-    from pbrdf import dataset as pdataset
+    from pbrdf.data import dataset as pdataset
+    from pbrdf.sensor.rig import Rig
 
     result = evaluate.evaluate(bench["ckpt"], bench["data"])
     assert result["ours"] == "full" and set(result["methods"]) == {"full", "baseline"}
@@ -113,7 +113,7 @@ def test_table3_ablation_applies_each_variant(bench, tmp_path):
     from network import evaluate
     from network.infer import predict
     from network.train import load_checkpoint
-    from pbrdf import dataset as pdataset
+    from pbrdf.data import dataset as pdataset
 
     ckpts = {"polar": _variant_checkpoint(bench, "polar"), "spectral": _variant_checkpoint(bench, "spectral"),
              "full": bench["ckpt"]}  # fmt: skip

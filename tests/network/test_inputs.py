@@ -57,7 +57,7 @@ def test_errors_and_checkpoint_key(maps):
 
 def test_white_data_comes_from_a_partial_rig_override():
     """'white' data is rendered with `--rig` = {"display": {"pattern": "white"}}: all channels lit everywhere."""
-    rig = pytest.importorskip("blender_addon.core.rig")
+    rig = pytest.importorskip("pbrdf.sensor.rig")
     r = rig.Rig.from_dict({"display": {"pattern": "white"}})
     assert r.display.pattern == "white"
     img = r.display.pattern_image()

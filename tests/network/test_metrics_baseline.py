@@ -26,7 +26,7 @@ def test_metrics_hand_computed():
 
 def test_photometric_stereo_inverts_its_own_model():
     """With distant lights and a grey Lambertian sphere, the baseline recovers normals exactly."""
-    rig = pytest.importorskip("blender_addon.core.rig")
+    rig = pytest.importorskip("pbrdf.sensor.rig")
     display = rig.DisplaySpec()
     dirs, scale = baseline.region_light_directions(display, np.array([0.0, 0.0, -0.7]))
     # Red lights from the display's right half (world -x), green from world +x, blue from above.

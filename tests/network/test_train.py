@@ -76,7 +76,9 @@ def test_infer_on_sample_and_capture(tiny_dataset, tmp_path):
     from network.config import get_config
     from network.infer import load_input, predict
     from network.model import PolarInverseModel
-    from pbrdf import camera, capture, exr
+    from pbrdf.data import capture
+    from pbrdf.io import exr
+    from pbrdf.sensor import camera
 
     root = Path(__file__).resolve().parents[2]
     torch.manual_seed(0)

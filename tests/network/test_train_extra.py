@@ -19,8 +19,8 @@ import torch
 pytest.importorskip("mitsuba")
 
 from network.train import TrainConfig, learning_rate, load_checkpoint, real_loss_weight, train  # noqa: E402
-from pbrdf import dataset as pdataset  # noqa: E402
-from pbrdf import exr  # noqa: E402
+from pbrdf.data import dataset as pdataset  # noqa: E402
+from pbrdf.io import exr  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 

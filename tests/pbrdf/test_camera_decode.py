@@ -1,4 +1,4 @@
-"""Tests of the display-camera forward model (pbrdf.camera) and its decoder (pbrdf.decode).
+"""Tests of the display-camera forward model (pbrdf.sensor.camera) and its decoder (pbrdf.sensor.decode).
 
 Expected values come from physics and closed forms, never from earlier runs of the code:
 
@@ -25,9 +25,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pbrdf import camera, decode
-from pbrdf.camera import CameraModel, SensorParams
-from pbrdf.stokes import stokes
+from pbrdf.polar.stokes import stokes
+from pbrdf.sensor import camera, decode
+from pbrdf.sensor.camera import CameraModel, SensorParams
 
 # The IMX250MYR 4x4 super-pixel, (row, col), row 0 at the top of the image (notes/polarimetry.md section 2).
 LAYOUT = (

@@ -1,4 +1,4 @@
-"""Tests for pbrdf.capture (capture folders on disk) and the headless/decode.py CLI."""
+"""Tests for pbrdf.data.capture (capture folders on disk) and the headless/decode.py CLI."""
 
 from __future__ import annotations
 
@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from pbrdf import capture as cap
-from pbrdf.camera import CameraModel, SensorParams, simulate_capture
-from pbrdf.decode import decode
+from pbrdf.data import capture as cap
+from pbrdf.sensor.camera import CameraModel, SensorParams, simulate_capture
+from pbrdf.sensor.decode import decode
 
 REPO = Path(__file__).resolve().parents[2]
 H, W = 32, 48

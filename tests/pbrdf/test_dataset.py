@@ -7,8 +7,7 @@ import os
 import numpy as np
 import pytest
 
-from pbrdf.camera import CameraModel
-from pbrdf.dataset import (
+from pbrdf.data.dataset import (
     CHANNELS,
     MANIFEST_JSON,
     REQUIRED_KEYS,
@@ -25,8 +24,9 @@ from pbrdf.dataset import (
     write_manifest,
     write_sample,
 )
-from pbrdf.decode import NINE_MAP_NAMES
-from pbrdf.exr import MissingChannelError, exr_channel_names, read_exr, read_exr_header
+from pbrdf.io.exr import MissingChannelError, exr_channel_names, read_exr, read_exr_header
+from pbrdf.sensor.camera import CameraModel
+from pbrdf.sensor.decode import NINE_MAP_NAMES
 
 H, W = 4, 6
 
@@ -293,7 +293,7 @@ def test_completed_indices_skips_orphans_and_bad_sidecars(tmp_path, rng, caplog)
     data["sha256"] = "0" * 64
     side.write_text(json.dumps(data))  # sha does not match
     sample_paths(tmp_path, 3).sidecar.write_text("{ not json")  # corrupt sidecar
-    with caplog.at_level(logging.WARNING, logger="pbrdf.dataset"):
+    with caplog.at_level(logging.WARNING, logger="pbrdf.data.dataset"):
         assert completed_indices(tmp_path) == {0, 4}
     text = caplog.text
     assert "sample 2 is incomplete" in text and "sha256 does not match" in text
@@ -399,7 +399,7 @@ def test_killed_run_resumes_exactly_the_broken_samples(tmp_path, rng):
 
 def test_sidecar_is_written_last(tmp_path, rng, monkeypatch):
     """A crash after the EXR (and raw) but before the sidecar leaves an incomplete sample."""
-    import pbrdf.dataset as ds
+    import pbrdf.data.dataset as ds
 
     def crash(path, text):
         raise KeyboardInterrupt

@@ -1,7 +1,7 @@
-"""Tests for pbrdf.disney: the Disney principled BRDF (Burley 2012) and its parameter fit.
+"""Tests for pbrdf.brdf.disney: the Disney principled BRDF (Burley 2012) and its parameter fit.
 
 Expected values come from closed forms of the model (derived in the comments), from numerical
-quadrature, from an independent route (Walter 2007's tan form of Smith G1; pbrdf.fresnel's exact
+quadrature, from an independent route (Walter 2007's tan form of Smith G1; pbrdf.polar.fresnel's exact
 dielectric Fresnel) or from Mitsuba 3's C++ ``principled`` BSDF (``scalar_rgb``, float32).
 """
 
@@ -12,7 +12,7 @@ import functools
 import numpy as np
 import pytest
 
-from pbrdf.disney import (
+from pbrdf.brdf.disney import (
     ALPHA_MIN,
     FitResult,
     disney_brdf,
@@ -24,7 +24,7 @@ from pbrdf.disney import (
     schlick_fresnel,
     smith_g1_ggx,
 )
-from pbrdf.fresnel import fresnel_reflectance
+from pbrdf.polar.fresnel import fresnel_reflectance
 
 PI = np.pi
 ATOL = 1e-12  # closed forms in float64
@@ -154,7 +154,7 @@ class TestSchlickFresnel:
         np.testing.assert_allclose(schlick_fresnel(0.0, f0), 1.0, atol=ATOL)  # grazing: 1
 
     def test_close_to_exact_dielectric(self):
-        # Schlick with F0 = 0.04 vs the exact Fresnel reflectance of eta = 1.5 (pbrdf.fresnel):
+        # Schlick with F0 = 0.04 vs the exact Fresnel reflectance of eta = 1.5 (pbrdf.polar.fresnel):
         # measured max |difference| 0.0357 at 85 deg (0.0218 up to 80 deg), 0 at both ends.
         c = np.cos(np.radians(np.linspace(0, 90, 901)))
         d = np.abs(schlick_fresnel(c, 0.04) - fresnel_reflectance(c, 1.5))

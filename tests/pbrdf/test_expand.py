@@ -4,7 +4,8 @@ and the conditional generator."""
 import numpy as np
 import pytest
 
-from pbrdf import expand, fresnel, mueller, validity
+from pbrdf.expansion import expand
+from pbrdf.polar import fresnel, mueller, validity
 
 TD = np.linspace(0, np.pi / 2 * 0.98, 7)
 TH = np.linspace(0, np.pi / 2 * 0.98, 7)
@@ -126,7 +127,7 @@ class TestFilter:
 class TestGenerator:
     def test_generator_respects_conditioning(self, seed_set, tmp_path):
         torch = pytest.importorskip("torch")
-        from pbrdf import generator
+        from pbrdf.expansion import generator
 
         t, params = seed_set
         pca = expand.fit_pca(t)
@@ -152,7 +153,7 @@ class TestGenerator:
         del torch
 
     def test_bad_inputs(self):
-        from pbrdf import generator
+        from pbrdf.expansion import generator
 
         with pytest.raises(ValueError, match="conditions"):
             generator.train_generator(np.zeros((4, 2, 3)), np.zeros((3, 5)), steps=1)

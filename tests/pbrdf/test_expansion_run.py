@@ -8,8 +8,9 @@ import pytest
 
 pytest.importorskip("torch")
 
-from pbrdf import expand, microfacet, seeds, table  # noqa: E402
-from pbrdf.expansion_run import ExpansionConfig, run_expansion  # noqa: E402
+from pbrdf.brdf import microfacet, seeds, table  # noqa: E402
+from pbrdf.expansion import expand  # noqa: E402
+from pbrdf.expansion.run import ExpansionConfig, run_expansion  # noqa: E402
 
 GRID = (8, 6, 16)
 
@@ -67,7 +68,7 @@ def test_expansion_run_and_resume(tmp_path):
 def test_measured_folder_is_used_instead_of_the_seed_set(tmp_path):
     """--measured: real-format tables (here two seed materials written at another grid with 7
     bands, like an hpBRDF subset) are resampled to the working grid and 5 bands."""
-    from pbrdf.expansion_run import load_measured
+    from pbrdf.expansion.run import load_measured
 
     folder = tmp_path / "measured"
     for mat in seeds.SEED_MATERIALS[:2]:

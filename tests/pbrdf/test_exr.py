@@ -8,8 +8,8 @@ import numpy as np
 import OpenEXR
 import pytest
 
-from pbrdf.atomic import temporary_path, temporary_target
-from pbrdf.exr import (
+from pbrdf.io.atomic import temporary_path, temporary_target
+from pbrdf.io.exr import (
     COMPRESSIONS,
     MissingChannelError,
     exr_channel_names,
@@ -289,6 +289,6 @@ def test_temporary_names(tmp_path):
     tmp = temporary_path(tmp_path / "000001.exr")
     assert tmp.parent == tmp_path
     assert temporary_target(tmp.name) == "000001.exr"
-    assert temporary_target(".000001_raw.old-12-0123abcd") == "000001_raw"  # pbrdf.capture's set-aside folders
+    assert temporary_target(".000001_raw.old-12-0123abcd") == "000001_raw"  # pbrdf.data.capture's set-aside folders
     assert temporary_target("000001.exr") is None
     assert temporary_path(tmp_path / "a.exr") != temporary_path(tmp_path / "a.exr")

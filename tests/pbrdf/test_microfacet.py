@@ -1,4 +1,4 @@
-"""Tests of pbrdf.microfacet: GGX terms, the Baek-2018 dielectric pBRDF and the rough conductor.
+"""Tests of pbrdf.brdf.microfacet: GGX terms, the Baek-2018 dielectric pBRDF and the rough conductor.
 
 Expected values come from Mitsuba 3's own plugins (``pplastic``, ``roughconductor`` and
 ``MicrofacetDistribution`` in ``scalar_spectral_polarized``, float32, constant spectra so every
@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pbrdf import fresnel, mueller
-from pbrdf.microfacet import ALPHA_MIN, conductor_pbrdf, dielectric_pbrdf, ggx_d, smith_g1
+from pbrdf.brdf.microfacet import ALPHA_MIN, conductor_pbrdf, dielectric_pbrdf, ggx_d, smith_g1
+from pbrdf.polar import fresnel, mueller
 
 PI = np.pi
 ATOL = 1e-12  # closed-form float64 identities (STYLE.md section 4)
@@ -290,7 +290,7 @@ class TestConductorPbrdf:
         assert_close_to_mitsuba(conductor_pbrdf(wi, wo, eta=GOLD, alpha=0.2, specular=0.6), theirs, rtol=2e-5)
 
     def test_eta_sign_of_k_is_ignored(self, rng):
-        """n + ik is read as n - ik, as in Mitsuba (pbrdf.fresnel)."""
+        """n + ik is read as n - ik, as in Mitsuba (pbrdf.polar.fresnel)."""
         wi, wo = hemisphere(rng, 50), hemisphere(rng, 50)
         np.testing.assert_array_equal(
             conductor_pbrdf(wi, wo, eta=GOLD, alpha=0.3), conductor_pbrdf(wi, wo, eta=GOLD.conjugate(), alpha=0.3)
@@ -304,7 +304,7 @@ class TestConductorPbrdf:
     def test_circular_only_from_light_oblique_to_the_plane(self, rng):
         """Specular-direction gold: linear light along s or p stays linear, +-45 degrees to s gets |s3| large.
 
-        Gold (eta = 0.18 - 3.2i) at 60 degrees retards p against s by about 100 degrees (pbrdf.fresnel), so
+        Gold (eta = 0.18 - 3.2i) at 60 degrees retards p against s by about 100 degrees (pbrdf.polar.fresnel), so
         45-degree light leaves strongly elliptical (notes/polarimetry.md section 5: s3/s0 = 0.8 at 0.27 - 2.78i).
         Fields are built as 3-D vectors and converted with Mitsuba's frames, so the test does not assume them.
         """
@@ -547,7 +547,7 @@ class TestPolarizationStates:
         spec = dielectric_pbrdf(wi, wo, albedo=0.0, eta=1.5, alpha=0.3)[:, :, 0]
         diff = dielectric_pbrdf(wi, wo, albedo=0.8, eta=1.5, alpha=0.3, specular=0.0)[:, :, 0]
         assert np.all(dolp(diff) < dolp(spec))
-        assert np.all(dolp(diff) < 0.247)  # (T_p - T_s) / (T_p + T_s) = 0.2464 at 80 degrees, eta 1.5 (pbrdf.fresnel)
+        assert np.all(dolp(diff) < 0.247)  # (T_p - T_s) / (T_p + T_s) = 0.2464 at 80 deg, eta 1.5
 
     def test_in_plane_angles_are_90_degrees_apart(self, rng):
         """wi and wo in one vertical plane: the two lobes' AoLPs differ by exactly 90 degrees."""

@@ -1,4 +1,4 @@
-"""Physics tests for pbrdf.stokes, pbrdf.mueller and pbrdf.fresnel.
+"""Physics tests for pbrdf.polar.stokes, pbrdf.polar.mueller and pbrdf.polar.fresnel.
 
 Every expected value comes from a closed form (cited where it is used), from an independent route
 (Jones calculus; Hecht's Fresnel amplitudes written out in this file) or from Mitsuba 3's C++
@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pbrdf import fresnel, mueller, stokes
+from pbrdf.polar import fresnel, mueller, stokes
 
 PI = np.pi
 
@@ -84,8 +84,8 @@ def assert_maps_physical_to_physical(m, rng):
 
 
 def assert_mueller_physical(m, rng):
-    """Cloude and Givens-Kostinski tests of pbrdf.validity, plus the Stokes criterion done here."""
-    from pbrdf import validity
+    """Cloude and Givens-Kostinski tests of pbrdf.polar.validity, plus the Stokes criterion done here."""
+    from pbrdf.polar import validity
 
     assert np.all(validity.is_mueller_physical(m))
     assert_maps_physical_to_physical(m, rng)
@@ -323,7 +323,7 @@ class TestRetarder:
         np.testing.assert_allclose(mueller.apply(mueller.qwp(0.0), s_in), s_out, atol=ATOL)
 
     def test_qwp_general_mapping(self, rng):
-        # Convention (pbrdf.mueller docstring, notes/polarimetry.md section 2): [s0,s1,s2,s3] -> [s0,s1,s3,-s2].
+        # Convention (pbrdf.polar.mueller docstring, notes/polarimetry.md section 2): [s0,s1,s2,s3] -> [s0,s1,s3,-s2].
         s = random_stokes(rng, 50)
         expected = np.stack([s[:, 0], s[:, 1], s[:, 3], -s[:, 2]], axis=-1)
         np.testing.assert_allclose(mueller.apply(mueller.qwp(0.0), s), expected, atol=ATOL)

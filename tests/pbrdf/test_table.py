@@ -7,7 +7,7 @@ evaluation at a time, four wavelengths per call) and ``llvm_ad_mono_polarized`` 
 wavelength).
 
 Tolerance against Mitsuba: the plugin computes in float32 (directions, angles, interpolation
-weights, frame rotations) on the same float32 table, while :func:`pbrdf.table.evaluate` uses
+weights, frame rotations) on the same float32 table, while :func:`pbrdf.brdf.table.evaluate` uses
 float64. Both interpolate the same grid linearly, so the difference is float32 round-off times
 the table's slope. Measured worst case relative to max|M|: 3.2e-6 for the Fresnel (gold) table
 over 2000 pairs half of them near the specular lobe (llvm_ad_mono_polarized), 5.3e-7 for the
@@ -26,10 +26,8 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from pbrdf import fresnel, mueller
-from pbrdf import table as tbl
-from pbrdf.atomic import temporary_target
-from pbrdf.table import (
+from pbrdf.brdf import table as tbl
+from pbrdf.brdf.table import (
     PBRDFTable,
     directions_from_rusinkiewicz,
     evaluate,
@@ -41,6 +39,8 @@ from pbrdf.table import (
     to_mitsuba_bands,
     write_tensor_file,
 )
+from pbrdf.io.atomic import temporary_target
+from pbrdf.polar import fresnel, mueller
 
 PI = np.pi
 MI_REL_TOL = 2e-5  # times max|M|; see the module docstring
@@ -92,7 +92,7 @@ def fresnel_table(**kw):
     """Glossy gold-like conductor plus a diffuse floor, in the plugin's s/p frames.
 
     ``M = kd / pi * E00 + ks * D(theta_h) * F(theta_d; eta(lambda))`` with the Fresnel Mueller matrix
-    of pbrdf.fresnel (x-axis perpendicular to the plane of reflection) and a Gaussian-like D.
+    of pbrdf.polar.fresnel (x-axis perpendicular to the plane of reflection) and a Gaussian-like D.
     The complex eta (0.27 - 2.78i at 550 nm, shifted with wavelength) gives circular terms.
     """
     axes, (_, d, h, lam) = grid(**kw)

@@ -1,4 +1,4 @@
-"""Tests of pbrdf.validity against physics (Jones calculus, the Stokes cone) and published fixtures."""
+"""Tests of pbrdf.polar.validity against physics (Jones calculus, the Stokes cone) and published fixtures."""
 
 from functools import reduce
 
@@ -7,8 +7,8 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from pbrdf import validity
-from pbrdf.mueller import (
+from pbrdf.polar import validity
+from pbrdf.polar.mueller import (
     depolarizer,
     jones_to_mueller,
     linear_diattenuator,
@@ -17,8 +17,8 @@ from pbrdf.mueller import (
     retarder,
     rotate_element,
 )
-from pbrdf.stokes import is_physical_stokes, stokes
-from pbrdf.validity import (
+from pbrdf.polar.stokes import is_physical_stokes, stokes
+from pbrdf.polar.validity import (
     cloude_filter,
     coherency_eigenvalues,
     coherency_matrix,

@@ -7,7 +7,7 @@ import pytest
 import trimesh
 
 from blender_addon.core import assets
-from blender_addon.core.rig import CameraSpec, Rig
+from pbrdf.sensor.rig import CameraSpec, Rig
 
 SHAPES = assets.PROCEDURAL_SHAPES
 

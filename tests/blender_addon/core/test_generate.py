@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from blender_addon.core.generate import GenerateConfig, generate  # noqa: E402
-from pbrdf import dataset  # noqa: E402
+from pbrdf.data import dataset  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[3]
 SMALL = {"resolution": 32, "spp": 4}
@@ -94,7 +94,7 @@ def test_rerun_without_resume_refuses(tmp_path):
 def test_assets_folder_and_rig_file(tmp_path):
     import trimesh
 
-    from blender_addon.core.rig import Rig
+    from pbrdf.sensor.rig import Rig
 
     assets_dir = tmp_path / "assets"
     assets_dir.mkdir()

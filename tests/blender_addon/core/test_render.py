@@ -14,9 +14,10 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from blender_addon.core import render  # noqa: E402
-from blender_addon.core.rig import DisplaySpec, Rig  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
-from pbrdf import dataset, fresnel  # noqa: E402
+from pbrdf.data import dataset  # noqa: E402
+from pbrdf.polar import fresnel  # noqa: E402
+from pbrdf.sensor.rig import DisplaySpec, Rig  # noqa: E402
 
 
 def _translate(x, y, z, scale=1.0):

@@ -7,8 +7,8 @@ import pytest
 import trimesh
 
 from blender_addon.core import assets
-from blender_addon.core.rig import CameraSpec, Rig
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec
+from pbrdf.sensor.rig import CameraSpec, Rig
 
 
 def _pose(x=0.0, y=0.0, z=-0.7, scale=0.2):

@@ -26,9 +26,9 @@ pytest.importorskip("mitsuba")
 
 from blender_addon.core import render, spectral  # noqa: E402
 from blender_addon.core.mitsuba_scene import CHANNEL_WAVELENGTHS_NM  # noqa: E402
-from blender_addon.core.rig import DisplaySpec, Rig  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
-from pbrdf import fresnel  # noqa: E402
+from pbrdf.polar import fresnel  # noqa: E402
+from pbrdf.sensor.rig import DisplaySpec, Rig  # noqa: E402
 
 # Resolution and samples of the cross-check renders (the same for both renderers).
 SETTINGS = render.RenderSettings(resolution=64, spp=256)

@@ -2,7 +2,7 @@
 
 The two models are numpy (float64) ports of the maths behind Mitsuba 3's ``pplastic`` and
 ``roughconductor`` plugins (GGX distribution), written against this project's Fresnel
-(:mod:`pbrdf.fresnel`) and Stokes-frame (:mod:`pbrdf.mueller`) code and tested against the
+(:mod:`pbrdf.polar.fresnel`) and Stokes-frame (:mod:`pbrdf.polar.mueller`) code and tested against the
 plugins themselves.
 
 Convention:
@@ -41,10 +41,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import disney
-from ._checks import as_float_array, check_last_dims
-from .fresnel import reflection_mueller, transmission_mueller
-from .mueller import rotate_mueller_basis, rotate_stokes_basis, stokes_basis
+from pbrdf._checks import as_float_array, check_last_dims
+from pbrdf.brdf import disney
+from pbrdf.polar.fresnel import reflection_mueller, transmission_mueller
+from pbrdf.polar.mueller import rotate_mueller_basis, rotate_stokes_basis, stokes_basis
 
 __all__ = ["ggx_d", "smith_g1", "dielectric_pbrdf", "conductor_pbrdf"]
 
@@ -89,7 +89,7 @@ def ggx_d(cos_theta_h: ArrayLike, alpha: ArrayLike) -> NDArray:
         through rough surfaces", EGSR 2007, eq. 33.
     """
     c = np.clip(as_float_array(cos_theta_h).astype(np.float64), -1.0, 1.0)
-    # The formula has one home, shared with the Disney model (pbrdf.disney); the clamp is this
+    # The formula has one home, shared with the Disney model (pbrdf.brdf.disney); the clamp is this
     # module's (Mitsuba's microfacet plugins clamp alpha to 1e-4).
     return np.where(c > 0, disney.ggx_ndf(c, _alpha(alpha)), 0.0)
 
@@ -221,7 +221,7 @@ def dielectric_pbrdf(
 
     with the GGX ``D`` (:func:`ggx_d`) at ``h = (wi + wo) / |wi + wo|``, ``G = G1(wi) G1(wo)``
     (:func:`smith_g1`), ``theta_d`` the angle between ``wo`` and ``h``, ``R`` and ``T`` the Fresnel
-    reflection and flux-transmission Mueller matrices (:mod:`pbrdf.fresnel`) and ``C`` the
+    reflection and flux-transmission Mueller matrices (:mod:`pbrdf.polar.fresnel`) and ``C`` the
     rotations from the planes of reflection (through ``h``) and of refraction (through ``n``) to
     the Stokes bases of the module Convention. Mitsuba evaluates the exit transmittance at the
     refracted camera angle with ``1 / eta``; by reciprocity of the flux Fresnel coefficients that is
@@ -296,7 +296,7 @@ def conductor_pbrdf(
         wi: unit direction towards the camera, local frame, ``(..., 3)``.
         wo: unit direction towards the light, ``(..., 3)``; broadcasts with ``wi``.
         eta: complex relative IOR ``n - ik`` (``n + ik`` is read as ``n - ik``; see
-            :mod:`pbrdf.fresnel`), e.g. gold near 600 nm ``0.18 - 3.2j``; broadcastable.
+            :mod:`pbrdf.polar.fresnel`), e.g. gold near 600 nm ``0.18 - 3.2j``; broadcastable.
         alpha: GGX roughness (``roughness**2``), clamped to at least :data:`ALPHA_MIN`.
         specular: scale ``k_s`` (Mitsuba's ``specular_reflectance``).
 

@@ -36,8 +36,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf.atomic import atomic_write_bytes, atomic_write_text
-from pbrdf.camera import CameraModel
+from pbrdf.io.atomic import atomic_write_bytes, atomic_write_text
+from pbrdf.sensor import projection
+from pbrdf.sensor.camera import CameraModel
 
 __all__ = [
     "BUILTIN_PATTERNS",
@@ -408,7 +409,7 @@ class CameraSpec:
         to_world: camera-to-world rigid transform, 4x4 nested tuples; the camera frame is OpenGL
             (x right, y up, looking along -z). Default identity: the camera frame is the world.
         model: QWP angle and retardance, analyzer extinction ratios, exposure brackets, sensor
-            noise (:class:`pbrdf.camera.CameraModel`).
+            noise (:class:`pbrdf.sensor.camera.CameraModel`).
     """
 
     sensor_width_px: int = 2448
@@ -432,7 +433,7 @@ class CameraSpec:
         object.__setattr__(self, "to_world", _as_matrix4(self.to_world, "camera.to_world"))
         _check_rigid(self.to_world, "camera.to_world")
         if not isinstance(self.model, CameraModel):
-            raise ValueError(f"camera.model must be a pbrdf.camera.CameraModel, got {type(self.model).__name__}")
+            raise ValueError(f"camera.model must be a pbrdf.sensor.camera.CameraModel, got {type(self.model).__name__}")
 
     @property
     def sensor_width_m(self) -> float:
@@ -462,14 +463,10 @@ class CameraSpec:
     def intrinsics(self) -> NDArray[np.float64]:
         """Pinhole matrix K ``(3, 3)`` in pixels, principal point at the sensor centre ``(W/2, H/2)``.
 
-        Convention: K acts on OpenCV camera coordinates (x right, y down, z forward), i.e. on
-        ``diag(1, -1, -1)`` times the OpenGL camera coordinates used everywhere else; pixel
-        ``(0, 0)``'s centre is at ``(0.5, 0.5)``.
+        Convention: :mod:`pbrdf.sensor.projection` (OpenGL camera frame, pixel ``(0, 0)``'s centre
+        at ``(0.5, 0.5)``).
         """
-        f = self.focal_length_px
-        return np.array(
-            [[f, 0.0, self.sensor_width_px / 2], [0.0, f, self.sensor_height_px / 2], [0.0, 0.0, 1.0]],
-        )
+        return projection.pinhole_intrinsics(self.focal_length_px, self.sensor_width_px, self.sensor_height_px)
 
     def camera_to_world(self) -> NDArray[np.float64]:
         """Camera-to-world transform ``(4, 4)``."""
@@ -477,11 +474,7 @@ class CameraSpec:
 
     def world_to_camera(self) -> NDArray[np.float64]:
         """World-to-camera transform ``(4, 4)`` (rigid inverse of :meth:`camera_to_world`)."""
-        m = self.camera_to_world()
-        inv = np.eye(4)
-        inv[:3, :3] = m[:3, :3].T
-        inv[:3, 3] = -m[:3, :3].T @ m[:3, 3]
-        return inv
+        return projection.rigid_inverse(self.camera_to_world())
 
     def project(self, points_world: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Project world points to pixel coordinates.
@@ -497,15 +490,7 @@ class CameraSpec:
         p = np.asarray(points_world, dtype=np.float64)
         if p.shape[-1:] != (3,):
             raise ValueError(f"points_world must have shape (..., 3), got {p.shape}")
-        m = self.world_to_camera()
-        pc = p @ m[:3, :3].T + m[:3, 3]
-        depth = -pc[..., 2]
-        f = self.focal_length_px
-        with np.errstate(divide="ignore", invalid="ignore"):
-            safe = np.where(depth > 0, depth, np.nan)
-            u = self.sensor_width_px / 2 + f * pc[..., 0] / safe
-            v = self.sensor_height_px / 2 - f * pc[..., 1] / safe
-        return np.stack([u, v], axis=-1), depth
+        return projection.camera_to_pixel(projection.transform_points(self.world_to_camera(), p), self.intrinsics())
 
     def out_of_view_px(self, points_world: ArrayLike, margin_px: float = 0.0) -> float:
         """How far, in pixels, the points leave the sensor shrunk by ``margin_px`` on every side.

@@ -9,7 +9,7 @@ The forward chain for one frame is
       -> photo-electrons for an exposure time, Poisson-Gaussian noise, full well
       -> gain, black level, 12-bit quantisation and clipping -> uint16 raw.
 
-:mod:`pbrdf.decode` inverts it with the same :class:`CameraModel`, for synthetic and real captures.
+:mod:`pbrdf.sensor.decode` inverts it with the same :class:`CameraModel`, for synthetic and real captures.
 
 Convention (IMX250MYR layout, row 0 at the top of the image, ``pattern_offset = (0, 0)``):
 
@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from . import mueller
+from pbrdf.polar import mueller
 
 __all__ = [
     "ANGLES_DEG",

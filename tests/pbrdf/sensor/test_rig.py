@@ -9,8 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from PIL import Image
 
-from blender_addon.core.rig import CameraSpec, DisplaySpec, Rig
-from pbrdf.camera import CameraModel
+from pbrdf.sensor.camera import CameraModel
+from pbrdf.sensor.rig import CameraSpec, DisplaySpec, Rig
 
 # Rig defaults (../shared/DESIGN.md): IMX250MYR 2448 x 2048 px at 3.45 um, 8 mm lens,
 # Samsung Odyssey Ark 55" active area 1209.6 x 680.4 mm.

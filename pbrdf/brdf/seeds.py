@@ -3,9 +3,9 @@
 The 39 measured materials (KAIST pBRDF, hpBRDF) are gigabytes and cannot ship. These analytic
 materials span the same categories (spectralon, billiard resins, silicones, ceramics,
 plastics, gold, brass, chrome, steel, aluminium), with the dielectric pBRDF of Baek et al. (2018)
-or the complex-IOR conductor (:mod:`pbrdf.microfacet`), tabulated on a small Rusinkiewicz grid on
+or the complex-IOR conductor (:mod:`pbrdf.brdf.microfacet`), tabulated on a small Rusinkiewicz grid on
 demand and cached. ``expand_pbrdf.py --measured DIR`` uses real tables instead; the pipeline
-only sees :class:`pbrdf.table.PBRDFTable` either way.
+only sees :class:`pbrdf.brdf.table.PBRDFTable` either way.
 
 Optical constants: dielectric IORs are typical published values for the material class
 (resins and PMMA-like plastics about 1.49-1.55, silicone 1.41, alumina 1.76, PEEK 1.65, POM
@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import microfacet
-from .table import PBRDFTable, load_table, save_table, tabulate
+from pbrdf.brdf import microfacet
+from pbrdf.brdf.table import PBRDFTable, load_table, save_table, tabulate
 
 __all__ = ["WAVELENGTHS_NM", "DEFAULT_GRID", "SeedMaterial", "SEED_MATERIALS", "seed_table", "seed_tables"]
 

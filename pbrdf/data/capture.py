@@ -22,7 +22,7 @@ A capture folder holds
 ``exposures_s`` and ``raw_files`` are required and correspond one to one (any order; they are
 sorted by exposure on load). ``black_level``, ``white_level``, ``bits`` and ``pattern_offset``
 are optional and, where present, override the same quantities inside ``camera_model`` (the
-:meth:`pbrdf.camera.CameraModel.to_dict` of the calibrated rig, itself optional: defaults are
+:meth:`pbrdf.sensor.camera.CameraModel.to_dict` of the calibrated rig, itself optional: defaults are
 used for what it does not give). ``white_level`` must be ``2**bits - 1``: the decoder assumes
 LSB-aligned data, so MSB-aligned 16-bit exports (e.g. 12-bit data times 16) must be shifted
 right before saving. Every other top-level key is returned as :attr:`Capture.metadata`.
@@ -44,9 +44,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .atomic import fsync_path, temporary_path
-from .camera import CameraModel
-from .decode import Decoded, decode
+from pbrdf.io.atomic import fsync_path, temporary_path
+from pbrdf.sensor.camera import CameraModel
+from pbrdf.sensor.decode import Decoded, decode
 
 __all__ = [
     "CAPTURE_FORMAT",
@@ -527,12 +527,12 @@ def decode_capture(
     Args:
         capture: a :class:`Capture` or the path of a capture folder.
         grid: ``"half"`` (``(H/2, W/2)`` output) or ``"full"`` (``(H, W)``); see
-            :func:`pbrdf.decode.decode`.
-        eps: CP regulariser (:func:`pbrdf.decode.nine_maps`).
+            :func:`pbrdf.sensor.decode.decode`.
+        eps: CP regulariser (:func:`pbrdf.sensor.decode.nine_maps`).
         min_signal: pixels whose ``s0`` is not above this (in every colour) are masked out.
 
     Returns:
-        :class:`pbrdf.decode.Decoded` with ``maps`` ``(H', W', 9)`` float32, ``mask`` ``(H', W')``
+        :class:`pbrdf.sensor.decode.Decoded` with ``maps`` ``(H', W', 9)`` float32, ``mask`` ``(H', W')``
         bool and ``stokes`` ``(H', W', 3, 3)`` float32.
     """
     cap = capture if isinstance(capture, Capture) else load_capture(capture)

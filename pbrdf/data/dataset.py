@@ -7,7 +7,7 @@ A dataset is a folder::
       samples/
         000000.exr             maps, mask and ground truth of sample 0 (channels below)
         000000.json            its sidecar: caller's metadata + format, index, channels, sha256
-        000000_raw/            optional: the raw HDR bracket as a capture folder (pbrdf.capture)
+        000000_raw/            optional: the raw HDR bracket as a capture folder (pbrdf.data.capture)
         ...
 
 A sample is a dict of arrays on the decoder's output grid ``(H, W)``:
@@ -27,7 +27,7 @@ key            shape, dtype         meaning (EXR channels)
 ``stokes``     (H, W, 3, 4) float32 optional: per colour R, G, B the Stokes vector
                                     (``stokes.R.S0`` ... ``stokes.B.S3``)
 ``raw``        (E, 2H, 2W) uint16   optional: raw HDR bracket, saved with
-                                    :func:`pbrdf.capture.save_capture` in ``<index>_raw/``;
+                                    :func:`pbrdf.data.capture.save_capture` in ``<index>_raw/``;
                                     the camera model comes from ``metadata["camera_model"]``
 =============  ===================  ==========================================================
 
@@ -56,11 +56,11 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from .atomic import atomic_write_text, temporary_target
-from .camera import CameraModel
-from .capture import CAPTURE_JSON, Capture, load_capture, save_capture, validate_capture
-from .decode import NINE_MAP_NAMES
-from .exr import MissingChannelError, read_exr, stack_channels, write_exr
+from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, save_capture, validate_capture
+from pbrdf.io.atomic import atomic_write_text, temporary_target
+from pbrdf.io.exr import MissingChannelError, read_exr, stack_channels, write_exr
+from pbrdf.sensor.camera import CameraModel
+from pbrdf.sensor.decode import NINE_MAP_NAMES
 
 __all__ = [
     "SAMPLE_FORMAT",
@@ -365,7 +365,7 @@ def write_sample(
         sample: the sample dict (see the module docs and :func:`validate_sample`).
         metadata: JSON-serialisable dict (numpy scalars and arrays are converted): rig, poses,
             material ids, Disney parameters, seeds, software versions, ... With ``raw`` it
-            must hold ``"camera_model"`` (:meth:`pbrdf.camera.CameraModel.to_dict`, or the
+            must hold ``"camera_model"`` (:meth:`pbrdf.sensor.camera.CameraModel.to_dict`, or the
             model itself). It may not use the keys :data:`SIDECAR_KEYS`.
         raw_format: file format of the raw frames: ``"png"``, ``"tiff"`` or ``"npy"``.
 

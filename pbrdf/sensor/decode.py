@@ -1,7 +1,7 @@
 """Decode raw HDR brackets into Stokes images and the nine network input maps.
 
-The same code serves synthetic captures (from :func:`pbrdf.camera.simulate_capture`) and real
-ones (:mod:`pbrdf.capture`). Steps, all linear and in float32:
+The same code serves synthetic captures (from :func:`pbrdf.sensor.camera.simulate_capture`) and real
+ones (:mod:`pbrdf.data.capture`). Steps, all linear and in float32:
 
 1. :func:`hdr_merge` on the raw mosaic: per pixel ``E = sum_j v_j z_j / sum_j v_j t_j`` (the
    maximum-likelihood estimate for a shot-noise-limited linear sensor), where ``v_j`` is true only
@@ -12,7 +12,7 @@ ones (:mod:`pbrdf.capture`). Steps, all linear and in float32:
    (the centres of the 2x2 blocks; exactly the pixel centres of a half-resolution render).
    Float precision is kept (no uint16 rescaling) and affine signals are reproduced exactly.
 3. :func:`stokes_from_intensities`: per colour channel, least squares through the calibrated
-   measurement matrix of :func:`pbrdf.camera.measurement_matrix` (QWP retardance, extinction
+   measurement matrix of :func:`pbrdf.sensor.camera.measurement_matrix` (QWP retardance, extinction
    ratios). With the QWP at 0 degrees the camera's "s2" channel carries the incoming ``s3``; the
    incoming ``s2`` is not measured.
 4. :func:`nine_maps`: ``LP = -s1``, ``unpol = s0 - LP = s0 + s1``, ``CP = s3 / (s0 + eps)``.
@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from .camera import CameraModel, SensorParams, measurement_matrix, mosaic, mosaic_indices
+from pbrdf.sensor.camera import CameraModel, SensorParams, measurement_matrix, mosaic, mosaic_indices
 
 __all__ = [
     "NINE_MAP_NAMES",

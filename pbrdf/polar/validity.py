@@ -3,7 +3,7 @@
 Convention:
     Mueller matrices have shape ``(..., 4, 4)`` (float32 or float64; everything is computed
     internally in float64 / complex128) and act on column Stokes vectors as in
-    :mod:`pbrdf.mueller`. Every function is vectorised over the leading axes and processes large
+    :mod:`pbrdf.polar.mueller`. Every function is vectorised over the leading axes and processes large
     batches in chunks, so millions of matrices fit in memory.
 
     The Cloude coherency matrix uses the Pauli basis ``sigma0 = I``, ``sigma1 = diag(1, -1)``,
@@ -43,7 +43,7 @@ from collections.abc import Callable
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._checks import as_float_array, check_last_dims
+from pbrdf._checks import as_float_array, check_last_dims
 
 __all__ = [
     "coherency_matrix",
@@ -111,7 +111,7 @@ def coherency_matrix(mueller: ArrayLike) -> NDArray[np.complex128]:
     Example:
         An ideal horizontal polarizer is pure: its coherency matrix has a single nonzero entry.
 
-        >>> from pbrdf.mueller import linear_polarizer
+        >>> from pbrdf.polar.mueller import linear_polarizer
         >>> coherency_matrix(linear_polarizer(0.0)).real.round(6) + 0.0
         array([[0.5, 0. , 0. , 0. ],
                [0. , 0. , 0. , 0. ],
@@ -207,7 +207,7 @@ def is_cloude_physical(mueller: ArrayLike, *, rtol: float = 1e-6) -> NDArray[np.
         A quarter-wave plate is physical; ``diag(1, 1, 1, -1)`` (a mirror-like sign flip of s3
         alone) is not -- it would need a negative weight in the Jones ensemble:
 
-        >>> from pbrdf.mueller import qwp
+        >>> from pbrdf.polar.mueller import qwp
         >>> print(is_cloude_physical(qwp(0.3)), is_cloude_physical(np.diag([1.0, 1, 1, -1])))
         True False
     """
@@ -377,7 +377,7 @@ def is_mueller_physical(mueller: ArrayLike, *, rtol: float = 1e-6) -> NDArray[np
     Example:
         An ideal polarizer and a half depolarizer are physical, ``diag(1, .9, .9, -.9)`` is not:
 
-        >>> from pbrdf.mueller import depolarizer, linear_polarizer
+        >>> from pbrdf.polar.mueller import depolarizer, linear_polarizer
         >>> m = np.stack([linear_polarizer(0.4), depolarizer(0.5), np.diag([1, 0.9, 0.9, -0.9])])
         >>> is_mueller_physical(m)
         array([ True,  True, False])

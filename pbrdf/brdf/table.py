@@ -35,12 +35,12 @@ Convention:
     * Stokes frames of the table: both the incident beam (travelling along ``-wo``) and the
       reflected beam (along ``wi``) have their Stokes x-axis ``x = normalize(wo x wi)``,
       *perpendicular* to the plane of reflection (the s-direction, as in
-      :func:`pbrdf.fresnel.reflection_mueller`): the plugin builds ``t = normalize((wo - wi) x -wo)``,
+      :func:`pbrdf.polar.fresnel.reflection_mueller`): the plugin builds ``t = normalize((wo - wi) x -wo)``,
       ``y = normalize(t x z)`` and ``x = y x z``, which is ``-t``; its y-axis lies in the plane (its
       source comment says the reference vector "lies in the plane of reflection"). For ``wi == wo``
       the plane is undefined (the plugin gets NaN); here it is the plane of incidence of ``wi``.
       :func:`evaluate` rotates these frames into Mitsuba's implicit bases ``stokes_basis(-wo)``
-      and ``stokes_basis(wi)`` with :func:`pbrdf.mueller.rotate_mueller_basis`.
+      and ``stokes_basis(wi)`` with :func:`pbrdf.polar.mueller.rotate_mueller_basis`.
     * ``M`` is the BRDF *without* the ``cos theta_o`` factor; :func:`evaluate` multiplies by
       ``cos theta_o = wo_z`` and clamps ``m00 >= 0`` as the plugin does.
     * Interpolation is multilinear in ``(phi_d, theta_d, theta_h, wavelength)`` with clamping at
@@ -72,8 +72,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .atomic import atomic_open
-from .mueller import rotate_mueller_basis, stokes_basis
+from pbrdf.io.atomic import atomic_open
+from pbrdf.polar.mueller import rotate_mueller_basis, stokes_basis
 
 __all__ = [
     "MITSUBA_MAX_BANDS",
@@ -927,7 +927,7 @@ def tabulate(
     Args:
         brdf: ``brdf(wi, wo, band) -> (..., 4, 4)``: the Mueller matrix as Mitsuba's ``bsdf.eval``
             returns it (camera side ``wi``, light side ``wo``, implicit Stokes bases, times
-            ``cos theta_o``), e.g. :func:`pbrdf.microfacet.dielectric_pbrdf`; ``band`` indexes
+            ``cos theta_o``), e.g. :func:`pbrdf.brdf.microfacet.dielectric_pbrdf`; ``band`` indexes
             ``wavelengths``.
         phi_d: difference azimuths, radians.
         theta_d: difference angles, radians.

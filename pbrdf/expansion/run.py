@@ -18,9 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from . import expand, seeds
-from .atomic import atomic_write_text
-from .table import PBRDFTable, evaluate, load_table, resample, save_table, to_mitsuba_bands
+from pbrdf.brdf import seeds
+from pbrdf.brdf.table import PBRDFTable, evaluate, load_table, resample, save_table, to_mitsuba_bands
+from pbrdf.expansion import expand
+from pbrdf.io.atomic import atomic_write_text
 
 __all__ = ["ExpansionConfig", "ExpansionReport", "run_expansion", "load_measured", "sphere_polarimetry"]
 
@@ -168,7 +169,7 @@ def _figure(path: Path, tables: list[PBRDFTable], params: list[dict]) -> None:
 
 def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionReport:
     """Run (or resume) an expansion into ``cfg.out``."""
-    from . import generator  # noqa: PLC0415 - torch only here
+    from pbrdf.expansion import generator  # noqa: PLC0415 - torch only here
 
     out = Path(cfg.out)
     tables_dir, model_dir = out / "tables", out / "model"

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from . import validity
+from pbrdf.polar import validity
 
 __all__ = [
     "G_MAX",
@@ -320,7 +320,7 @@ def filter_tables(
     """Physical-validity filter: per-matrix tests, a per-table acceptance rule, optional repair.
 
     Every Mueller matrix with ``m00 > 0`` is tested with Givens-Kostinski and Cloude
-    (:mod:`pbrdf.validity`, vectorised). A table is accepted when at least
+    (:mod:`pbrdf.polar.validity`, vectorised). A table is accepted when at least
     ``min_valid_fraction`` of its matrices pass both; with ``project_invalid`` the few invalid
     matrices of an accepted table are replaced by their Cloude projection (the Frobenius-nearest
     physical matrix, intensity kept).
@@ -378,13 +378,13 @@ def sample_directions(n: int, rng: np.random.Generator) -> tuple[NDArray, NDArra
 
 
 def fit_table_disney(table, *, n: int = 2000, seed: int = 0):
-    """Disney parameters (albedo RGB, roughness, metallic) of a table's m00 (:func:`pbrdf.disney.fit_disney`).
+    """Disney parameters (albedo RGB, roughness, metallic) of a table's m00 (:func:`pbrdf.brdf.disney.fit_disney`).
 
     The table is evaluated (cos-weighted, as Mitsuba renders it) at the renderer's R, G, B
     wavelengths on ``n`` direction pairs from :func:`sample_directions`.
     """
-    from . import disney  # noqa: PLC0415
-    from .table import evaluate  # noqa: PLC0415
+    from pbrdf.brdf import disney  # noqa: PLC0415
+    from pbrdf.brdf.table import evaluate  # noqa: PLC0415
 
     rng = np.random.default_rng(seed)
     wi, wo = sample_directions(n, rng)

@@ -47,7 +47,7 @@ import numpy as np
 import OpenEXR
 from numpy.typing import NDArray
 
-from .atomic import fsync_path, temporary_path
+from pbrdf.io.atomic import fsync_path, temporary_path
 
 __all__ = [
     "COMPRESSIONS",
@@ -102,7 +102,7 @@ _PIXEL_WARNING_RE = re.compile(r"reading pixel data for part (\d+)\s*-\s*(.*)$")
 _INT32 = (-(2**31), 2**31 - 1)
 _UINT32_MAX = 2**32 - 1
 _MAX_NAME_BYTES = 255
-# Temporary siblings: ".<target name>.tmp-<pid>-<8 hex digits>" (the pattern of pbrdf.capture's
+# Temporary siblings: ".<target name>.tmp-<pid>-<8 hex digits>" (the pattern of pbrdf.data.capture's
 # temporary folders, ".old-" being its set-aside folders).
 
 

@@ -2,7 +2,7 @@
 
 Convention:
     Mueller matrices have shape ``(..., 4, 4)`` and act on column Stokes vectors ``(..., 4)``
-    (:mod:`pbrdf.stokes`). Angles are radians, measured from the reference x-axis towards the
+    (:mod:`pbrdf.polar.stokes`). Angles are radians, measured from the reference x-axis towards the
     y-axis as seen looking *against* the propagation direction (into the beam), the convention
     of Mitsuba 3 and polanalyser. ``rotator(theta)`` re-expresses a Stokes vector in a frame
     rotated by ``theta``; an element rotated by ``theta`` is ``rotator(-theta) @ M @ rotator(theta)``.
@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._checks import as_float_array, check_last_dims
+from pbrdf._checks import as_float_array, check_last_dims
 
 __all__ = [
     "apply",

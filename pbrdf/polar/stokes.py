@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._checks import as_float_array, check_last_dims, safe_div
+from pbrdf._checks import as_float_array, check_last_dims, safe_div
 
 __all__ = [
     "stokes",

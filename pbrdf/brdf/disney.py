@@ -71,7 +71,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from ._checks import as_float_array, check_last_dims
+from pbrdf._checks import as_float_array, check_last_dims
 
 __all__ = [
     "FitResult",

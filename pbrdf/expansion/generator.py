@@ -145,7 +145,7 @@ def sample_weights(model: WeightCVAE, conditions: NDArray, *, seed: int = 0, tem
 
 def save_generator(path: str | Path, model: WeightCVAE) -> None:
     """Checkpoint: ``{"config": dict, "state_dict": tensors}`` (loadable with weights_only=True)."""
-    from .atomic import temporary_path  # noqa: PLC0415
+    from pbrdf.io.atomic import temporary_path  # noqa: PLC0415
 
     path = Path(path)
     tmp = temporary_path(path)

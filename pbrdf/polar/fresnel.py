@@ -20,8 +20,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._checks import as_float_array
-from .mueller import _grid
+from pbrdf._checks import as_float_array
+from pbrdf.polar.mueller import _grid
 
 __all__ = [
     "fresnel_amplitudes",

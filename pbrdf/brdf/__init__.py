@@ -1,0 +1,1 @@
+"""Materials: the Disney BRDF, polarimetric microfacet pBRDFs, measured pBRDF tables, seed materials."""

@@ -1,0 +1,1 @@
+"""Files with meaning: real capture folders and rendered dataset samples."""

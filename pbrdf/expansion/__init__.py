@@ -1,0 +1,1 @@
+"""pBRDF expansion: factorisation and PCA of tables, the conditional generator, the resumable run."""

@@ -1,0 +1,1 @@
+"""File mechanics without physics: atomic writes and EXR images."""

@@ -1,0 +1,1 @@
+"""Polarized light: Stokes vectors, Mueller matrices of optical elements, Fresnel, validity."""
