@@ -62,11 +62,11 @@ MODEL_STEPS ?= 700
 train-model: setup  ## reproduce models/small/model.pt: render data, train `small`, evaluate on held-out scenes
 	$(PY) headless/render.py --out $(MODEL_DATA)/train --count 158 --resolution 128 --spp 16 --seed 100 --resume --quiet
 	$(PY) headless/render.py --out $(MODEL_DATA)/val --count 12 --resolution 128 --spp 16 --seed 9000 --resume --quiet
-	$(PY) headless/train.py --data $(MODEL_DATA)/train --val $(MODEL_DATA)/val --config small \
+	$(PY) headless/train.py --input $(MODEL_DATA)/train --val $(MODEL_DATA)/val --config small \
 	    --overrides image_size=128 canonical_size=64 train_pixels=1024 infer_chunk=4096 \
 	    --steps $(MODEL_STEPS) --batch-size 4 --lr 2e-4 --min-lr-ratio 1.0 --seed 0 --checkpoint-every 25 \
 	    --out $(MODEL_RUN) --resume
-	$(PY) headless/evaluate.py --checkpoint $(MODEL_RUN)/model.pt --data $(MODEL_DATA)/val --out $(MODEL_RUN)/eval
+	$(PY) headless/evaluate.py --checkpoint $(MODEL_RUN)/model.pt --input $(MODEL_DATA)/val --out $(MODEL_RUN)/eval
 	cp $(MODEL_RUN)/model.pt models/small/model.pt
 
 addon: setup  ## build the Blender extension zip into dist/

@@ -54,7 +54,7 @@ MODULES = (
     "ui",
     "rig_bpy",
     "scene_builder",
-    "export",
+    "render_operator",
     "pbr_import",
     "relight",
     "bake",

@@ -27,7 +27,7 @@ from bpy.props import EnumProperty, IntProperty, PointerProperty, StringProperty
 from mathutils import Vector
 from mathutils.bvhtree import BVHTree
 
-from .core import pbr_files
+from .core import map_io, map_names
 from .pbr_import import (
     NORMAL_SPACES,
     UV_NAME,
@@ -221,15 +221,15 @@ def _projection_material(name, camera, frustum, images: Mapping[str, object]):
 # --------------------------------------------------------------------------- bake
 
 
-def _load(maps) -> pbr_files.PBRMaps:
-    if isinstance(maps, pbr_files.PBRMaps):
+def _load(maps) -> map_io.PBRMaps:
+    if isinstance(maps, map_io.PBRMaps):
         return maps
-    return pbr_files.load_maps(pbr_files.match_map_files(maps, required=()), reader=read_channels)
+    return map_io.load_maps(map_names.match_map_files(maps, required=()), reader=read_channels)
 
 
 def bake_to_mesh(
     obj,
-    maps: pbr_files.PBRMaps | str | os.PathLike | Iterable | Mapping,
+    maps: map_io.PBRMaps | str | os.PathLike | Iterable | Mapping,
     camera,
     *,
     size: int = 512,
@@ -245,7 +245,7 @@ def bake_to_mesh(
 
     Args:
         obj: mesh object in the current scene, placed as it was captured.
-        maps: :class:`~blender_addon.core.pbr_files.PBRMaps`, or a folder / files / ``{kind: file}``.
+        maps: :class:`~blender_addon.core.map_io.PBRMaps`, or a folder / files / ``{kind: file}``.
         camera: the capture camera object (its view frames the maps: same aspect ratio).
         size: texture size in pixels (square).
         normal_space: ``"TANGENT"`` or ``"OBJECT"`` for the baked normal map.

@@ -1,6 +1,6 @@
 """Import predicted PBR maps as a relightable asset seen by the capture camera.
 
-:func:`import_pbr_maps` matches and validates the map files (``core/pbr_files.py``), turns them
+:func:`import_pbr_maps` matches and validates the map files (:mod:`.core.map_names`, :mod:`.core.map_io`), turns them
 into float images packed into the .blend file (exact values, no colour transform: data maps
 ``Non-Color``, albedo scene-linear), and builds
 
@@ -33,7 +33,8 @@ from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatPrope
 from bpy_extras.io_utils import ImportHelper
 from mathutils import Matrix, Vector
 
-from .core import pbr_files
+from .core import map_io, map_names
+from .core.frustum import Frustum, blender_frustum, depth_mesh
 
 __all__ = [
     "CLASSES",
@@ -91,13 +92,13 @@ def image_from_array(name: str, array: np.ndarray, *, colorspace: str = "Non-Col
 
 
 def read_channels(path: Path) -> tuple[dict[str, np.ndarray], bool]:
-    """Channels of a map file: :func:`blender_addon.core.pbr_files.read_channels`, or Blender's loader.
+    """Channels of a map file: :func:`blender_addon.core.map_io.read_channels`, or Blender's loader.
 
     Blender's bundled Python has numpy but neither Pillow nor OpenEXR: without Pillow, PNG/JPEG
     files are read with ``bpy.data.images.load`` (raw code values / 255); EXR needs OpenEXR.
     """
     if Path(path).suffix.lower() == ".exr" or importlib.util.find_spec("PIL") is not None:
-        return pbr_files.read_channels(path)
+        return map_io.read_channels(path)
     return read_channels_blender(path)
 
 
@@ -145,10 +146,10 @@ def ensure_camera(scene, camera=None):
     return camera
 
 
-def camera_frustum(camera, width: int, height: int) -> pbr_files.Frustum:
+def camera_frustum(camera, width: int, height: int) -> Frustum:
     """The frustum of a Blender camera object at ``width x height`` pixels."""
     cam = camera.data
-    return pbr_files.blender_frustum(
+    return blender_frustum(
         width,
         height,
         lens=cam.lens,
@@ -176,7 +177,7 @@ def _mesh(name: str, vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray):
     return mesh
 
 
-def _plane(name: str, frustum: pbr_files.Frustum, distance: float):
+def _plane(name: str, frustum: Frustum, distance: float):
     """A plane mesh centred at its origin covering the frustum at ``distance`` (UV (0, 0) at the lower left)."""
     hw, hh = frustum.half_width * distance, frustum.half_height * distance
     vertices = np.array([[-hw, -hh, 0.0], [hw, -hh, 0.0], [hw, hh, 0.0], [-hw, hh, 0.0]])
@@ -227,8 +228,8 @@ def _asset_name(files: Mapping[str, Path]) -> str:
     stems = [p.stem for p in files.values()]
     prefix = os.path.commonprefix(stems).rstrip("_-. ")
     if len(stems) == 1:
-        tokens = pbr_files.filename_tokens(stems[0])
-        prefix = "_".join(t for t in tokens if not pbr_files.match_kinds((t,)))
+        tokens = map_names.filename_tokens(stems[0])
+        prefix = "_".join(t for t in tokens if not map_names.match_kinds((t,)))
     return prefix or "PBR asset"
 
 
@@ -251,7 +252,7 @@ def import_pbr_maps(
     Args:
         context: ``bpy.context`` (its scene and collection receive the object).
         paths_or_folder: a folder, a list of files, or ``{kind: file}``; matched by filename
-            tokens (see :func:`blender_addon.core.pbr_files.match_map_files`). A normal map is
+            tokens (see :func:`blender_addon.core.map_names.match_map_files`). A normal map is
             required; the others are optional (Principled defaults stand in).
         camera: the capture camera; default the scene camera, else a new one at the origin.
         distance: plane distance from the camera in metres (ignored for a depth mesh).
@@ -275,10 +276,10 @@ def import_pbr_maps(
     if not distance > 0:
         raise ValueError(f"distance must be > 0 metres, got {distance}")
     scene = context.scene
-    files = pbr_files.match_map_files(paths_or_folder, required=("normal",))
+    files = map_names.match_map_files(paths_or_folder, required=("normal",))
     if not use_depth:
-        files = pbr_files.MapFiles({k: v for k, v in files.files.items() if k != "depth"}, files.unmatched)
-    maps = pbr_files.load_maps(files, reader=read_channels)
+        files = map_names.MapFiles({k: v for k, v in files.files.items() if k != "depth"}, files.unmatched)
+    maps = map_io.load_maps(files, reader=read_channels)
     for line in maps.warnings:
         warnings.warn(line, PBRImportWarning, stacklevel=2)
     camera = ensure_camera(scene, camera)
@@ -291,7 +292,7 @@ def import_pbr_maps(
     name = name or _asset_name(files.files)
 
     if maps.depth is not None:
-        vertices, faces, uvs = pbr_files.depth_mesh(maps.depth, maps.valid, frustum)
+        vertices, faces, uvs = depth_mesh(maps.depth, maps.valid, frustum)
         if len(faces) == 0:
             raise ValueError(f"{files.files['depth']}: the depth map gives no triangles inside the mask")
         mesh = _mesh(name, vertices, faces, uvs)
@@ -328,7 +329,7 @@ def import_pbr_maps(
 
     present = maps.present()
     obj["pdir_maps"] = ",".join(present)
-    obj["pdir_missing"] = ",".join(k for k in pbr_files.MAP_KINDS if k not in present)
+    obj["pdir_missing"] = ",".join(k for k in map_names.MAP_KINDS if k not in present)
     obj["pdir_source"] = ", ".join(str(p) for p in files.files.values())
     obj["pdir_normal_space"] = normal_space
     context.view_layer.update()  # matrix_world of the new child, for callers that place lights around it

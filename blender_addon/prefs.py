@@ -3,7 +3,7 @@
 Blender's bundled Python has numpy but not mitsuba/drjit. Rendering with Mitsuba works either in
 Blender's own Python (after ``<blender python> -m pip install mitsuba``) or through an external
 Python that has mitsuba (the project's ``.venv/bin/python``), set in the add-on preferences and
-run as a subprocess by the export/render module.
+run as a subprocess by :mod:`.render_operator`.
 """
 
 from __future__ import annotations
@@ -15,7 +15,14 @@ from pathlib import Path
 import bpy
 from bpy.props import StringProperty
 
-__all__ = ["CLASSES", "PDIR_AddonPreferences", "addon_preferences", "external_python", "mitsuba_available"]
+__all__ = [
+    "CLASSES",
+    "PDIR_AddonPreferences",
+    "addon_preferences",
+    "external_python",
+    "importable",
+    "mitsuba_available",
+]
 
 
 class PDIR_AddonPreferences(bpy.types.AddonPreferences):
@@ -64,6 +71,16 @@ def external_python(context: bpy.types.Context | None = None) -> Path | None:
     return path if path.is_file() else None
 
 
+def importable(*names: str) -> bool:
+    """Whether every named top-level package can be imported in this Python (without importing it).
+
+    Example:
+        >>> importable("json", "math"), importable("json", "no_such_package_pdir")
+        (True, False)
+    """
+    return all(importlib.util.find_spec(n) is not None for n in names)
+
+
 def mitsuba_available(context: bpy.types.Context | None = None) -> tuple[bool, str]:
     """Whether Mitsuba rendering can run, and a one-line message saying how (or how to get it).
 
@@ -71,7 +88,7 @@ def mitsuba_available(context: bpy.types.Context | None = None) -> tuple[bool, s
         ``(True, ...)`` when mitsuba and drjit are importable in Blender's Python, or an external
         Python is set in the preferences; ``(False, how-to)`` otherwise.
     """
-    missing = [name for name in ("mitsuba", "drjit") if importlib.util.find_spec(name) is None]
+    missing = [name for name in ("mitsuba", "drjit") if not importable(name)]
     if not missing:
         return True, "Mitsuba: available in Blender's Python"
     python = external_python(context)

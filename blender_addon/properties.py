@@ -1,7 +1,7 @@
 """Panel settings of the rig and the scene builder, stored on the scene.
 
 ``scene.pdir_rig`` (:class:`PDIR_RigSettings`) mirrors the editable numbers of
-:class:`~.core.rig.Rig`; editing one applies that field to the scene's rig at once
+:class:`~pbrdf.sensor.rig.Rig`; editing one applies that field to the scene's rig at once
 (:func:`.rig_bpy.update_from_setting`). ``scene.pdir_builder`` (:class:`PDIR_SceneBuilderSettings`)
 holds the scene builder's inputs. Lengths are metres, angles radians (Blender shows degrees).
 """

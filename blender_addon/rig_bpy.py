@@ -1,7 +1,7 @@
-"""The display-camera rig in Blender, kept equal to the bpy-free :class:`~.core.rig.Rig`.
+"""The display-camera rig in Blender, kept equal to the bpy-free :class:`~pbrdf.sensor.rig.Rig`.
 
 Objects (in the collection "PDIR Rig"):
-    - the rig root, an empty: the rig frame of :mod:`.core.rig` (metres, x right, y up, the
+    - the rig root, an empty: the rig frame of :mod:`pbrdf.sensor.rig` (metres, x right, y up, the
       camera looking along -z). Moving it moves the whole rig and the objects parented to it.
     - the camera, a child of the root with ``matrix_basis = CameraSpec.camera_to_world()``:
       Blender cameras also look down their local -z with y up, so no axis change is needed.
@@ -10,7 +10,7 @@ Objects (in the collection "PDIR Rig"):
     - the display, a child of the root with ``matrix_basis = DisplaySpec.display_to_world()``:
       an emissive mesh in display-local coordinates (flat quad, or a strip of facets of at most
       1 degree on the 1000R-style cylinder, vertices exactly on
-      :meth:`~.core.rig.DisplaySpec.surface_points_local`) showing the pattern through an Image
+      :meth:`~pbrdf.sensor.rig.DisplaySpec.surface_points_local`) showing the pattern through an Image
       Texture with Closest interpolation (Non-Color, rows flipped: Blender's pixel row 0 is the
       bottom), Emission strength = ``radiance``; the back side is black.
 

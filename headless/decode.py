@@ -1,14 +1,13 @@
-"""Decode a raw HDR capture folder into the nine network input maps.
+"""Decode a raw HDR capture folder (IMX250MYR polarization mosaics) into the nine network input maps.
 
-Usage::
+    python headless/decode.py --input CAPTURE_DIR --out OUT_DIR [--grid half|full] [--preview] [--quiet]
+    python -m headless.decode --input CAPTURE_DIR --out OUT_DIR
 
-    python headless/decode.py CAPTURE_DIR --out OUT_DIR [--grid half|full] [--preview]
-    python -m headless.decode CAPTURE_DIR --out OUT_DIR
-
-Writes ``OUT_DIR/maps.npy`` (``(H', W', 9)`` float32), ``OUT_DIR/mask.npy`` (``(H', W')`` bool)
-and, with ``--preview``, ``OUT_DIR/preview.png``. Every file is written to a temporary name and
-renamed into place; nothing is written unless loading and decoding succeed. Bad input prints one
-line ``error: <message>`` on stderr and exits with status 2.
+Writes OUT_DIR/maps.npy ((H', W', 9) float32), OUT_DIR/mask.npy ((H', W') bool) and, with
+--preview, OUT_DIR/preview.png, then prints the written paths. Every file is
+written to a temporary name and renamed into place; nothing is written unless loading and
+decoding succeed. Bad input prints one line "error: <message>" on stderr and exits with status 2.
+The positional form `decode.py CAPTURE_DIR` still works for one release (use --input).
 """
 
 from __future__ import annotations
@@ -18,13 +17,12 @@ import io
 import sys
 from pathlib import Path
 
-if __package__ in (None, ""):  # run as a script: make the repository root importable
-    _here = Path(__file__).resolve().parent
-    sys.path[:] = [p for p in sys.path if Path(p or ".").resolve() != _here]
-    sys.path.insert(0, str(_here.parent))
+if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import numpy as np  # noqa: E402
 
+from headless._cli import add_deprecated_positional, require  # noqa: E402
 from pbrdf.data.capture import CAPTURE_FORMAT, CAPTURE_JSON, decode_capture, load_capture  # noqa: E402
 from pbrdf.io.atomic import atomic_write_bytes  # noqa: E402
 from pbrdf.sensor.decode import NINE_MAP_NAMES  # noqa: E402
@@ -43,7 +41,7 @@ capture folder format ({CAPTURE_FORMAT}):
   CAPTURE_DIR/raw_*.png|.tif|.tiff|.npy
       single-channel IMX250MYR raw mosaics (H, W), H and W multiples of 4, black level
       included, 16-bit grayscale PNG/TIFF or integer .npy
-  See pbrdf/capture.py (save_capture writes this layout).
+  See pbrdf/data/capture.py (save_capture writes this layout).
 
 outputs:
   OUT_DIR/maps.npy     (H', W', 9) float32, order {", ".join(NINE_MAP_NAMES)}
@@ -54,18 +52,19 @@ outputs:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (see the module docstring)."""
     parser = argparse.ArgumentParser(
-        prog="decode",
-        description="Decode a raw HDR capture (IMX250MYR polarization mosaics) into the nine maps.",
-        epilog=_EPILOG,
-        formatter_class=argparse.RawDescriptionHelpFormatter,
+        prog="decode.py", description=__doc__, epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("capture_dir", type=Path, help="capture folder holding capture.json and the raws")
+    parser.add_argument("--input", type=Path, metavar="CAPTURE_DIR",
+                        help="capture folder holding capture.json and the raws (required)")  # fmt: skip
     parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     parser.add_argument(
         "--grid", choices=("half", "full"), default="half", help="output grid (default: half resolution)"
     )
     parser.add_argument("--preview", action="store_true", help="also write preview.png of the nine maps")
+    parser.add_argument("--quiet", action="store_true", help="no progress output (decode shows none)")
+    add_deprecated_positional(parser, "CAPTURE_DIR", new="--input", type=Path)
     return parser
 
 
@@ -106,7 +105,16 @@ def _preview_png(maps: np.ndarray, mask: np.ndarray) -> bytes:
 
 
 def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = False) -> list[Path]:
-    """Load, decode and write the outputs; returns the written paths.
+    """Load, decode and write the outputs.
+
+    Args:
+        capture_dir: capture folder (``capture.json`` and the raws).
+        out: output folder, created if missing.
+        grid: ``"half"`` or ``"full"`` output grid.
+        preview: also write ``preview.png``.
+
+    Returns:
+        The written paths.
 
     Raises:
         ValueError: bad capture content.
@@ -131,9 +139,12 @@ def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = Fal
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    """Run the script; returns the exit status (0, or 2 for bad input)."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    require(parser, args, "--input")
     try:
-        written = run(args.capture_dir, args.out, grid=args.grid, preview=args.preview)
+        written = run(args.input, args.out, grid=args.grid, preview=args.preview)
     except (ValueError, OSError) as e:
         message = " ".join(str(e).split()) or type(e).__name__
         print(f"error: {message}", file=sys.stderr)
@@ -144,4 +155,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    raise SystemExit(main())

@@ -1,17 +1,18 @@
 """`make demo`: the whole pipeline on built-in defaults, with an HTML report at the end.
 
-    python headless/demo.py [--out out/demo] [--scenes 6] [--resolution 128] [--checkpoint model.pt]
+    python headless/demo.py [--out out/demo] [--scenes 6] [--resolution 128] [--checkpoint model.pt] [--quiet]
 
 Expands pBRDFs from the built-in seed set, builds random Objaverse-like procedural scenes,
 renders polarized captures with Mitsuba 3 through the camera model (raw HDR brackets with
 noise), decodes them, runs the shipped model (models/small/model.pt), evaluates against the
 ground truth and the classical photometric-stereo baseline, imports the predictions into
 Blender (bpy wheel) as Principled BSDF assets and relights them with Cycles under a rotating
-point light and an environment map.
+point light and an environment map (network.demo.pipeline).
 
 Writes to --out: pbrdfs/ (tables, figures), data/ (samples with raw capture folders),
 predictions/ (EXR + PNG per scene), relit/ (frames, .blend), figures/, metrics.json,
-metrics.md, timings.json and report.html. A second run reuses finished renders.
+metrics.md, timings.json and report.html, then prints a summary. A second run reuses finished
+renders.
 """
 
 from __future__ import annotations
@@ -21,10 +22,12 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (see the module docstring)."""
     parser = argparse.ArgumentParser(
         prog="demo.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -41,9 +44,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--relight-samples", type=int, default=32, help="Cycles samples (default 32)")
     parser.add_argument("--no-blender", action="store_true", help="skip the Blender import and relighting")
     parser.add_argument("--seed", type=int, default=0, help="seed of everything (default 0)")
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    args = parser.parse_args(argv)
-    from headless.pipeline import DemoConfig, run_demo  # noqa: PLC0415
+    parser.add_argument("--quiet", action="store_true", help="no progress bars (the summary still prints)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the script; returns the exit status (0, or 2 on an error)."""
+    args = build_parser().parse_args(argv)
+    from network.demo import DemoConfig, run_demo  # noqa: PLC0415
 
     t0 = time.perf_counter()
     try:
@@ -59,13 +67,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {exc}", file=sys.stderr)
         return 2
     mean = summary["mean"]
+    ours, base = mean["ours"], mean["baseline"]
     print()
     print(f"demo finished in {time.perf_counter() - t0:.0f} s: {len(summary['scenes'])} scenes")
-    ours, base = mean["ours"], mean["baseline"]
     print(f"  normal MAE   ours {ours['normal_mae']:6.2f} deg   baseline {base['normal_mae']:6.2f} deg")
-    print(f"  albedo si-PSNR ours {mean['ours']['albedo_si_psnr']:5.2f} dB  baseline "
-          f"{mean['baseline']['albedo_si_psnr']:5.2f} dB")  # fmt: skip
-    print(f"  roughness RMSE {mean['ours']['roughness_rmse']:.3f}   metallic RMSE {mean['ours']['metallic_rmse']:.3f}")
+    print(f"  albedo si-PSNR ours {ours['albedo_si_psnr']:5.2f} dB  baseline {base['albedo_si_psnr']:5.2f} dB")
+    print(f"  roughness RMSE {ours['roughness_rmse']:.3f}   metallic RMSE {ours['metallic_rmse']:.3f}")
     print("  time per stage: " + ", ".join(f"{k} {v:.0f}s" for k, v in summary["timings_s"].items()))
     print(f"report: {(args.out / 'report.html').resolve()}")
     return 0

@@ -1,16 +1,17 @@
 """Predict normal, albedo, roughness and metallic maps from a capture or a rendered sample.
 
-    python headless/infer.py --input (capture folder | sample.exr) --out DIR [--checkpoint model.pt] [--blend]
+    python headless/infer.py --input (capture folder | sample.exr) --out DIR [--checkpoint model.pt] [--blend] [--quiet]
 
 Without --checkpoint the shipped model (models/small/model.pt, see its MODEL_CARD.md) is used,
 so a real capture folder gives maps without training anything. A capture folder is raw HDR
-brackets plus capture.json (format in pbrdf/capture.py and examples/capture/); it is merged,
-demosaiced and decoded exactly like the synthetic training data.
+brackets plus capture.json (format in pbrdf/data/capture.py and examples/capture/); it is
+merged, demosaiced and decoded exactly like the synthetic training data (network.infer).
 
 Writes DIR/<name>_normal.exr, _albedo.exr, _roughness.exr, _metallic.exr, _mask.exr (float32,
 full input size, zero outside the mask; normals in the camera frame: x right, y up, z toward
 the camera) and a PNG preview of each. With --blend, also DIR/<name>.blend: the maps imported
-into Blender as a relightable Principled BSDF asset (needs the bpy wheel: pip install bpy).
+into Blender as a relightable Principled BSDF asset (headless/relight.py in its own process;
+needs the bpy wheel: pip install bpy).
 """
 
 from __future__ import annotations
@@ -20,10 +21,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (see the module docstring)."""
     parser = argparse.ArgumentParser(
         prog="infer.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -33,9 +36,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--blend", action="store_true", help="also save a Blender scene with the relightable asset")
     parser.add_argument("--stride", type=int, default=1, choices=[1, 2, 4],
                         help="decode every s-th pixel, interpolate the rest (faster)")  # fmt: skip
-    args = parser.parse_args(argv)
+    parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the script; returns the exit status (0, or 2 on an error)."""
+    args = build_parser().parse_args(argv)
+    from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.infer import DEFAULT_CHECKPOINT, load_input, predict, write_predictions  # noqa: PLC0415
-    from network.train import load_checkpoint  # noqa: PLC0415
 
     ckpt_path = args.checkpoint or DEFAULT_CHECKPOINT
     try:
@@ -50,8 +59,8 @@ def main(argv: list[str] | None = None) -> int:
     print(f"wrote {len(pred)} maps ({name}_*.exr/.png) to {args.out.resolve()}")
     if args.blend:
         script = Path(__file__).resolve().parent / "relight.py"
-        cmd = [sys.executable, str(script), "--maps", str(args.out), "--name", name, "--out", str(args.out),
-               "--frames", "0", "--save-blend"]  # fmt: skip
+        cmd = [sys.executable, str(script), "--input", str(args.out), "--name", name, "--out", str(args.out),
+               "--frames", "0", "--save-blend", *(["--quiet"] if args.quiet else [])]  # fmt: skip
         proc = subprocess.run(cmd, check=False)  # own process: bpy must not share one with torch/mitsuba
         if proc.returncode:
             print("error: the Blender scene could not be written (see above)", file=sys.stderr)

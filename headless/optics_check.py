@@ -1,280 +1,63 @@
-"""The optics/camera round trip on a built-in analytic scene (stage 0 of `make demo`).
+"""The optics/camera round trip on a built-in analytic scene: two spheres, no renderer, no network.
+
+    python headless/optics_check.py [--out out/optics-check] [--height 384] [--width 512] [--seed 0] [--quiet]
 
 A dielectric sphere and a gold sphere sit 0.7 m in front of the camera; behind the camera the
 LCD shows the RGB binary pattern with vertically polarized light. The scene is shaded
-analytically (mirror-like Fresnel reflection of the display through the library's Mueller
-algebra, Lambertian diffuse from each colour region of the display), then goes through the
-camera model (QWP, micro-polarizers, IMX250MYR mosaic, Poisson-Gaussian noise, 12-bit HDR
-brackets) and back through the decoder, exactly as a real capture would.
+analytically (Fresnel reflection of the display through the Mueller algebra, Lambertian
+diffuse), then goes through the camera model (QWP, micro-polarizers, IMX250MYR mosaic,
+Poisson-Gaussian noise, 12-bit HDR brackets) and back through the decoder, exactly as a real
+capture would (network.demo.optics).
 
-Writes to --out: figures (PNG), the nine maps and mask (.npy), the raw brackets as a capture
-folder, and metrics.json with per-map errors and per-stage timings.
+Writes to --out: inputs.png and nine_maps.png (decoded, true and error maps), maps.npy,
+mask.npy and truth_maps.npy, the raw brackets as a capture folder (capture/) and metrics.json
+(per-map errors, mask agreement, seconds per stage), then prints the per-map errors.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
-import time
 from pathlib import Path
 
-import numpy as np
-
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from headless.report import image_grid  # noqa: E402
-from pbrdf.polar import fresnel, mueller  # noqa: E402
-from pbrdf.sensor import camera, decode  # noqa: E402
-
-# Rig (metres, camera frame: x right, y up, z toward the camera; the camera looks along -z).
-DISPLAY_SIZE = (1.2096, 0.6804)  # Samsung Odyssey Ark 55" active area
-DISPLAY_Z = 0.05  # display plane just behind the camera, facing -z (toward the objects)
-DISPLAY_RADIANCE = 1.0
-# Gold optical constants (eta = n - ik) at the R, G, B wavelengths 650, 550, 450 nm
-# (Johnson & Christy 1972, rounded).
-GOLD_ETA = (0.166 - 3.15j, 0.43 - 2.46j, 1.44 - 1.85j)
-SPHERES = (
-    # centre (m), radius (m), material
-    ((-0.085, 0.0, -0.70), 0.075, "plastic"),
-    ((0.085, 0.0, -0.70), 0.075, "gold"),
-)
-PLASTIC_ALBEDO = (0.55, 0.25, 0.12)
-PLASTIC_ETA = 1.5
+if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def pattern_rgb(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Display pattern at camera-frame points (x, y) on the display; ``(..., 3)`` in {0, 1}.
-
-    Seen from the object (looking along +z) the display's right (+X) is camera -x: red lights
-    the right half, green the left half, blue the upper half.
-    """
-    inside = (np.abs(x) <= DISPLAY_SIZE[0] / 2) & (np.abs(y) <= DISPLAY_SIZE[1] / 2)
-    red = (x < 0) & inside
-    green = (x >= 0) & inside
-    blue = (y > 0) & inside
-    return np.stack([red, green, blue], axis=-1).astype(np.float64)
-
-
-def _normalize(v: np.ndarray) -> np.ndarray:
-    n = np.linalg.norm(v, axis=-1, keepdims=True)
-    return v / np.maximum(n, 1e-12)
-
-
-def render_stokes(h: int, w: int, fov_deg: float = 22.0) -> dict[str, np.ndarray]:
-    """Shade the analytic scene at pixel centres; returns Stokes (H, W, 3, 4), normals, mask."""
-    f = 0.5 * w / np.tan(np.deg2rad(fov_deg) / 2)
-    jj, ii = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
-    d = _normalize(np.stack([(jj - w / 2) / f, -(ii - h / 2) / f, -np.ones_like(ii)], axis=-1))  # row 0 = top
-    t_hit = np.full((h, w), np.inf)
-    normal = np.zeros((h, w, 3))
-    material = np.full((h, w), -1)
-    for k, (c, r, _) in enumerate(SPHERES):
-        c = np.asarray(c)
-        b = d @ c
-        disc = b * b - (c @ c - r * r)
-        t = np.where(disc > 0, b - np.sqrt(np.maximum(disc, 0)), np.inf)
-        closer = (t > 0) & (t < t_hit)
-        t_hit = np.where(closer, t, t_hit)
-        material = np.where(closer, k, material)
-        p = d * np.where(closer, t, 0.0)[..., None]
-        normal = np.where(closer[..., None], _normalize(p - c), normal)
-    mask = material >= 0
-    stokes = np.zeros((h, w, 3, 4))
-    if not mask.any():
-        return {"stokes": stokes, "normal": normal, "mask": mask}
-
-    dv, nv = d[mask], normal[mask]
-    pos = dv * t_hit[mask][:, None]
-    v = -dv  # toward the camera
-    cos_i = np.clip(np.sum(nv * v, axis=-1), 1e-6, 1.0)
-    refl = 2 * cos_i[:, None] * nv - v  # mirror direction, toward the display
-    # Where the mirror ray meets the display plane.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        s = (DISPLAY_Z - pos[:, 2]) / refl[:, 2]
-    hit = (refl[:, 2] > 0) & np.isfinite(s)
-    q = pos + refl * np.where(hit, s, 0.0)[:, None]
-    emitted = pattern_rgb(q[:, 0], q[:, 1]) * hit[:, None] * DISPLAY_RADIANCE  # (P, 3)
-
-    # Frames: the display's light travels along -refl, polarized along the display's vertical
-    # axis projected across the ray, so its Stokes vector is [1, -1, 0, 0] in the frame whose
-    # x-axis is perpendicular to that field.
-    d_in = -refl
-    e_field = _normalize(np.array([0.0, 1.0, 0.0]) - np.sum(d_in * [0, 1, 0], -1)[:, None] * d_in)
-    x_in = _normalize(np.cross(e_field, d_in))
-    s_axis = np.cross(d_in, nv)
-    degenerate = np.linalg.norm(s_axis, axis=-1) < 1e-9  # normal incidence: any s-axis works
-    s_axis = np.where(degenerate[:, None], x_in, s_axis)
-    s_axis = _normalize(s_axis)
-    x_cam = _normalize(np.cross(dv, np.array([0.0, 1.0, 0.0])))  # Mitsuba's stokes integrator frame
-    rot_in = mueller.rotate_stokes_basis(d_in, x_in, s_axis)
-    rot_out = mueller.rotate_stokes_basis(v, s_axis, x_cam)
-    s_display = np.array([1.0, -1.0, 0.0, 0.0])
-
-    mat = material[mask]
-    out = np.zeros((mask.sum(), 3, 4))
-    # Diffuse irradiance from each colour region of the display (quadrature over patches).
-    gx, gy = np.meshgrid(
-        (np.arange(32) + 0.5) / 32 * DISPLAY_SIZE[0] - DISPLAY_SIZE[0] / 2,
-        (np.arange(18) + 0.5) / 18 * DISPLAY_SIZE[1] - DISPLAY_SIZE[1] / 2,
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (see the module docstring)."""
+    parser = argparse.ArgumentParser(
+        prog="optics_check.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    patches = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, DISPLAY_Z)], axis=-1)
-    patch_area = DISPLAY_SIZE[0] * DISPLAY_SIZE[1] / gx.size
-    patch_rgb = pattern_rgb(patches[:, 0], patches[:, 1]) * DISPLAY_RADIANCE
-    for k, (_, _, kind) in enumerate(SPHERES):
-        sel = mat == k
-        if kind != "plastic" or not sel.any():
-            continue
-        to_patch = patches[None] - pos[sel][:, None]  # (P, K, 3)
-        dist2 = np.sum(to_patch**2, -1)
-        wdir = to_patch / np.sqrt(dist2)[..., None]
-        cos_n = np.clip(np.sum(wdir * nv[sel][:, None], -1), 0, None)
-        cos_d = np.clip(wdir[..., 2], 0, None)  # the display faces -z: cos = w . (+z)
-        irr = (cos_n * cos_d / dist2) @ patch_rgb * patch_area  # (P, 3)
-        # Light entering the surface loses its Fresnel reflection (unpolarized diffuse).
-        trans = 1.0 - fresnel.fresnel_reflectance(cos_i[sel], PLASTIC_ETA)
-        out[sel, :, 0] += np.asarray(PLASTIC_ALBEDO) / np.pi * irr * trans[:, None]
-    for c in range(3):
-        for k, (_, _, kind) in enumerate(SPHERES):
-            sel = mat == k
-            if not sel.any():
-                continue
-            eta_c = GOLD_ETA[c] if kind == "gold" else PLASTIC_ETA
-            m_spec = rot_out[sel] @ fresnel.reflection_mueller(cos_i[sel], eta_c) @ rot_in[sel]
-            out[sel, c] += emitted[sel, c, None] * (m_spec @ s_display)
-    stokes[mask] = out
-    return {"stokes": stokes, "normal": normal, "mask": mask}
+    parser.add_argument("--out", type=Path, default=Path("out/optics-check"),
+                        help="output folder (default out/optics-check)")  # fmt: skip
+    parser.add_argument("--height", type=int, default=384, help="raw height in pixels, multiple of 4 (default 384)")
+    parser.add_argument("--width", type=int, default=512, help="raw width in pixels, multiple of 4 (default 512)")
+    parser.add_argument("--seed", type=int, default=0, help="camera noise seed (default 0)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar (the errors still print)")
+    return parser
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--out", type=Path, default=Path("out/demo"), help="output folder (default out/demo)")
-    parser.add_argument("--height", type=int, default=384, help="raw height in pixels, multiple of 4 (default 384)")
-    parser.add_argument("--width", type=int, default=512, help="raw width in pixels, multiple of 4 (default 512)")
-    parser.add_argument("--seed", type=int, default=0, help="noise seed (default 0)")
+    """Run the script; returns the exit status (0, or 2 on an error)."""
+    parser = build_parser()
     args = parser.parse_args(argv)
     if args.height % 4 or args.width % 4 or min(args.height, args.width) < 16:
         parser.error("--height and --width must be multiples of 4 and at least 16")
-    from tqdm import tqdm  # noqa: PLC0415
+    from network.demo.optics import run_optics_check  # noqa: PLC0415
 
-    out = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    timings: dict[str, float] = {}
-    model = camera.CameraModel()
-    rng = np.random.default_rng(args.seed)
-    stages = tqdm(total=5, desc="demo", unit="stage")
-
-    t0 = time.perf_counter()
-    scene = render_stokes(args.height, args.width)
-    half = render_stokes(args.height // 2, args.width // 2)  # ground truth on the decoder's half grid
-    timings["shade_scene_s"] = time.perf_counter() - t0
-    stages.set_postfix_str("shaded")
-    stages.update()
-
-    t0 = time.perf_counter()
-    raws = camera.simulate_capture(scene["stokes"], model, rng=rng, noise=True)
-    timings["camera_model_s"] = time.perf_counter() - t0
-    stages.update()
-
-    t0 = time.perf_counter()
-    min_signal = 2e-3  # total s0 (sum of R, G, B) below this counts as unlit background
-    dec = decode.decode(raws, model, grid="half", min_signal=min_signal)
-    timings["decode_s"] = time.perf_counter() - t0
-    stages.update()
-
-    truth_maps = decode.nine_maps(half["stokes"][..., [0, 1, 3]])
-    # Compare away from silhouettes, where a 2x2 block mixes object and background.
-    from scipy import ndimage  # noqa: PLC0415
-
-    inner = ndimage.binary_erosion(half["mask"], iterations=3) & dec.mask
-    err = np.abs(dec.maps - truth_maps)
-    # The decoder's mask marks measured, lit pixels; compare it with where the truth has signal
-    # (parts of the gold sphere that mirror no display are black and rightly unmasked).
-    lit = half["stokes"][..., 0].sum(axis=-1) > min_signal
-    metrics = {
-        "raw_shape": list(raws.shape),
-        "decoded_shape": list(dec.maps.shape),
-        "mask_iou_vs_lit_truth": float((dec.mask & lit).sum() / max((dec.mask | lit).sum(), 1)),
-        "maps": {
-            name: {
-                "mae": float(err[..., i][inner].mean()),
-                "rmse": float(np.sqrt((err[..., i][inner] ** 2).mean())),
-                "truth_mean": float(truth_maps[..., i][inner].mean()),
-            }
-            for i, name in enumerate(decode.NINE_MAP_NAMES)
-        },
-    }
-
-    t0 = time.perf_counter()
-    np.save(out / "maps.npy", dec.maps)
-    np.save(out / "mask.npy", dec.mask)
-    np.save(out / "truth_maps.npy", truth_maps.astype(np.float32))
     try:
-        from pbrdf.data import capture  # noqa: PLC0415
-
-        capture.save_capture(out / "capture", raws, model, overwrite=True)
-    except ImportError:
-        pass
-    s0_rgb = scene["stokes"][..., 0]
-    lp_rgb = -scene["stokes"][..., 1]
-    scale = np.percentile(s0_rgb[scene["mask"]], 99) if scene["mask"].any() else 1.0
-    white = model.sensor.white_level
-    zoom = raws[-1][: args.height // 8, : args.width // 8] / white
-    image_grid(
-        out / "inputs.png",
-        [
-            [s0_rgb / scale, np.clip(lp_rgb / scale, 0, 1), scene["normal"] * 0.5 + 0.5],
-            [raws[0] / white, raws[-1] / white, zoom],
-        ],
-        [
-            ["true s0 (RGB)", "true LP = -s1 (RGB)", "normals (camera frame)"],
-            [
-                f"raw {model.exposures[0] * 1e3:.0f} ms",
-                f"raw {model.exposures[-1] * 1e3:.0f} ms",
-                "raw (zoom: 4x4 mosaic)",
-            ],
-        ],
-        [(0, 1)] * 3,
-        ["gray"] * 3,
-    )
-    names = list(decode.NINE_MAP_NAMES)
-    limits, cmaps = [], []
-    for i in range(9):
-        vals = truth_maps[..., i][inner] if inner.any() else np.zeros(1)
-        if i < 6:
-            limits.append((0.0, float(np.percentile(vals, 99.5)) or 1.0))
-            cmaps.append("viridis")
-        else:
-            lim = float(np.percentile(np.abs(vals), 99.5)) or 0.1
-            limits.append((-lim, lim))
-            cmaps.append("coolwarm")
-    image_grid(
-        out / "nine_maps.png",
-        [
-            [dec.maps[..., i] for i in range(9)],
-            [truth_maps[..., i] for i in range(9)],
-            [np.where(inner, dec.maps[..., i] - truth_maps[..., i], np.nan) for i in range(9)],
-        ],
-        [[f"decoded {n}" for n in names], [f"truth {n}" for n in names], [f"error {n}" for n in names]],
-        [limits, limits, [(-0.1 * hi, 0.1 * hi) for _, hi in limits]],
-        [cmaps, cmaps, ["coolwarm"] * 9],
-    )
-    timings["write_s"] = time.perf_counter() - t0
-    stages.update()
-    metrics["timings"] = timings
-    tmp = out / "metrics.json.tmp"
-    tmp.write_text(json.dumps(metrics, indent=2) + "\n")
-    os.replace(tmp, out / "metrics.json")
-    stages.update()
-    stages.close()
-
-    print(f"\nround trip: {args.height}x{args.width} raw, {len(model.exposures)} brackets -> {dec.maps.shape[:2]} maps")
-    for name in names:
-        m = metrics["maps"][name]
+        metrics = run_optics_check(args.out, height=args.height, width=args.width, seed=args.seed,
+                                   progress=not args.quiet)  # fmt: skip
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    raw, maps = metrics["raw_shape"], metrics["decoded_shape"]
+    print(f"round trip: {raw[1]}x{raw[2]} raw, {raw[0]} brackets -> {maps[0]}x{maps[1]} maps")
+    for name, m in metrics["maps"].items():
         print(f"  {name:8s} MAE {m['mae']:.4f}  (truth mean {m['truth_mean']:.4f})")
-    print("  timings: " + ", ".join(f"{k} {v:.2f}" for k, v in timings.items()))
-    print(f"figures and metrics: {out.resolve()}")
+    print("  timings: " + ", ".join(f"{k} {v:.2f}" for k, v in metrics["timings"].items()))
+    print(f"figures and metrics: {args.out.resolve()}")
     return 0
 
 

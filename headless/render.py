@@ -5,7 +5,7 @@ the camera model and the decoder.
 
     python headless/render.py --out DIR --count N [--resolution 384] [--seed S] [--spp 32]
         [--assets DIR] [--pbrdfs DIR] [--rig FILE] [--resume] [--shard K/N]
-        [--scene SPEC.json] [--via-blender] [--npz]
+        [--scene SPEC.json] [--via-blender] [--npz] [--quiet]
 
 Each sample is DIR/samples/NNNNNN.exr (nine maps, mask, normal, albedo, roughness, metallic,
 depth; optionally Stokes) plus a JSON sidecar (rig, pose, material, Disney parameters, seeds,
@@ -21,14 +21,15 @@ defaults to 1). --npz also writes DIR/arrays/NNNNNN.npz (numpy only, read by the
 Two routes, same arguments, same files for the same seeds:
   - bpy-free (default): python headless/render.py ...
   - Blender: every scene is laid out in Blender (rig, objects, materials, lights) and exported
-    back to a spec before rendering (blender_addon.export.roundtrip_spec). Either
+    back to a spec before rendering (blender_addon.build_spec.roundtrip_spec). Either
         blender -b -P headless/render.py -- --out DIR --count N ...   (Blender 4.2+; the
             arguments follow "--"; Blender's Python needs mitsuba, scipy, trimesh, OpenEXR,
             tqdm: <blender python> -m pip install ...)
     or, with the bpy wheel (pip install bpy, Python 3.11):
         python headless/render.py --via-blender --out DIR --count N ...
     Inside the Blender binary the Blender route is always taken.
-One process renders a whole batch (start one process per shard).
+One process renders a whole batch (start one process per shard) through
+blender_addon.core.generate.
 """
 
 from __future__ import annotations
@@ -38,20 +39,20 @@ import logging
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-
-def script_args(argv: list[str]) -> list[str]:
-    """The script's own arguments: those after ``--`` (``blender -b -P script -- ...``), else ``argv[1:]``."""
-    return argv[argv.index("--") + 1 :] if "--" in argv else argv[1:]
+from headless._cli import script_args  # noqa: E402
 
 
 def _in_blender_binary() -> bool:
+    """True inside the Blender binary (``blender -b -P``), False with the bpy wheel or without bpy."""
     bpy = sys.modules.get("bpy")
     return bpy is not None and bool(getattr(bpy.app, "binary_path", ""))
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (see the module docstring)."""
     parser = argparse.ArgumentParser(
         prog="render.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -73,7 +74,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-noise", action="store_true", help="noise-free camera model")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("-v", "--verbose", action="store_true", help="log tracebacks of failed samples")
-    args = parser.parse_args(script_args(sys.argv) if argv is None else argv)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the script; returns the exit status (0, 1 when samples failed, 2 on an error)."""
+    args = build_parser().parse_args(script_args(sys.argv) if argv is None else argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
 
     from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
@@ -85,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
         spec_hook = None
         if args.via_blender or _in_blender_binary():
             try:
-                from blender_addon.export import roundtrip_spec  # noqa: PLC0415 - imports bpy
+                from blender_addon.build_spec import roundtrip_spec  # noqa: PLC0415 - imports bpy
             except ImportError as e:
                 raise ValueError(
                     f"--via-blender needs bpy ({e}): run under 'blender -b -P headless/render.py -- ...' "

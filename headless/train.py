@@ -1,16 +1,17 @@
 """Train the feed-forward network on rendered samples (and real captures).
 
-    python headless/train.py --data DIR [--real DIR] --config toy|small|paper --out DIR [--steps N] [--resume]
+    python headless/train.py --input DIR [--real DIR] --config toy|small|paper --out DIR [--steps N] [--resume]
 
 Writes OUT/checkpoint.pt (model, optimizer, step, per-rank RNG states; resumable), OUT/model.pt
 (state dict, config and input variant: what infer.py loads), OUT/log.csv (one row per step:
 losses, learning rate, real-loss weight, gradient norm), OUT/val.csv (with --val) and
 TensorBoard events in OUT/tb (when tensorboard is installed). --resume continues a killed run
-exactly where its last checkpoint was.
+exactly where its last checkpoint was (network.train). --data still works for one release (use
+--input).
 
 Several GPUs or machines: launch the same command with torchrun, e.g.
 
-    torchrun --standalone --nproc_per_node 4 headless/train.py --data DIR --config paper --out DIR
+    torchrun --standalone --nproc_per_node 4 headless/train.py --input DIR --config paper --out DIR
 
 (--batch-size is per process; gloo on CPUs, nccl on GPUs; only rank 0 writes files).
 """
@@ -24,7 +25,10 @@ import os
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from headless._cli import add_deprecated, require  # noqa: E402
 
 INPUTS = ("white", "spectral", "polar", "full")  # network.inputs.INPUT_VARIANTS (not imported: --help stays fast)
 
@@ -37,6 +41,7 @@ class _Parser(argparse.ArgumentParser):
 
 
 def _override(text: str) -> tuple[str, object]:
+    """One ``--overrides`` item: ``key=value`` with a JSON value (or a plain string)."""
     key, sep, value = text.partition("=")
     if not sep or not key:
         raise argparse.ArgumentTypeError(f"expected key=value, got {text!r}")
@@ -46,9 +51,10 @@ def _override(text: str) -> tuple[str, object]:
         return key, value  # a plain string, e.g. cross_observation=token
 
 
-def main(argv: list[str] | None = None) -> int:
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (see the module docstring)."""
     parser = _Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--data", type=Path, required=True, help="dataset folder from headless/render.py")
+    parser.add_argument("--input", type=Path, metavar="DIR", help="dataset folder from headless/render.py (required)")
     parser.add_argument("--real", type=Path, help="folder of real captures (capture folders and/or samples)")
     parser.add_argument("--val", type=Path, help="held-out rendered dataset: normal MAE every --val-every steps")
     parser.add_argument("--config", default="toy", choices=["toy", "small", "paper"], help="model size (default toy)")
@@ -80,13 +86,21 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard events")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_deprecated(parser, "--data", new="--input", type=Path)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the script; returns the exit status (0, or 2 on an error)."""
+    parser = build_parser()
     args = parser.parse_args(argv)
+    require(parser, args, "--input")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
     from network.train import TrainConfig, train  # noqa: PLC0415
 
     try:
         cfg = TrainConfig(
-            data=args.data, out=args.out, config=args.config, steps=args.steps, batch_size=args.batch_size,
+            data=args.input, out=args.out, config=args.config, steps=args.steps, batch_size=args.batch_size,
             lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.lr_warmup, decay_steps=args.lr_decay_steps,
             min_lr_ratio=args.min_lr_ratio, clip=args.clip, seed=args.seed, resume=args.resume,
             checkpoint_every=args.checkpoint_every, overrides=dict(args.overrides), real=args.real,

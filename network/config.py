@@ -1,45 +1,27 @@
 """Model configurations: one frozen dataclass and three named presets.
 
 Checkpoints store a configuration as a plain dict (:func:`ModelConfig.to_dict`), never as a pickled object;
-:func:`ModelConfig.from_dict` rebuilds it and rejects unknown keys.
-
-Presets (parameters from :func:`network.model.count_parameters`; FLOPs from :func:`network.model.estimate_flops`,
-FLOP = 2 x multiply-accumulates of every matmul, convolution and attention product, which equals
-``torch.utils.flop_counter.FlopCounterMode`` exactly (tested); batch 1 at the preset's ``image_size``, all pixels
-inside the mask). CPU times: torch 2.13, fp32, 2 cores, no_grad, 2026-11 (a shared machine; +-30 %).
-
-======  =========  ==========  =======  =======  =======  =======  ===========  ===========  ==================
-preset  tokenizer  interleave  DPT      decoder  total    encoder  + train dec  + dense dec  CPU forward
-======  =========  ==========  =======  =======  =======  =======  ===========  ===========  ==================
-toy     0.018 M    0.051 M     0.078 M  0.044 M  0.19 M   0.15 GF  0.03 GF      1.65 GF      10 ms train,
-                                                                                             32 ms train f+b
-small   0.83 M     1.59 M      1.14 M   0.30 M   3.85 M   24 GF    5.4 GF       339 GF       0.3 s train,
-                                                                                             4.4 s dense
-paper   21.58 M    28.41 M     31.48 M  12.55 M  94.0 M   1.83 TF  0.31 TF      21.1 TF      16 s train,
-                                                                                             2.7 min dense
-======  =========  ==========  =======  =======  =======  =======  ===========  ===========  ==================
-
-"encoder" = tokenizer + interleaved attention + DPT over the nine maps (paper: tokenizer 279 GF, interleaved
-315 GF, DPT 1234 GF); "train dec" decodes ``train_pixels`` sampled pixels; "dense dec" decodes every pixel of the
-image in chunks, each attending to ``train_pixels`` context pixels (cost linear in the masked pixel count: about
-150 MFLOP per pixel for ``paper``, 2.6 MFLOP for ``small``). "train" = training-mode forward (encoder + 2048
-pixels); "dense" = evaluation-mode forward with a full mask (decoder measured on a 50 % mask, 1 thread, by
-``headless/bench.py network``). ``stride`` 2 / 4 decodes a pixel grid and interpolates the rest: small 1.44 s /
-0.72 s, paper 61 s / 36 s per 384 x 384 capture (50 % mask), at 0.01-0.05 deg mean normal change against
-stride 1 (random weights; 0.2-0.5 deg with the shipped model). The map embeddings (0.002 M) are not listed.
+:func:`ModelConfig.from_dict` rebuilds it and rejects unknown keys. Parameter counts and FLOPs of a configuration
+come from :func:`network.model.count_parameters` and :func:`network.model.estimate_flops`; the presets' numbers
+and CPU timings are in docs/measurements/network.md.
 
 - ``toy``: 64 x 64 input, 4 x 4 tokens of dim 32, K = 1, D = 16, D_a = 32, 64 training pixels. For tests only.
 - ``small``: 384 x 384 input, tokenizer at 96 x 96 (12 x 12 tokens of dim 128, 4 blocks), K = 2, D = 64
   features at 96 x 96, D_a = 96, 2048 training pixels. For CPU experiments.
-- ``paper``: the reference implementation's published sizes (notes/network.md sec. 1 and 3): a ViT-S tokenizer
-  (dim 384, 12 blocks, 6 heads, 4 registers) with **8-pixel patches** on the maps resized to the canonical
-  resolution 192 (24 x 24 tokens; LINO-UniPS uses ``vit_small(patch_size=8)``, not DINOv2's 14), K = 4 interleaved
-  iterations, DPT with reassemble widths (256, 512, 1024, 1024) to D = 256 features at 192 x 192, per-pixel
-  decoder with D_a = 384 (2 observation blocks at D, 3 at D_a, 2 pixel-transformer blocks), 2048 training pixels.
-  The tokenizer has 21.58 M parameters (ViT-S/8 with a 24 x 24 position grid and 2 input channels; 21.77 M with
-  a 32 x 32 grid and 3 channels per the notes) and the interleaved blocks 28.41 M (notes: 28.4 M). Unlike
-  LINO-UniPS there is no wavelet (Haar) full-resolution branch: full-resolution detail enters the decoder through
+- ``paper``: the sizes of the LINO-UniPS reference implementation: a ViT-S tokenizer (dim 384, 12 blocks,
+  6 heads, 4 registers) with **8-pixel patches** on the maps resized to the canonical resolution 192 (24 x 24
+  tokens; LINO-UniPS uses ``vit_small(patch_size=8)``, not DINOv2's 14), K = 4 interleaved iterations, DPT with
+  reassemble widths (256, 512, 1024, 1024) to D = 256 features at 192 x 192, per-pixel decoder with D_a = 384
+  (2 observation blocks at D, 3 at D_a, 2 pixel-transformer blocks), 2048 training pixels. Unlike LINO-UniPS
+  there is no wavelet (Haar) full-resolution branch: full-resolution detail enters the decoder through
   psi(I_n(x)) only.
+
+Example:
+    >>> cfg = get_config("toy", train_pixels=32)
+    >>> cfg.train_pixels, cfg.token_grid
+    (32, 4)
+    >>> ModelConfig.from_dict(cfg.to_dict()) == cfg
+    True
 """
 
 from __future__ import annotations
@@ -72,7 +54,8 @@ class ModelConfig:
         init_std: Standard deviation of the truncated-normal (at +-2 std) initialisation of the tokenizer's and the
             interleaved blocks' linear layers (0.02, the ViT/DINOv2 convention). The DPT convolutions and the
             per-pixel decoder keep PyTorch's default initialisation (uniform, scale 1/sqrt(fan-in)), as in
-            SDM-UniPS/LINO-UniPS: with 0.02 the toy decoder stayed at the constant-prediction plateau.
+            SDM-UniPS/LINO-UniPS: with 0.02 the toy decoder stayed at the constant-prediction plateau
+            (docs/measurements/network.md).
         vit_layerscale: Initial LayerScale of the tokenizer blocks. 1.0 (= no damping) follows LINO-UniPS's
             randomly initialised ``vit_small(init_values=1.0)``; DINOv2's pretrained weights used 1e-5, and loading
             them overwrites it.

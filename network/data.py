@@ -45,7 +45,13 @@ def normalize_maps(maps: torch.Tensor, mask: torch.Tensor, *, quantile: float = 
 
 
 def gather_pixels(maps: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
-    """``(B, C, H, W)`` maps at flat pixel indices ``(B, P)`` -> ``(B, C, P)``."""
+    """``(B, C, H, W)`` maps at flat pixel indices ``(B, P)`` (``row * W + col``) -> ``(B, C, P)``.
+
+    Example:
+        >>> maps = torch.arange(6.0).reshape(1, 1, 2, 3)
+        >>> gather_pixels(maps, torch.tensor([[5, 0]]))  # pixels (1, 2) and (0, 0)
+        tensor([[[5., 0.]]])
+    """
     b, c = maps.shape[:2]
     return maps.reshape(b, c, -1).gather(2, pixels[:, None, :].expand(-1, c, -1))
 

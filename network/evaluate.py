@@ -42,10 +42,10 @@ from pbrdf.data import dataset as pdataset
 from pbrdf.io.atomic import atomic_write_text
 
 from . import baseline, metrics
+from .checkpoint import load_checkpoint
 from .infer import predict
 from .inputs import INPUT_VARIANTS, apply_inputs, checkpoint_inputs
 from .lpips import lpips_status
-from .train import load_checkpoint
 
 __all__ = [
     "COLUMNS",
@@ -277,7 +277,7 @@ def evaluate(
 
 
 def _evaluate_real(models: dict, real: str | Path, *, limit: int | None) -> dict:
-    """Re-rendering error of each model on real captures (Contract 1: network.rerender, network.realdata)."""
+    """Re-rendering error of each model on real captures (:mod:`network.rerender`, :mod:`network.realdata`)."""
     missing = [m for m in ("network.rerender", "network.realdata") if importlib.util.find_spec(m) is None]
     if missing:
         return {"skipped": f"{', '.join(missing)} not available yet: re-rendering error not computed"}

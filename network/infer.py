@@ -45,7 +45,24 @@ def load_input(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def mask_bbox(mask: np.ndarray, margin: float = 0.05) -> tuple[int, int, int, int]:
-    """Square ``(y0, x0, y1, x1)`` around the mask with a margin, clipped to the image."""
+    """Square ``(y0, x0, y1, x1)`` around the mask with a margin, clipped to the image.
+
+    Args:
+        mask: ``(H, W)`` bool.
+        margin: Margin on each side, as a fraction of the mask's larger extent.
+
+    Returns:
+        The box, ``y1 - y0 == x1 - x0`` unless clipped by the image (at least 8 pixels).
+
+    Raises:
+        ValueError: If the mask is empty.
+
+    Example:
+        >>> mask = np.zeros((100, 100), bool)
+        >>> mask[40:60, 30:50] = True
+        >>> mask_bbox(mask)
+        (39, 29, 61, 51)
+    """
     ys, xs = np.nonzero(mask)
     if ys.size == 0:
         raise ValueError("the mask is empty: nothing to reconstruct")

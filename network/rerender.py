@@ -42,16 +42,9 @@ and the polarization turns toward s), retardance of metals (goes to CP), the par
 polarization of diffuse light leaving at grazing angles (Fresnel transmission; LP at the rim),
 interreflections, shadowing by other objects, and the tilt of the field of oblique rays through
 the sheet (``psi`` is taken per patch, ignoring the ray direction). Near-retro geometry (the
-display surrounds the camera) keeps these small. Measured against the full polarized pipeline
-(Mitsuba ``pplastic`` sphere, roughness 0.3, true ``s0 + s1`` and ``-s1``): scale-invariant
-relative L2 error 5 % over both maps, most of it the BRDF difference (pplastic's diffuse is 11 %
-darker than Burley's), LP share of ``s0`` 3.3/4.9/9.2 % vs 3.8/5.6/10.6 % (R/G/B).
-
-Accuracy of the quadrature (12 x 12 patches per region, default): against a brute-force
-integral over the display, below 0.5 % for the diffuse lobe and for roughness >= 0.3; against
-Mitsuba renders of spheres (``principled`` = these lobes), mean per-pixel relative error 0.4 %
-(diffuse), 0.7 % (metal, roughness 0.5), 2.2 % (0.35), 8 % (0.2; Monte Carlo noise included).
-Below roughness ~0.2 the highlight is smaller than a patch and is only approximated (widening).
+display surrounds the camera) keeps these small; the measured size of the approximation and
+of the quadrature error is in ``docs/measurements/network.md``. Below roughness ~0.2 the
+highlight is smaller than a patch and is only approximated (widening, below).
 
 Quadrature of sharp lobes. A patch subtends ``Omega_k = A_k cos_k / d_k^2`` sr. A specular lobe
 narrower than that would be aliased by the patch centres (a highlight falls between them or
@@ -62,11 +55,9 @@ Beckmann ``alpha^2 = 2 sigma^2``). The GGX lobe stays normalised, so a highlight
 inside a lit region keeps its energy, and the quadrature converges to the exact integral as the
 patches shrink (tested against a brute-force integral and Mitsuba). Diffuse needs no such care.
 
-Geometry. Pixel ``(u, v)`` (u right, v down, centre of pixel ``(0, 0)`` at ``(0.5, 0.5)``) of an
-image with pinhole matrix ``K`` (OpenCV axes, :meth:`pbrdf.sensor.rig.CameraSpec.intrinsics`)
-looks along ``((u - cx) / fx, -(v - cy) / fy, -1)`` in the camera frame (OpenGL: x right, y up, z
-toward the viewer); a point at depth ``z`` (distance along the viewing axis, as the dataset's
-``depth``) is ``z`` times that ray. Without a depth prior a fixed distance is used (a
+Geometry. Rays and intrinsics follow :mod:`pbrdf.sensor.projection` (OpenGL camera frame, pixel
+centres at ``i + 0.5``); a point at depth ``z`` (distance along the viewing axis, as the
+dataset's ``depth``) is ``z`` times its pixel's ray. Without a depth prior a fixed distance is used (a
 fronto-parallel plane): the lighting directions are then off by the object's depth relief over
 the display distance (a few degrees for a 10 cm object at 0.75 m).
 

@@ -1,4 +1,4 @@
-"""Training: synthetic (and real) batches, AdamW, schedules, guards, exact resume, DDP.
+"""Training loop: synthetic (and real) batches, AdamW, schedules, guards, exact resume, DDP.
 
 One step = one batch of rendered samples (:class:`network.data.SampleDataset`) and, with a real
 folder (:class:`network.realdata.RealDataset`) and a real-loss weight above 0, one batch of real
@@ -10,23 +10,11 @@ alive at a time; the real pass is skipped entirely (not even loaded) while its w
 An input variant (:func:`network.inputs.apply_inputs`) changes what the network sees, not what the
 losses compare with (the real loss always uses the measured unpol and LP maps).
 
-Schedules (pure functions of the step, so resuming needs no scheduler state):
-
-- learning rate (:func:`learning_rate`): linear warm-up over ``warmup_steps``, then a cosine from
-  ``lr`` down to ``min_lr_ratio * lr`` at ``decay_steps`` (default: ``steps``);
-- real-loss weight (:func:`real_loss_weight`): 0 before ``real_start``, then a linear ramp to
-  ``real_weight`` over ``real_warmup`` steps (0 at ``real_start`` itself).
-
-Determinism. The model is initialised from ``torch.manual_seed(seed)``. Data order: the samples of
-epoch ``e`` are a permutation drawn from ``random.Random(f"{seed}:{loader}:{e}")``; the sample at
-global position ``k`` is that of epoch ``k // n``, slot ``k % n``. Step ``s`` on rank ``r`` of ``W``
-with per-rank batch ``B`` takes positions ``(s W + r) B + j``, ``j < B``: the ranks see disjoint
-slices, and a ``W``-process run with batch ``B`` sees the same samples at every step as a
-1-process run with batch ``W B``. Pixel sampling: sample ``j`` of a batch draws its pixels from its
-own generator seeded with :func:`pixel_seed` ``(seed, loader, step, position)``, so a sample gets
-the same pixels however the global batch is split over processes. Resuming therefore only needs
-the step; the checkpoint also keeps every rank's torch RNG state (anything else random, e.g. in a
-loss) so a resumed run continues the same loss curve exactly (on the CPU).
+Determinism. The model is initialised from ``torch.manual_seed(seed)``. The learning rate, the
+real-loss weight, the data order and the sampled pixels are pure functions of the step
+(:mod:`network.schedules`), so resuming needs only the step; the checkpoint also keeps every rank's
+torch RNG state (anything else random, e.g. in a loss), so a resumed run continues the same loss
+curve exactly (on the CPU). Checkpoint files: :mod:`network.checkpoint`.
 
 Mixed precision. With ``bf16`` the forward pass runs under ``torch.autocast(bfloat16)``; the model
 returns float32, the losses are computed in float32 outside autocast and the backward pass runs
@@ -36,23 +24,19 @@ Guards. A batch with NaN/Inf inputs is skipped before the forward pass; a non-fi
 gradient norm skips the optimizer step. Each skip is logged as a warning naming the step, and
 more than ``max_skipped`` skips stop the run with :class:`FloatingPointError`.
 
-Distributed. Under ``torchrun`` (``WORLD_SIZE > 1``) the process group is initialised from the
-environment (``gloo`` on the CPU, ``nccl`` on CUDA, one GPU per local rank), the model is wrapped
-in :class:`~torch.nn.parallel.DistributedDataParallel` (gradients averaged over ranks), logged
-losses are averaged over ranks, only rank 0 writes the checkpoint, ``model.pt``, ``log.csv``,
-``val.csv`` and TensorBoard (``OUT/tb``), and the others wait at a barrier. Every checkpoint
-records a SHA-256 of each rank's parameters; different values stop the run. Resuming restores
-every rank (weights, optimizer, its own RNG state).
+Distributed. Under ``torchrun`` (``WORLD_SIZE > 1``, :mod:`network.distributed`) the model is
+wrapped in :class:`~torch.nn.parallel.DistributedDataParallel` (gradients averaged over ranks),
+logged losses are averaged over ranks, only rank 0 writes the checkpoint, ``model.pt``,
+``log.csv``, ``val.csv`` and TensorBoard (``OUT/tb``), and the others wait at a barrier. Every
+checkpoint records a SHA-256 of each rank's parameters; different values stop the run. Resuming
+restores every rank (weights, optimizer, its own RNG state).
 """
 
 from __future__ import annotations
 
 import csv
-import hashlib
 import logging
 import math
-import os
-import random
 import time
 import warnings
 from collections.abc import Iterator
@@ -63,28 +47,19 @@ from typing import Any
 import torch
 import torch.distributed as dist
 from torch import nn
-from torch.utils.data import DataLoader, Dataset, Sampler
+from torch.utils.data import DataLoader, Dataset
 
-from pbrdf.io.atomic import temporary_path
-
-from .config import ModelConfig, get_config
+from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, params_sha256, save_checkpoint
+from .config import get_config
 from .data import TARGET_KEYS, SampleDataset, gather_pixels
+from .distributed import DistContext, init_distributed, resolve_device, rng_state, set_rng_state
 from .inputs import INPUT_VARIANTS, apply_inputs, checkpoint_inputs
 from .losses import LossWeights, synthetic_loss
 from .metrics import normal_mae_deg
-from .model import PolarInverseModel, sample_pixels
+from .model.polar_model import PolarInverseModel
+from .schedules import StepBatches, learning_rate, pixel_seed, real_loss_weight, sample_batch_pixels
 
-__all__ = [
-    "TrainConfig",
-    "train",
-    "gather_pixels",
-    "load_checkpoint",
-    "learning_rate",
-    "real_loss_weight",
-    "pixel_seed",
-    "sample_order",
-    "params_sha256",
-]
+__all__ = ["LOG_COLUMNS", "TrainConfig", "load_checkpoint", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -102,12 +77,11 @@ LOG_COLUMNS = (
     "chromaticity",
     "skipped",
 )
-CHECKPOINT_FORMAT = 2
 
 
 @dataclass(frozen=True)
 class TrainConfig:
-    """Flags of ``headless/train.py`` (see the module docs for the schedules).
+    """Flags of ``headless/train.py`` (schedules: :mod:`network.schedules`).
 
     Attributes:
         data: rendered dataset folder (``headless/render.py``).
@@ -186,101 +160,7 @@ class TrainConfig:
 
 
 # ------------------------------------------------------------------------------------------------
-# Schedules and seeds (pure functions of the step)
-
-
-def learning_rate(step: int, lr: float, warmup: int, total: int, min_ratio: float = 0.1) -> float:
-    """Learning rate of (0-based) ``step``: linear warm-up, then cosine decay.
-
-    ``lr * (step + 1) / warmup`` for ``step < warmup``; afterwards
-    ``lr * (m + (1 - m) (1 + cos(pi t)) / 2)`` with ``t = (step - warmup) / (total - warmup)``
-    clipped to [0, 1] and ``m = min_ratio`` (constant ``lr`` when ``total <= warmup``).
-
-    Example:
-        >>> learning_rate(0, 1.0, 4, 12), learning_rate(4, 1.0, 4, 12), learning_rate(12, 1.0, 4, 12, 0.1)
-        (0.25, 1.0, 0.1)
-    """
-    if step < warmup:
-        return lr * (step + 1) / warmup
-    if total <= warmup:
-        return lr
-    t = min(1.0, (step - warmup) / (total - warmup))
-    return lr * (min_ratio + (1.0 - min_ratio) * 0.5 * (1.0 + math.cos(math.pi * t)))
-
-
-def real_loss_weight(step: int, weight: float, start: int, warmup: int) -> float:
-    """Weight of the real loss at ``step``: 0 before ``start``, a linear ramp to ``weight`` over ``warmup`` steps.
-
-    ``weight * clip((step - start) / warmup, 0, 1)`` (a step at ``step >= start`` when ``warmup`` is 0), so the
-    weight is still 0 at ``step = start`` and reaches ``weight`` at ``start + warmup``.
-
-    Example:
-        >>> [real_loss_weight(s, 0.1, 2, 4) for s in (0, 2, 3, 6, 9)]
-        [0.0, 0.0, 0.025, 0.1, 0.1]
-    """
-    if step < start:
-        return 0.0
-    if warmup == 0:
-        return float(weight)
-    return float(weight) * min(1.0, (step - start) / warmup)
-
-
-def pixel_seed(seed: int, loader: str, step: int, position: int) -> int:
-    """Seed of the pixel-sampling generator of the sample at global data ``position`` in ``step``."""
-    digest = hashlib.blake2b(f"{seed}:{loader}:{step}:{position}".encode(), digest_size=8).digest()
-    return int.from_bytes(digest, "little") >> 1  # torch seeds are < 2**63 here
-
-
-def sample_order(n: int, seed: int, loader: str, position: int) -> int:
-    """Dataset index at global data ``position`` (a fresh permutation of ``range(n)`` every epoch)."""
-    epoch, slot = divmod(position, n)
-    return _epoch_permutation(n, seed, loader, epoch)[slot]
-
-
-_PERMUTATIONS: dict[tuple[int, int, str, int], list[int]] = {}
-
-
-def _epoch_permutation(n: int, seed: int, loader: str, epoch: int) -> list[int]:
-    key = (n, seed, loader, epoch)
-    if key not in _PERMUTATIONS:
-        if len(_PERMUTATIONS) > 64:
-            _PERMUTATIONS.clear()
-        order = list(range(n))
-        random.Random(f"{seed}:{loader}:{epoch}").shuffle(order)
-        _PERMUTATIONS[key] = order
-    return _PERMUTATIONS[key]
-
-
-def params_sha256(state: dict[str, torch.Tensor]) -> str:
-    """SHA-256 over the bytes of every tensor of a state dict, in its order (bitwise identity check)."""
-    h = hashlib.sha256()
-    for key, value in state.items():
-        h.update(key.encode())
-        h.update(value.detach().cpu().contiguous().view(-1).view(torch.uint8).numpy().tobytes())
-    return h.hexdigest()
-
-
-# ------------------------------------------------------------------------------------------------
 # Data
-
-
-class _StepBatches(Sampler):
-    """Batches of dataset indices for the given steps, this rank's slice of the global batch."""
-
-    def __init__(self, n: int, seed: int, loader: str, steps: list[int], batch: int, rank: int, world: int) -> None:
-        self.n, self.seed, self.loader, self.steps = n, seed, loader, steps
-        self.batch, self.rank, self.world = batch, rank, world
-
-    def positions(self, step: int) -> list[int]:
-        first = (step * self.world + self.rank) * self.batch
-        return list(range(first, first + self.batch))
-
-    def __iter__(self) -> Iterator[list[int]]:
-        for step in self.steps:
-            yield [sample_order(self.n, self.seed, self.loader, p) for p in self.positions(step)]
-
-    def __len__(self) -> int:
-        return len(self.steps)
 
 
 def _collate(items: list[dict[str, Any]]) -> dict[str, Any]:
@@ -290,28 +170,8 @@ def _collate(items: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
-def _loader(ds: Dataset, sampler: _StepBatches, workers: int) -> Iterator[dict[str, Any]]:
+def _loader(ds: Dataset, sampler: StepBatches, workers: int) -> Iterator[dict[str, Any]]:
     return iter(DataLoader(ds, batch_sampler=sampler, num_workers=workers, collate_fn=_collate))
-
-
-def _sample_batch_pixels(mask: torch.Tensor, count: int, seeds: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
-    """Per-sample :func:`network.model.sample_pixels` with its own generator; padded with invalid pixels.
-
-    Args:
-        mask: ``(B, 1, H, W)`` on the CPU.
-        count: pixels per image.
-        seeds: one generator seed per sample.
-
-    Returns:
-        ``pixels (B, P)`` long and ``valid (B, P)`` bool, ``P`` = the largest per-sample count.
-    """
-    parts = [sample_pixels(mask[i : i + 1], count, torch.Generator().manual_seed(s)) for i, s in enumerate(seeds)]
-    p = max(px.shape[1] for px, _ in parts)
-    pixels = torch.zeros(len(seeds), p, dtype=torch.long)
-    valid = torch.zeros(len(seeds), p, dtype=torch.bool)
-    for i, (px, ok) in enumerate(parts):
-        pixels[i, : px.shape[1]], valid[i, : px.shape[1]] = px[0], ok[0]
-    return pixels, valid
 
 
 def _nonfinite_keys(batch: dict[str, Any]) -> list[str]:
@@ -330,106 +190,6 @@ class _PixelModel(nn.Module):
     def forward(self, maps: torch.Tensor, mask: torch.Tensor, pixels: torch.Tensor, valid: torch.Tensor) -> dict:
         features = self.model.encode(maps, mask)
         return self.model.decode_pixels(features, maps, pixels, valid)
-
-
-# ------------------------------------------------------------------------------------------------
-# Checkpoints
-
-
-def _save(path: Path, state: dict) -> None:
-    tmp = temporary_path(path)
-    torch.save(state, tmp)
-    tmp.replace(path)
-
-
-def load_checkpoint(path: str | Path) -> tuple[PolarInverseModel, dict]:
-    """Model (eval mode) and the checkpoint dict from ``checkpoint.pt`` or ``model.pt`` written by :func:`train`.
-
-    The dict always has ``"inputs"`` (the input variant; ``"full"`` for files written before variants existed).
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: checkpoint not found")
-    try:
-        ckpt = torch.load(path, weights_only=True, map_location="cpu")
-        model = PolarInverseModel(ModelConfig.from_dict(ckpt["config"]))
-        model.load_state_dict(ckpt["model"])
-        ckpt["inputs"] = checkpoint_inputs(ckpt)
-    except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as exc:
-        raise ValueError(f"{path}: not a model checkpoint: {exc}") from None
-    model.eval()
-    return model, ckpt
-
-
-# ------------------------------------------------------------------------------------------------
-# Distributed helpers
-
-
-@dataclass
-class _Dist:
-    rank: int = 0
-    world: int = 1
-    local_rank: int = 0
-    owned: bool = False
-
-    @property
-    def active(self) -> bool:
-        return self.world > 1
-
-    def barrier(self) -> None:
-        if self.active:
-            dist.barrier()
-
-    def any_true(self, flag: bool, device: torch.device) -> bool:
-        if not self.active:
-            return flag
-        t = torch.tensor([1.0 if flag else 0.0], device=device)
-        dist.all_reduce(t, op=dist.ReduceOp.MAX)
-        return bool(t.item() > 0)
-
-    def mean(self, values: list[float], device: torch.device) -> list[float]:
-        if not self.active:
-            return values
-        t = torch.tensor(values, dtype=torch.float64, device=device)
-        dist.all_reduce(t)
-        return (t / self.world).tolist()
-
-    def gather(self, obj: Any) -> list[Any]:
-        if not self.active:
-            return [obj]
-        out: list[Any] = [None] * self.world
-        dist.all_gather_object(out, obj)
-        return out
-
-
-def _resolve_device(name: str) -> torch.device:
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ValueError("device cuda: CUDA is not available on this machine (use --device cpu or auto)")
-    return torch.device("cuda" if name == "cuda" or (name == "auto" and torch.cuda.is_available()) else "cpu")
-
-
-def _init_distributed(device: torch.device) -> tuple[_Dist, torch.device]:
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world <= 1:
-        return _Dist(), device
-    local_rank = int(os.environ.get("LOCAL_RANK", "0"))
-    if device.type == "cuda":
-        torch.cuda.set_device(local_rank)
-        device = torch.device("cuda", local_rank)
-    owned = not dist.is_initialized()
-    if owned:
-        dist.init_process_group(backend="nccl" if device.type == "cuda" else "gloo", init_method="env://")
-    return _Dist(dist.get_rank(), dist.get_world_size(), local_rank, owned), device
-
-
-def _rng_state(device: torch.device) -> dict[str, torch.Tensor | None]:
-    return {"torch": torch.get_rng_state(), "cuda": torch.cuda.get_rng_state(device) if device.type == "cuda" else None}
-
-
-def _set_rng_state(state: dict, device: torch.device) -> None:
-    torch.set_rng_state(state["torch"])
-    if device.type == "cuda" and state.get("cuda") is not None:
-        torch.cuda.set_rng_state(state["cuda"], device)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -555,8 +315,8 @@ def train(cfg: TrainConfig, *, progress: bool = True, stats: dict | None = None)
     """
     stats = {} if stats is None else stats
     stats.update(steps=0, skipped=0, synthetic_batches=0, real_batches=0, real_passes=0)
-    device = _resolve_device(cfg.device)
-    dd, device = _init_distributed(device)
+    device = resolve_device(cfg.device)
+    dd, device = init_distributed(device)
     stats.update(rank=dd.rank, world_size=dd.world)
     try:
         return _train(cfg, progress, stats, dd, device)
@@ -565,7 +325,7 @@ def train(cfg: TrainConfig, *, progress: bool = True, stats: dict | None = None)
             dist.destroy_process_group()
 
 
-def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: _Dist, device: torch.device) -> list[float]:
+def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, device: torch.device) -> list[float]:
     out = Path(cfg.out)
     ckpt_path = out / "checkpoint.pt"
     main = dd.rank == 0
@@ -600,7 +360,7 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: _Dist, device: tor
         start, losses, skipped_total = int(ckpt["step"]), list(ckpt["losses"]), int(ckpt.get("skipped", 0))
         rngs = ckpt.get("rng")
         if rngs is not None and len(rngs) == dd.world:
-            _set_rng_state(rngs[dd.rank], device)
+            set_rng_state(rngs[dd.rank], device)
         elif "torch_rng" in ckpt and dd.world == 1:
             torch.set_rng_state(ckpt["torch_rng"])
         else:
@@ -627,17 +387,17 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: _Dist, device: tor
         net = nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)
     decay = cfg.decay_steps or cfg.steps
     steps = list(range(start, cfg.steps))
-    syn_sampler = _StepBatches(len(ds), cfg.seed, "synthetic", steps, cfg.batch_size, dd.rank, dd.world)
+    syn_sampler = StepBatches(len(ds), cfg.seed, "synthetic", steps, cfg.batch_size, dd.rank, dd.world)
     syn_batches = _loader(ds, syn_sampler, cfg.workers)
     real_sampler = real_batches = None
     if real_ds is not None:
         real_steps = [s for s in steps if real_loss_weight(s, cfg.real_weight, cfg.real_start, cfg.real_warmup) > 0]
-        real_sampler = _StepBatches(len(real_ds), cfg.seed, "real", real_steps, cfg.batch_size, dd.rank, dd.world)
+        real_sampler = StepBatches(len(real_ds), cfg.seed, "real", real_steps, cfg.batch_size, dd.rank, dd.world)
         real_batches = _loader(real_ds, real_sampler, cfg.workers)
 
-    def prepare(batch: dict, loader: str, step: int, sampler: _StepBatches) -> tuple[dict, torch.Tensor, torch.Tensor]:
+    def prepare(batch: dict, loader: str, step: int, sampler: StepBatches) -> tuple[dict, torch.Tensor, torch.Tensor]:
         seeds = [pixel_seed(cfg.seed, loader, step, p) for p in sampler.positions(step)]
-        pixels, valid = _sample_batch_pixels(batch["mask"], model_cfg.train_pixels, seeds)
+        pixels, valid = sample_batch_pixels(batch["mask"], model_cfg.train_pixels, seeds)
         batch = {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
         return batch, pixels.to(device), valid.to(device)
 
@@ -725,18 +485,18 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: _Dist, device: tor
     def save(done: int) -> None:
         state = model.state_dict()
         shas = dd.gather(params_sha256(state))
-        rngs = dd.gather(_rng_state(device))
+        rngs = dd.gather(rng_state(device))
         if len(set(shas)) != 1:
             raise RuntimeError(f"step {done}: ranks hold different parameters (sha256 {shas})")
         if main:
             common = {"format": CHECKPOINT_FORMAT, "config": model_cfg.to_dict(), "inputs": cfg.inputs}
-            _save(ckpt_path, {
+            save_checkpoint(ckpt_path, {
                 **common, "model": state, "optimizer": opt.state_dict(), "step": done, "losses": losses,
                 "skipped": skipped_total, "rng": rngs, "rank_params_sha256": shas, "world_size": dd.world,
                 "data": {"synthetic": len(ds), "real": len(real_ds) if real_ds is not None else None},
                 "train": _plain(cfg),
             })  # fmt: skip
-            _save(out / "model.pt", {**common, "model": state})
+            save_checkpoint(out / "model.pt", {**common, "model": state})
         dd.barrier()
 
     try:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["as_float_array", "check_last_dims", "safe_div"]
+__all__ = ["as_float_array", "as_unit_vectors", "check_last_dims", "safe_div"]
 
 
 def as_float_array(x: ArrayLike) -> NDArray[np.floating]:
@@ -14,6 +14,34 @@ def as_float_array(x: ArrayLike) -> NDArray[np.floating]:
     if arr.dtype in (np.float32, np.float64):
         return arr
     return arr.astype(np.float64)
+
+
+def as_unit_vectors(v: ArrayLike, name: str, *, tol: float = 1e-3) -> NDArray[np.float64]:
+    """Convert to float64 ``(..., 3)`` and raise ValueError unless every vector has unit length.
+
+    Args:
+        v: directions, ``(..., 3)``.
+        name: the argument's name, for the message.
+        tol: allowed deviation of ``|v|`` from 1 (loose: float32 input is fine).
+
+    Returns:
+        ``v`` as a float64 array.
+
+    Example:
+        >>> as_unit_vectors([0.0, 0.6, 0.8], "wi")
+        array([0. , 0.6, 0.8])
+        >>> as_unit_vectors([0.0, 0.0, 2.0], "wo")
+        Traceback (most recent call last):
+        ...
+        ValueError: wo must hold finite unit vectors (|v| = 1 within 0.001)
+    """
+    a = np.asarray(v, dtype=np.float64)
+    if a.ndim < 1 or a.shape[-1] != 3:
+        raise ValueError(f"{name} must have shape (..., 3); got {a.shape}")
+    norm = np.linalg.norm(a, axis=-1)
+    if np.any(~np.isfinite(norm)) or np.any(np.abs(norm - 1.0) > tol):
+        raise ValueError(f"{name} must hold finite unit vectors (|v| = 1 within {tol:g})")
+    return a
 
 
 def check_last_dims(x: NDArray, dims: tuple[int, ...], name: str) -> None:

@@ -27,6 +27,26 @@ def mitsuba_rgb():
 
 
 @pytest.fixture
+def mi_variant():
+    """``use(name)`` switches Mitsuba to a variant (skips if unavailable); the old one is restored."""
+    mi = pytest.importorskip("mitsuba")
+    previous = mi.variant()
+
+    def use(name):
+        if name not in mi.variants():
+            pytest.skip(f"mitsuba has no variant {name}")
+        try:
+            mi.set_variant(name)
+        except ImportError as e:  # e.g. the LLVM backend is inactive
+            pytest.skip(f"{name}: {e}")
+        return mi
+
+    yield use
+    if previous is not None:
+        mi.set_variant(previous)
+
+
+@pytest.fixture
 def mitsuba_polarized():
     """Mitsuba 3 in ``scalar_spectral_polarized`` (float32)."""
     yield from _mitsuba_variant("scalar_spectral_polarized")

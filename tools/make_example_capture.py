@@ -1,13 +1,13 @@
 """Write examples/capture: one synthetic capture folder in exactly the real-capture format.
 
-    python tools/make_example_capture.py [--out examples/capture] [--seed 7] [--resolution 128]
+    python tools/make_example_capture.py [--out examples/capture] [--seed 7] [--resolution 128] [--quiet]
 
 Renders one random scene with the project's renderer (Mitsuba 3 under the polarized display),
 passes it through the camera model (four noisy 12-bit raw brackets of the IMX250MYR mosaic)
-and saves the raw frames plus capture.json (pbrdf/capture.py, format "pdir-capture/1"). The
-extra keys ``rig`` (the display/camera rig), ``intrinsics`` (3x3, of the raw grid) and
-``distance_m`` let the real-data loss place the pixels; the ground truth goes to
-``<out>/../capture_truth.npz`` for checking predictions.
+and saves the raw frames plus capture.json (pbrdf/data/capture.py, format "pdir-capture/1").
+The extra keys "rig" (the display/camera rig), "intrinsics" (3x3, of the raw grid) and
+"distance_m" let the real-data loss place the pixels; the ground truth goes to
+<out>_truth.npz beside the folder (examples/capture_truth.npz) for checking predictions.
 """
 
 from __future__ import annotations
@@ -20,24 +20,33 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+if not __package__:  # run as a file (python tools/x.py): the repository root first
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Command-line entry point; returns the exit status."""
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def build_parser() -> argparse.ArgumentParser:
+    """The command line of this script (see the module docstring)."""
+    parser = argparse.ArgumentParser(
+        prog="make_example_capture.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     parser.add_argument("--out", type=Path, default=Path("examples/capture"), help="capture folder to write")
     parser.add_argument("--seed", type=int, default=7, help="scene seed (default 7)")
     parser.add_argument("--resolution", type=int, default=128, help="decoded map size (raw is twice; default 128)")
     parser.add_argument("--spp", type=int, default=64, help="samples per pixel per colour pass (default 64)")
-    args = parser.parse_args(argv)
+    parser.add_argument("--quiet", action="store_true", help="no progress bar (the summary line still prints)")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the script; returns the exit status."""
+    args = build_parser().parse_args(argv)
     from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
     from pbrdf.data import capture, dataset  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_open  # noqa: PLC0415
 
     with tempfile.TemporaryDirectory() as tmp:
         generate(GenerateConfig(out=Path(tmp), count=1, resolution=args.resolution, spp=args.spp, seed=args.seed,
-                                keep_raw=True), progress=False)  # fmt: skip
+                                keep_raw=True), progress=not args.quiet)  # fmt: skip
         sample, meta = dataset.read_sample(Path(tmp), 0)
         raw = capture.load_capture(Path(tmp) / "samples" / f"000000{dataset.RAW_SUFFIX}")
         k = np.asarray(meta["intrinsics"], dtype=np.float64)

@@ -1,8 +1,14 @@
-"""Bpy-free core of the scene side.
+"""Bpy-free core of the scene side (the rig itself is :mod:`pbrdf.sensor.rig`).
 
-Modules: ``rig`` (display + camera), ``spec`` (scene spec: objects, materials, lights, world;
-JSON), ``assets`` (meshes, procedural shapes, placement, PLY), ``scenegen`` (random
-Objaverse-like scenes), ``mitsuba_scene`` (spec -> polarized Mitsuba scene per colour channel,
-and the RGB preview scene of any exported Blender scene with its XML writer), ``render``
-(polarized rendering, synthetic samples, RGB preview) and ``generate`` (datasets).
+Modules:
+    - ``spec``: scene spec (objects, materials, lights, world; JSON).
+    - ``procedural``: seeded procedural shapes and the mesh size convention.
+    - ``assets``: mesh references, loading, cleaning, UVs, placement in view, PLY output.
+    - ``scenegen``: random Objaverse-like scenes.
+    - ``mitsuba_scene``: spec -> polarized Mitsuba scene per colour channel.
+    - ``mitsuba_preview``: spec -> RGB preview scene of an exported Blender scene, and its XML.
+    - ``passes``, ``render``, ``spectral``: polarized rendering, synthetic samples, RGB preview.
+    - ``generate``: datasets.
+    - ``map_names``, ``map_io``, ``frustum``: predicted PBR map files (matching, loading,
+      validation) and the Blender camera frustum the add-on imports them with.
 """

@@ -8,7 +8,7 @@ without losing or duplicating work.
 Instead of random scenes, ``GenerateConfig.scene`` renders one given scene spec (the Blender
 add-on's exported scene). ``generate(..., spec_hook=...)`` passes every scene through a function
 before rendering: the Blender route (``headless/render.py --via-blender``) lays the scene out in
-Blender and exports it back there (:func:`blender_addon.export.roundtrip_spec`).
+Blender and exports it back there (:func:`blender_addon.build_spec.roundtrip_spec`).
 """
 
 from __future__ import annotations

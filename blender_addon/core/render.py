@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 from pbrdf.sensor import camera as pcamera
 from pbrdf.sensor import decode as pdecode
 
+from . import mitsuba_preview
 from . import mitsuba_scene as ms
 from .passes import (
     RenderResult,
@@ -262,7 +263,7 @@ def render_preview(spec: SceneSpec, files_dir, settings: PreviewSettings = Previ
     variant = settings.variant or choose_rgb_variant()
     mi = set_variant(variant)
     t0 = time.perf_counter()
-    scene = ms.preview_scene_dict(
+    scene = mitsuba_preview.preview_scene_dict(
         spec, files_dir, resolution=settings.resolution, spp=settings.spp, max_depth=settings.max_depth,
         display=settings.display,
     )  # fmt: skip

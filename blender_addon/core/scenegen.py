@@ -17,6 +17,7 @@ import numpy as np
 from pbrdf.sensor.rig import Rig
 
 from . import assets
+from .procedural import PROCEDURAL_SHAPES
 from .spec import MaterialSpec, ObjectSpec, SceneSpec
 
 __all__ = ["METALS", "sample_seed", "random_material", "load_material_library", "random_scene"]
@@ -100,7 +101,7 @@ def random_scene(
     if asset_files:
         mesh_ref = str(asset_files[int(rng.integers(len(asset_files)))])
     else:
-        shape = assets.PROCEDURAL_SHAPES[int(rng.integers(len(assets.PROCEDURAL_SHAPES)))]
+        shape = PROCEDURAL_SHAPES[int(rng.integers(len(PROCEDURAL_SHAPES)))]
         mesh_ref = f"builtin:{shape}?seed={int(rng.integers(2**31))}"
     mesh = assets.load_mesh(mesh_ref)
     to_world = assets.place(mesh, rig, rng, distance=distance, size=size)

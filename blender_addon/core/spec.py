@@ -12,8 +12,14 @@ looking along -z). Relative file paths are relative to the current working direc
 
 Lights and the environment (:class:`LightSpec`, :class:`EnvironmentSpec`) come from Blender
 scenes and keep Blender's units (see :class:`LightSpec`); the RGB preview render
-(:func:`blender_addon.core.mitsuba_scene.preview_scene_dict`) uses them. The polarized capture
+(:func:`blender_addon.core.mitsuba_preview.preview_scene_dict`) uses them. The polarized capture
 render ignores them: the real capture happens in a dark room lit by the display alone.
+
+This module stays whole (about 630 lines) on purpose: the five spec classes are one JSON
+document, share its key, name and colour validators, and :meth:`SceneSpec.validate` checks them
+against each other (material and light names, files). Lights in a module of their own would
+need those validators from here while this module needs the lights: an import cycle, or a third
+module for some 40 lines of validators.
 """
 
 from __future__ import annotations
@@ -41,6 +47,7 @@ from pbrdf.sensor.rig import (
 )
 
 from . import assets
+from .procedural import PROCEDURAL_SHAPES
 
 __all__ = [
     "AREA_SHAPES",
@@ -242,8 +249,8 @@ class ObjectSpec:
         if not isinstance(self.mesh, str) or not self.mesh:
             raise ValueError(f"{where}: mesh must be a file path or 'builtin:<shape>', got {self.mesh!r}")
         builtin = assets.parse_builtin(self.mesh)
-        if builtin is not None and builtin[0] not in assets.PROCEDURAL_SHAPES:
-            raise ValueError(f"{where}: unknown builtin shape {builtin[0]!r}; valid: {list(assets.PROCEDURAL_SHAPES)}")
+        if builtin is not None and builtin[0] not in PROCEDURAL_SHAPES:
+            raise ValueError(f"{where}: unknown builtin shape {builtin[0]!r}; valid: {list(PROCEDURAL_SHAPES)}")
         m = _as_matrix4(self.to_world, f"{where}: to_world")
         if not np.linalg.det(np.asarray(m)[:3, :3]) > 0:
             raise ValueError(f"{where}: to_world must have a positive determinant (no mirroring or collapse)")
@@ -280,7 +287,7 @@ class LightSpec:
 
     The light's local frame is Blender's: spot, area and sun lights shine along their local -z
     axis; an area light spans ``size`` along local x and y. Conversions to Mitsuba
-    (:func:`blender_addon.core.mitsuba_scene.light_dict`, checked against Cycles renders):
+    (:func:`blender_addon.core.mitsuba_preview.light_dict`, checked against Cycles renders):
 
     - point: radiant intensity ``I = power / (4 pi)`` W/sr in every direction (Blender's light
       radius, which softens shadows, is dropped: rendered as a true point).

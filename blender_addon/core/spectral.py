@@ -13,11 +13,10 @@ Spectra (what the display emits and what the materials do at each wavelength):
   ``bitmap`` of the pattern (nearest filtering): each texel emits ``D65(lambda) x
   upsample(rgb)(lambda)``, Mitsuba's own spectrum for a constant ``{'type': 'rgb'}`` emitter
   (``srgb_d65``) and the one whose sRGB rendering is the RGB value itself: a white display renders
-  as (1, 1, 1) and the primaries without cross-talk (measured at 4096 spp: within 0.2 %, cross-talk
-  below 5e-4). A plain
-  ``bitmap`` (no D65) renders white as (1.205, 0.95, 0.89), and ``raw`` bitmaps throw in spectral
-  variants. The upsampling clamps texels to [0, 1], so the doubling for the sheet's 50 % loss and
-  ``display.radiance`` go into the ``d65`` texture's ``scale``. The whole active area emits (the
+  as (1, 1, 1) and the primaries without cross-talk. A plain ``bitmap`` (no D65) renders white as
+  (1.205, 0.95, 0.89), and ``raw`` bitmaps throw in spectral variants. The upsampling clamps
+  texels to [0, 1], so the doubling for the sheet's 50 % loss and ``display.radiance`` go into
+  the ``d65`` texture's ``scale``. The whole active area emits (the
   mono passes light only the channel's rectangle of a built-in pattern, but every part of it is
   lit in some channel); the polarizer sheet (``SHEET_OFFSET`` in front, ``theta =
   -degrees(polarization_angle)``) is :func:`~blender_addon.core.mitsuba_scene.display_shapes`'s,
@@ -39,12 +38,10 @@ pass uses one number per channel (the material at the channel's wavelength, the 
 the pattern). For wavelength-flat materials the two agree in expectation; for wavelength-dependent
 ones (gold) each channel sees the material averaged over a broad band.
 
-Cost (2-core CPU, LLVM, multijitter, sphere of ``tests/.../test_spectral.py``, same spp): the
-one spectral pass takes 0.3-0.6x the time of the three mono passes, but its per-pixel noise is
-far higher where the mono passes are nearly noise-free: relative S0 noise 0.10 vs 0.009 on a
-Lambertian sphere at 128 px / 64 spp (wavelength sampling of the coloured display regions adds
-colour noise), 0.10-0.16 vs 0.09 on gold. Per unit of error the mono passes are much cheaper for
-diffuse objects, hence the default; this renderer is for cross-checks and the fallback.
+Cost: the single spectral pass is cheaper than the three mono passes but far noisier per pixel
+(wavelength sampling of the coloured display regions adds colour noise), so per unit of error
+the mono passes win for diffuse objects, hence the default; this renderer is for cross-checks
+and the fallback. Numbers: ``docs/measurements/blender_addon.md``.
 
 Output: the ``stokes`` integrator sends each Stokes component through the spectrum -> linear sRGB
 conversion (signed), giving ``S0.R .. S3.B``; with the ``luminance`` film the channel layout is
@@ -115,7 +112,7 @@ def _display_shapes(display: DisplaySpec) -> dict:
         scale = np.diag([display.width / 2, display.height / 2, 1.0, 1.0])
         to_world = np.asarray(display.display_to_world()) @ scale
         return {
-            "display": {"type": "rectangle", "to_world": ms._transform(to_world), "emitter": emitter},
+            "display": {"type": "rectangle", "to_world": ms.scalar_transform(to_world), "emitter": emitter},
             "display_polarizer": ms.display_shapes(display, 0)["display_polarizer"],
         }
     if display.degree_of_polarization != 1.0:  # same check as the mono helper
@@ -131,7 +128,7 @@ def _display_shapes(display: DisplaySpec) -> dict:
         ("display", 0.0, {"emitter": mi.load_dict(emitter)}),
         ("display_polarizer", ms.SHEET_OFFSET, {"bsdf": mi.load_dict(sheet_bsdf)}),
     ):
-        v, f, uv = ms._curved_strip(display, offset)
+        v, f, uv = ms.curved_strip(display, offset)
         out[name] = ms.mesh_from_arrays(name, v @ to_world[:3, :3].T + to_world[:3, 3], f, props, uvs=uv)
     return out
 

@@ -1,1 +1,1 @@
-"""Materials: the Disney BRDF, polarimetric microfacet pBRDFs, measured pBRDF tables, seed materials."""
+"""Materials: the Disney BRDF, polarimetric microfacet pBRDFs, measured pBRDF tables and their geometry, seeds."""

@@ -18,8 +18,8 @@ Convention:
     Mitsuba's polarized variants. Each frame's y-axis is ``w x x`` for the propagation direction
     ``w`` (right-handed), so although ``stokes_basis(-w) == stokes_basis(w)`` for ``w_z != 0``,
     the frame of the arriving light (``w = -wo``) has the opposite y-axis (and s2, s3 signs) to
-    one that took ``+wo`` as the propagation direction. Verified on Mitsuba 3.9.1 itself
-    (``tests/pbrdf/test_microfacet.py``): all 16 entries agree with ``pplastic`` and
+    one that took ``+wo`` as the propagation direction. ``tests/pbrdf/brdf/test_microfacet.py``
+    checks this against Mitsuba itself: all 16 entries agree with ``pplastic`` and
     ``roughconductor``, s-polarized light (field along ``wo x wi``) comes back s-polarized and p
     comes back p, and mirrored y-axes or swapped camera/light roles disagree.
 
@@ -210,9 +210,8 @@ def dielectric_pbrdf(
 
     Equal to Mitsuba 3's ``pplastic`` (``diffuse_reflectance = albedo``, ``int_ior = eta``,
     ``ext_ior = 1``, ``distribution = 'ggx'``, ``alpha``, ``specular_reflectance = specular``) in
-    its polarized variants: every entry within 2.5e-5 of ``m00`` (worst of 1000 random pairs per
-    parameter set) for directions more than 3 degrees above the horizon (Mitsuba computes in
-    float32; see the warning for grazing angles).
+    its polarized variants to float32 precision for directions more than 3 degrees above the
+    horizon (Mitsuba computes in float32; see the warning for grazing angles).
 
     .. math::
         M = \\Big[k_s\\,\\frac{D\\,G}{4\\cos\\theta_i\\cos\\theta_o}\\,C_o R(\\theta_d;\\eta) C_i

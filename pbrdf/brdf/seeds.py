@@ -4,7 +4,7 @@ The 39 measured materials (KAIST pBRDF, hpBRDF) are gigabytes and cannot ship. T
 materials span the same categories (spectralon, billiard resins, silicones, ceramics,
 plastics, gold, brass, chrome, steel, aluminium), with the dielectric pBRDF of Baek et al. (2018)
 or the complex-IOR conductor (:mod:`pbrdf.brdf.microfacet`), tabulated on a small Rusinkiewicz grid on
-demand and cached. ``expand_pbrdf.py --measured DIR`` uses real tables instead; the pipeline
+demand and cached. ``expand_pbrdf.py --input DIR`` uses real tables instead; the pipeline
 only sees :class:`pbrdf.brdf.table.PBRDFTable` either way.
 
 Optical constants: dielectric IORs are typical published values for the material class

@@ -1,9 +1,10 @@
-"""Measured pBRDF tables: the :class:`PBRDFTable` type, its tensor-file format, resampling and evaluation.
+"""Measured pBRDF tables: the :class:`PBRDFTable` type, its files, resampling, evaluation and tabulation.
 
 A pBRDF table samples the Mueller-matrix BRDF of an isotropic material on a regular grid of
 Rusinkiewicz angles and wavelengths, as in the KAIST pBRDF dataset (Baek et al. 2020, ``.pbsdf``,
 5 bands) and the hyperspectral hpBRDF dataset (Moon et al. 2025, ``.hpbrdf``, 68 bands). Both are
-Mitsuba ``tensor_file`` files with the same fields, read by :func:`load_table`:
+Mitsuba ``tensor_file`` files (:mod:`pbrdf.io.tensorfile`) with the same fields, read by
+:func:`load_table`:
 
 ==========  ======================================  =======  ===========================
 field       shape                                   dtype    meaning
@@ -16,31 +17,13 @@ field       shape                                   dtype    meaning
 ==========  ======================================  =======  ===========================
 
 Convention:
-    Directions are unit vectors in the local shading frame (``z`` = normal) and are named as in
-    Mitsuba's BSDF interface in radiance mode: ``wi`` points towards the camera (the side light
-    leaves along) and ``wo`` towards the light. This is how Mitsuba's ``measured_polarized``
-    plugin (``src/bsdfs/measured_polarized.cpp``, mitsuba 3.9.1) reads its table, and every
-    function here follows it:
+    Directions, Rusinkiewicz angles and the plane-of-reflection Stokes frames of ``M`` are those
+    of Mitsuba's ``measured_polarized`` plugin, defined in :mod:`pbrdf.brdf.rusinkiewicz`
+    (``wi`` towards the camera, ``wo`` towards the light, radiance mode).
 
-    * Rusinkiewicz angles: ``h = normalize(wi + wo)``, ``theta_h = angle(n, h)``,
-      ``theta_d = angle(h, wo)``; ``b = normalize(n x h)``, ``t = b x h`` and
-      ``phi_d = atan2(b . wo, t . wo)`` in ``[-pi, pi]``: the azimuth of the *light-side*
-      direction about ``h``. The plugin first rotates both directions about ``n`` so that the
-      *camera-side* direction ``wi`` has azimuth 0; the Rusinkiewicz angles do not depend on that
-      rotation. Where ``h = n`` (``n x h = 0``), ``b = (0, 1, 0)`` here (the plugin gets NaN).
-      Examples: camera ``wi = n``, light ``wo = (sin 60deg, 0, cos 60deg)`` gives ``theta_h =
-      theta_d = 30deg`` and ``phi_d = 0`` (the light lies along ``+t``, away from the normal);
-      the mirror configuration ``wi = (sin 30deg, 0, cos 30deg)``, ``wo = (-sin 30deg, 0,
-      cos 30deg)`` gives ``theta_h = 0``, ``theta_d = 30deg``, ``phi_d = pi``.
-    * Stokes frames of the table: both the incident beam (travelling along ``-wo``) and the
-      reflected beam (along ``wi``) have their Stokes x-axis ``x = normalize(wo x wi)``,
-      *perpendicular* to the plane of reflection (the s-direction, as in
-      :func:`pbrdf.polar.fresnel.reflection_mueller`): the plugin builds ``t = normalize((wo - wi) x -wo)``,
-      ``y = normalize(t x z)`` and ``x = y x z``, which is ``-t``; its y-axis lies in the plane (its
-      source comment says the reference vector "lies in the plane of reflection"). For ``wi == wo``
-      the plane is undefined (the plugin gets NaN); here it is the plane of incidence of ``wi``.
-      :func:`evaluate` rotates these frames into Mitsuba's implicit bases ``stokes_basis(-wo)``
-      and ``stokes_basis(wi)`` with :func:`pbrdf.polar.mueller.rotate_mueller_basis`.
+    * :func:`evaluate` rotates the table's frames into Mitsuba's implicit bases
+      ``stokes_basis(-wo)`` and ``stokes_basis(wi)`` with
+      :func:`pbrdf.polar.mueller.rotate_mueller_basis`; :func:`tabulate` is its inverse.
     * ``M`` is the BRDF *without* the ``cos theta_o`` factor; :func:`evaluate` multiplies by
       ``cos theta_o = wo_z`` and clamps ``m00 >= 0`` as the plugin does.
     * Interpolation is multilinear in ``(phi_d, theta_d, theta_h, wavelength)`` with clamping at
@@ -52,10 +35,12 @@ NaN bins: raw measurements mark invalid or unmeasured bins with NaN. A table kee
 :func:`evaluate` returns a zero matrix wherever a NaN bin takes part in the interpolation, like
 the plugin; :func:`save_table` with ``for_mitsuba=True`` writes them as zeros.
 
+The tensor-file codec lives in :mod:`pbrdf.io.tensorfile` and the Rusinkiewicz geometry in
+:mod:`pbrdf.brdf.rusinkiewicz`; their public names are re-exported here.
+
 References:
     S.-H. Baek, T. Zeltner, H. J. Ku, I. Hwang, X. Tong, W. Jakob, M. H. Kim, "Image-based
     acquisition and modeling of polarimetric reflectance", ACM TOG 39(4):139, 2020.
-    S. Rusinkiewicz, "A new change of variables for efficient BRDF representation", EGWR 1998.
 """
 
 from __future__ import annotations
@@ -63,7 +48,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import struct
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,23 +56,26 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf.io.atomic import atomic_open
+from pbrdf._checks import as_unit_vectors
+from pbrdf.brdf.rusinkiewicz import directions_from_rusinkiewicz, reflection_frame_x, rusinkiewicz_from_directions
+from pbrdf.io.tensorfile import read_tensor_file, write_tensor_file
 from pbrdf.polar.mueller import rotate_mueller_basis, stokes_basis
 
 __all__ = [
     "MITSUBA_MAX_BANDS",
     "TABLE_FIELDS",
     "PBRDFTable",
-    "write_tensor_file",
-    "read_tensor_file",
     "save_table",
     "load_table",
     "resample",
     "to_mitsuba_bands",
-    "rusinkiewicz_from_directions",
-    "directions_from_rusinkiewicz",
     "evaluate",
     "tabulate",
+    # re-exported from pbrdf.io.tensorfile and pbrdf.brdf.rusinkiewicz
+    "write_tensor_file",
+    "read_tensor_file",
+    "rusinkiewicz_from_directions",
+    "directions_from_rusinkiewicz",
 ]
 
 #: The stock ``measured_polarized`` plugin copies the wavelengths into a fixed 5-element array.
@@ -108,225 +95,12 @@ _AXIS_RANGES = {
     "wavelengths": (np.finfo(np.float64).tiny, np.inf),
 }
 
-# --- tensor_file -----------------------------------------------------------------------------------
-# Layout (Mitsuba src/core/tensor.cpp and src/python/python/tensor_io.py), little-endian:
-#   b"tensor_file\0" | uint8 major = 1, uint8 minor = 0 | uint32 field count
-#   per field: uint16 name length, name (UTF-8), uint16 ndim, uint8 dtype code, uint64 offset,
-#              ndim x uint64 shape
-#   field data, C order, each starting at an 8-byte aligned offset (zero padding before it).
-_MAGIC = b"tensor_file\x00"
-_VERSION = (1, 0)
-_ALIGN = 8
-_CODE_OF_KIND = {
-    ("u", 1): 1,
-    ("i", 1): 2,
-    ("u", 2): 3,
-    ("i", 2): 4,
-    ("u", 4): 5,
-    ("i", 4): 6,
-    ("u", 8): 7,
-    ("i", 8): 8,
-    ("f", 2): 9,
-    ("f", 4): 10,
-    ("f", 8): 11,
-}
-_DTYPE_OF_CODE = {code: np.dtype(f"<{kind}{size}") for (kind, size), code in _CODE_OF_KIND.items()}
-# Fields at least this large are memory-mapped by read_tensor_file(mmap=True); smaller ones are loaded.
-_MMAP_MIN_BYTES = 1 << 20
-# Bytes converted and written (or reduced by nan_mask / resample) per step.
+# Bytes reduced per step by nan_mask and resample.
 _CHUNK_BYTES = 64 << 20
 
 
 def _one_line(text: str) -> str:
     return " ".join(str(text).split())
-
-
-def _align(pos: int) -> int:
-    return (pos + _ALIGN - 1) // _ALIGN * _ALIGN
-
-
-def _prepare_field(name: Any, value: ArrayLike) -> tuple[bytes, NDArray, int]:
-    if not isinstance(name, str) or not name:
-        raise ValueError(f"tensor file field names must be non-empty strings; got {name!r}")
-    label = name.encode("utf-8")
-    if len(label) > 0xFFFF:
-        raise ValueError(f"field {name[:40]!r}...: name longer than 65535 bytes")
-    # No copy: a memmap stays on disk until it is written in chunks. A 0-d array is stored as (1,),
-    # like mitsuba.tensor_io.write (np.ascontiguousarray); Mitsuba's Python reader cannot read ndim 0.
-    arr = np.atleast_1d(np.asarray(value))
-    code = _CODE_OF_KIND.get((arr.dtype.kind, arr.dtype.itemsize))
-    if code is None:
-        valid = ", ".join(str(d) for d in _DTYPE_OF_CODE.values())
-        raise ValueError(f"field {name!r}: unsupported dtype {arr.dtype}; valid: {valid}")
-    if arr.ndim > 0xFFFF:
-        raise ValueError(f"field {name!r}: too many dimensions ({arr.ndim})")
-    return label, arr, code
-
-
-def _write_array(f: Any, arr: NDArray, chunk_fn: Callable[[NDArray], NDArray] | None) -> None:
-    """Write ``arr`` in C order, little-endian, at most about ``_CHUNK_BYTES`` at a time."""
-    le = arr.dtype.newbyteorder("<")
-    if arr.ndim == 0 or arr.nbytes <= _CHUNK_BYTES:
-        out = arr if chunk_fn is None else chunk_fn(arr)
-        f.write(np.ascontiguousarray(out, dtype=le).tobytes())
-        return
-    row_bytes = arr.nbytes // arr.shape[0]
-    if row_bytes > _CHUNK_BYTES and arr.ndim > 1:
-        for row in arr:
-            _write_array(f, row, chunk_fn)
-        return
-    step = max(1, _CHUNK_BYTES // max(row_bytes, 1))
-    for start in range(0, arr.shape[0], step):
-        _write_array(f, arr[start : start + step], chunk_fn)
-
-
-def _write_fields(
-    path: str | os.PathLike,
-    fields: Mapping[str, ArrayLike],
-    chunk_fns: Mapping[str, Callable[[NDArray], NDArray]] | None = None,
-) -> Path:
-    target = Path(path)
-    if not isinstance(fields, Mapping):
-        raise ValueError(f"{target}: fields must be a dict of name -> array; got {type(fields).__name__}")
-    prepared = [_prepare_field(name, value) for name, value in fields.items()]
-    chunk_fns = chunk_fns or {}
-
-    header = bytearray(_MAGIC)
-    header += struct.pack("<BBI", *_VERSION, len(prepared))
-    header_size = len(header) + sum(2 + len(label) + 2 + 1 + 8 + 8 * arr.ndim for label, arr, _ in prepared)
-    offsets = []
-    pos = header_size
-    for _, arr, _ in prepared:
-        pos = _align(pos)
-        offsets.append(pos)
-        pos += arr.nbytes  # Python ints: no overflow for 13 GB hpBRDF tables
-    for (label, arr, code), offset in zip(prepared, offsets, strict=True):
-        header += struct.pack("<H", len(label)) + label
-        header += struct.pack("<HBQ", arr.ndim, code, offset)
-        header += struct.pack(f"<{arr.ndim}Q", *arr.shape)
-
-    if target.is_dir():
-        raise IsADirectoryError(f"{target}: is a folder")
-    with atomic_open(target) as f:
-        f.write(header)
-        pos = len(header)
-        for (label, arr, _), offset in zip(prepared, offsets, strict=True):
-            if arr.nbytes == 0:
-                continue  # no padding either: Mitsuba's writer seeks, so a trailing empty field adds no bytes
-            f.write(b"\x00" * (offset - pos))
-            _write_array(f, arr, chunk_fns.get(label.decode("utf-8")))
-            pos = offset + arr.nbytes
-    return target
-
-
-def write_tensor_file(path: str | os.PathLike, fields: Mapping[str, ArrayLike]) -> Path:
-    """Write named arrays to a Mitsuba ``tensor_file`` (version 1.0), atomically.
-
-    The bytes equal those of ``mitsuba.tensor_io.write(path, **fields)`` (tested): the header
-    (magic ``"tensor_file\\0"``, version 1.0, field count, then per field its name, ndim, dtype
-    code, 64-bit offset and 64-bit shape), followed by the data of each field in C order at an
-    8-byte aligned offset. Large arrays (including memory maps) are written in chunks of about
-    64 MB, so a 13 GB hpBRDF table needs no second copy in memory. The file is written to a
-    temporary sibling, fsynced and renamed over ``path``; parent folders are created.
-
-    Args:
-        path: target file.
-        fields: name -> array, in file order. Supported dtypes: uint8/16/32/64, int8/16/32/64,
-            float16/32/64 (booleans and objects are not).
-
-    Returns:
-        The path written.
-
-    Raises:
-        ValueError: an empty or non-string name, or an unsupported dtype (the message names the field).
-        OSError: the file cannot be written.
-
-    Example:
-        >>> import tempfile
-        >>> p = Path(tempfile.mkdtemp()) / "x.tensor"
-        >>> _ = write_tensor_file(p, {"wvls": np.array([450, 550], dtype=np.uint16)})
-        >>> read_tensor_file(p)["wvls"]
-        array([450, 550], dtype=uint16)
-    """
-    return _write_fields(path, fields)
-
-
-def _bad(path: Path, reason: str) -> ValueError:
-    return ValueError(f"{path}: not a valid tensor file: {reason}")
-
-
-def read_tensor_file(path: str | os.PathLike, *, mmap: bool = True) -> dict[str, NDArray]:
-    """Read all fields of a Mitsuba ``tensor_file``.
-
-    Args:
-        path: file written by :func:`write_tensor_file`, ``mitsuba.tensor_io.write`` or Mitsuba's
-            C++ ``TensorFile`` tools (KAIST ``.pbsdf``, hpBRDF ``.hpbrdf``).
-        mmap: memory-map fields of 1 MiB or more as read-only :class:`numpy.memmap` instead of
-            loading them (a 13 GB hpBRDF ``M`` then costs no memory until it is used). Smaller
-            fields are always loaded.
-
-    Returns:
-        name -> array in file order, with the stored dtype (native byte order where loaded).
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: bad magic string, unsupported version, unknown dtype code, duplicate field
-            name, or a truncated file (the header or a field's data ends past the end of the file).
-    """
-    p = Path(path)
-    if p.is_dir():
-        raise IsADirectoryError(f"{p}: is a folder, not a tensor file")
-    size = p.stat().st_size
-    with open(p, "rb") as f:
-
-        def take(n: int, what: str) -> bytes:
-            data = f.read(n)
-            if len(data) != n:
-                raise _bad(p, f"truncated header ({size} bytes; it ends inside {what})")
-            return data
-
-        magic = f.read(len(_MAGIC))
-        if magic != _MAGIC:
-            if len(magic) < len(_MAGIC) and _MAGIC.startswith(magic):
-                raise _bad(p, f"truncated header ({size} bytes)")
-            raise _bad(p, f"bad magic {magic!r} (expected {_MAGIC!r})")
-        major, minor = struct.unpack("<BB", take(2, "the version"))
-        if (major, minor) != _VERSION:
-            raise _bad(p, f"unsupported version {major}.{minor} (expected 1.0)")
-        (n_fields,) = struct.unpack("<I", take(4, "the field count"))
-        specs: dict[str, tuple[np.dtype, int, tuple[int, ...]]] = {}
-        for k in range(n_fields):
-            what = f"field {k} of {n_fields}"
-            (name_len,) = struct.unpack("<H", take(2, what))
-            try:
-                name = take(name_len, what).decode("utf-8")
-            except UnicodeDecodeError as e:
-                raise _bad(p, f"{what}: name is not UTF-8 ({e.reason})") from None
-            ndim, code, offset = struct.unpack("<HBQ", take(11, f"field {name!r}"))
-            shape = struct.unpack(f"<{ndim}Q", take(8 * ndim, f"the shape of field {name!r}"))
-            if code not in _DTYPE_OF_CODE:
-                raise _bad(p, f"field {name!r} has unknown dtype code {code} (valid: 1..11)")
-            if name in specs:
-                raise _bad(p, f"duplicate field {name!r}")
-            specs[name] = (_DTYPE_OF_CODE[code], offset, tuple(int(s) for s in shape))
-
-        out: dict[str, NDArray] = {}
-        for name, (dtype, offset, shape) in specs.items():
-            count = math.prod(shape)
-            nbytes = count * dtype.itemsize
-            if nbytes and offset + nbytes > size:
-                raise _bad(
-                    p, f"truncated: field {name!r} {shape} needs bytes {offset}..{offset + nbytes}, file has {size}"
-                )
-            if count == 0:
-                out[name] = np.empty(shape, dtype=dtype.newbyteorder("="))
-            elif mmap and nbytes >= _MMAP_MIN_BYTES:
-                out[name] = np.memmap(p, dtype=dtype, mode="r", offset=offset, shape=shape)
-            else:
-                f.seek(offset)
-                arr = np.fromfile(f, dtype=dtype, count=count).reshape(shape)  # one copy, even for 13 GB
-                out[name] = arr if arr.dtype.isnative else arr.astype(dtype.newbyteorder("="))
-    return out
 
 
 # --- the table type --------------------------------------------------------------------------------
@@ -348,7 +122,7 @@ def _axis(value: ArrayLike, name: str, lo: float, hi: float) -> NDArray[np.float
 
 @dataclass(frozen=True, eq=False)
 class PBRDFTable:
-    """A tabulated isotropic Mueller-matrix BRDF on a Rusinkiewicz grid (see the module conventions).
+    """A tabulated isotropic Mueller-matrix BRDF on a Rusinkiewicz grid (see the module Convention).
 
     Attributes:
         phi_d: ``(Np,)`` difference azimuths, radians, strictly increasing in ``[-pi, pi]``.
@@ -485,7 +259,7 @@ def save_table(path: str | os.PathLike, table: PBRDFTable, *, for_mitsuba: bool 
         except (TypeError, ValueError) as e:
             raise ValueError(f"table metadata must be JSON-serialisable: {_one_line(str(e))}") from None
         fields[_META_FIELD] = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
-    return _write_fields(path, fields, {"M": _zero_nan_bins} if for_mitsuba else None)
+    return write_tensor_file(path, fields, chunk_fns={"M": _zero_nan_bins} if for_mitsuba else None)
 
 
 def _axis_field(fields: Mapping[str, NDArray], name: str, path: Path) -> NDArray:
@@ -505,7 +279,7 @@ def load_table(path: str | os.PathLike, *, mmap: bool = True) -> PBRDFTable:
 
     Args:
         path: tensor file with the fields of :data:`TABLE_FIELDS`.
-        mmap: memory-map ``M`` (read-only) instead of loading it; a 13 GB hpBRDF file then opens
+        mmap: memory-map ``M`` (read-only) instead of loading it; a multi-gigabyte hpBRDF file opens
             instantly and only the bins used are read.
 
     Returns:
@@ -690,10 +464,9 @@ def to_mitsuba_bands(table: PBRDFTable, max_bands: int = MITSUBA_MAX_BANDS) -> P
     .. warning::
         Mitsuba 3.9.1's ``measured_polarized`` copies the ``wvls`` field into a fixed
         ``ScalarFloat wavelengths[5]`` array and then reads as many entries as the table has
-        bands: with more than 5 bands it interpolates with garbage wavelengths (a 7-band table
-        returned 0.6 at 600, 650 and 700 nm instead of 0.6, 0.7, 0.7; notes/mitsuba.md section 2).
-        68-band hpBRDF tables need this resampling, the patched plugin of ``yunseong0518/hpBRDF``,
-        or :func:`evaluate`.
+        bands: with more than 5 bands it interpolates with garbage wavelengths (see
+        ``docs/measurements/pbrdf.md`` for a 7-band example). 68-band hpBRDF tables need this
+        resampling, the patched plugin of ``yunseong0518/hpBRDF``, or :func:`evaluate`.
 
     Args:
         table: the source table.
@@ -717,113 +490,7 @@ def to_mitsuba_bands(table: PBRDFTable, max_bands: int = MITSUBA_MAX_BANDS) -> P
     return resample(table, wavelengths=bands)
 
 
-# --- geometry --------------------------------------------------------------------------------------
-
-
-def _unit_vectors(v: ArrayLike, name: str) -> NDArray[np.float64]:
-    a = np.asarray(v, dtype=np.float64)
-    if a.ndim < 1 or a.shape[-1] != 3:
-        raise ValueError(f"{name} must have shape (..., 3); got {a.shape}")
-    norm = np.linalg.norm(a, axis=-1)
-    if np.any(~np.isfinite(norm)) or np.any(np.abs(norm - 1.0) > 1e-3):
-        raise ValueError(f"{name} must hold finite unit vectors (|v| = 1 within 1e-3)")
-    return a
-
-
-def _dot(a: NDArray, b: NDArray) -> NDArray:
-    return np.einsum("...i,...i->...", a, b)
-
-
-def _rusinkiewicz(camera: NDArray, light: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """``(theta_h, theta_d, phi_d, phi_h)`` of unit directions, float64, with the degenerate cases defined."""
-    s = camera + light
-    norm = np.linalg.norm(s, axis=-1, keepdims=True)
-    h = np.where(norm > 0, s / np.where(norm > 0, norm, 1.0), np.array([0.0, 0.0, 1.0]))
-    rho = np.hypot(h[..., 0], h[..., 1])
-    theta_h = np.arctan2(rho, h[..., 2])
-    theta_d = np.arctan2(np.linalg.norm(np.cross(h, light), axis=-1), _dot(h, light))
-    # b = normalize(n x h) = (-sin phi_h, cos phi_h, 0); phi_h = 0 where h = n.
-    phi_h = np.arctan2(h[..., 1], h[..., 0])
-    b = np.stack([-np.sin(phi_h), np.cos(phi_h), np.zeros_like(phi_h)], axis=-1)
-    t = np.cross(b, h)
-    phi_d = np.arctan2(_dot(b, light), _dot(t, light))
-    return theta_h, theta_d, phi_d, phi_h
-
-
-def rusinkiewicz_from_directions(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray, NDArray, NDArray]:
-    """Rusinkiewicz angles ``(theta_h, theta_d, phi_d)`` of direction pairs, as ``measured_polarized`` computes them.
-
-    Convention: ``wi`` is the camera side and ``wo`` the light side (Mitsuba's names in radiance
-    mode); ``phi_d`` is the azimuth of ``wo`` about ``h = normalize(wi + wo)`` measured from
-    ``t = b x h`` towards ``b = normalize(n x h)``, so it changes sign under ``y -> -y`` mirroring.
-    The angles are computed with ``atan2`` (accurate near 0, where the plugin's float32 ``acos``
-    has errors up to 3e-4 rad). Where ``h = n`` (mirror configuration) ``b = (0, 1, 0)``; where
-    ``wo = h`` (``theta_d = 0``) ``phi_d = 0``.
-
-    Args:
-        wi: ``(..., 3)`` unit directions towards the camera, local frame (``z`` = normal).
-        wo: ``(..., 3)`` unit directions towards the light; broadcast against ``wi``.
-
-    Returns:
-        ``theta_h`` in ``[0, pi]``, ``theta_d`` in ``[0, pi]`` (both ``<= pi/2`` on the upper
-        hemisphere) and ``phi_d`` in ``[-pi, pi]``, radians, shape ``(...)``.
-
-    Example:
-        Light at 30 degrees on the -x side, camera at 30 degrees on +x (mirror configuration):
-
-        >>> s, c = np.sin(np.pi / 6), np.cos(np.pi / 6)
-        >>> [float(np.round(np.degrees(a), 9)) for a in rusinkiewicz_from_directions([s, 0, c], [-s, 0, c])]
-        [0.0, 30.0, 180.0]
-    """
-    cam = _unit_vectors(wi, "wi")
-    light = _unit_vectors(wo, "wo")
-    cam, light = np.broadcast_arrays(cam, light)
-    theta_h, theta_d, phi_d, _ = _rusinkiewicz(cam, light)
-    return theta_h, theta_d, phi_d
-
-
-def directions_from_rusinkiewicz(
-    theta_h: ArrayLike, theta_d: ArrayLike, phi_d: ArrayLike, phi_h: ArrayLike = 0.0
-) -> tuple[NDArray, NDArray]:
-    """Inverse of :func:`rusinkiewicz_from_directions`: the direction pair ``(wi, wo)``.
-
-    ``h = (sin theta_h cos phi_h, sin theta_h sin phi_h, cos theta_h)``, ``b = (-sin phi_h, cos phi_h, 0)``,
-    ``t = b x h``; the light side is ``wo = sin theta_d (cos phi_d t + sin phi_d b) + cos theta_d h``
-    and the camera side its mirror image about ``h``, ``wi = 2 cos theta_d h - wo``. Angle
-    combinations that put a direction below the horizon (e.g. ``theta_h + theta_d > pi/2`` in the
-    plane of ``h``) are returned as they are (``z < 0``).
-
-    Args:
-        theta_h: half-vector angle, radians, shape ``(...)``.
-        theta_d: difference angle, radians.
-        phi_d: difference azimuth, radians.
-        phi_h: azimuth of ``h`` about the normal, radians (isotropic tables do not depend on it).
-
-    Returns:
-        ``(wi, wo)``, unit vectors ``(..., 3)`` in the local frame.
-    """
-    th, td, pd, ph = np.broadcast_arrays(*(np.asarray(a, dtype=np.float64) for a in (theta_h, theta_d, phi_d, phi_h)))
-    h = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
-    b = np.stack([-np.sin(ph), np.cos(ph), np.zeros_like(ph)], axis=-1)
-    t = np.cross(b, h)
-    wo = np.sin(td)[..., None] * (np.cos(pd)[..., None] * t + np.sin(pd)[..., None] * b) + np.cos(td)[..., None] * h
-    wi = 2.0 * np.cos(td)[..., None] * h - wo
-    return wi, wo
-
-
-def _reflection_x_axis(camera: NDArray, light: NDArray) -> NDArray:
-    """Stokes x-axis of both beams: ``normalize(light x camera)``, perpendicular to the plane of reflection.
-
-    For ``light == camera`` the plane is undefined; use the limit of ``light`` approaching
-    ``camera`` in the plane of incidence, ``normalize(n x camera)``, and ``(0, 1, 0)`` at normal
-    incidence. Sign flips of ``x`` do not change Stokes vectors.
-    """
-    x = np.cross(light, camera)
-    norm = np.linalg.norm(x, axis=-1, keepdims=True)
-    alt = np.stack([-camera[..., 1], camera[..., 0], np.zeros_like(camera[..., 0])], axis=-1)
-    alt_norm = np.linalg.norm(alt, axis=-1, keepdims=True)
-    alt = np.where(alt_norm > 1e-12, alt / np.where(alt_norm > 0, alt_norm, 1.0), np.array([0.0, 1.0, 0.0]))
-    return np.where(norm > 1e-12, x / np.where(norm > 0, norm, 1.0), alt)
+# --- evaluation ----------------------------------------------------------------------------------------
 
 
 def _lookup(table: PBRDFTable, phi_d: NDArray, theta_d: NDArray, theta_h: NDArray, lam: NDArray) -> NDArray:
@@ -858,9 +525,9 @@ def evaluate(
     times ``cos theta_o = wo_z``. Zero unless both directions are strictly above the surface.
 
     Differences from the plugin, all at measure-zero geometry or float32 round-off: the plugin
-    works in float32 (``acos`` of ``theta_d`` and ``theta_h`` is off by up to 3e-4 rad near 0); it
+    works in float32 (its ``acos`` of ``theta_d`` and ``theta_h`` loses digits near 0); it
     returns NaN where ``h = n`` exactly or ``wi == wo`` (undefined frames), where this function
-    uses the limits described in the module conventions; it zeroes a matrix only where the
+    uses the limits of :mod:`pbrdf.brdf.rusinkiewicz`; it zeroes a matrix only where the
     interpolated ``m00`` is NaN, this function wherever any entry is.
 
     Args:
@@ -891,7 +558,7 @@ def evaluate(
     """
     if mode not in ("radiance", "importance"):
         raise ValueError(f"mode must be 'radiance' or 'importance'; got {mode!r}")
-    wi_a, wo_a = _unit_vectors(wi, "wi"), _unit_vectors(wo, "wo")
+    wi_a, wo_a = as_unit_vectors(wi, "wi"), as_unit_vectors(wo, "wo")
     lam = np.asarray(wavelength, dtype=np.float64)
     batch = np.broadcast_shapes(wi_a.shape[:-1], wo_a.shape[:-1], lam.shape)
     wi_f = np.broadcast_to(wi_a, (*batch, 3)).reshape(-1, 3)
@@ -902,11 +569,11 @@ def evaluate(
     if np.any(active):
         camera, light = (wi_f, wo_f) if mode == "radiance" else (wo_f, wi_f)
         camera, light = camera[active], light[active]
-        theta_h, theta_d, phi_d, _ = _rusinkiewicz(camera, light)
+        theta_h, theta_d, phi_d = rusinkiewicz_from_directions(camera, light)
         m = _lookup(table, phi_d, theta_d, theta_h, lam_f[active])
         m[~np.isfinite(m).all(axis=(-2, -1))] = 0.0
         m[:, 0, 0] = np.maximum(m[:, 0, 0], 0.0)
-        x = _reflection_x_axis(camera, light)
+        x = reflection_frame_x(camera, light)
         m = rotate_mueller_basis(m, -light, x, stokes_basis(-light), camera, x, stokes_basis(camera))
         out[active] = m * wo_f[active, 2][:, None, None]
     return out.reshape(*batch, 4, 4)
@@ -946,7 +613,7 @@ def tabulate(
     wi, wo = directions_from_rusinkiewicz(g_th, g_td, g_pd)
     active = (wi[..., 2] > 1e-6) & (wo[..., 2] > 1e-6)
     cam, light = wi[active], wo[active]
-    x = _reflection_x_axis(cam, light)
+    x = reflection_frame_x(cam, light)
     out = np.zeros((*g_pd.shape, wl.size, 4, 4), dtype=np.float32)
     for band in range(wl.size):
         m = np.asarray(brdf(cam, light, band), dtype=np.float64) / light[:, 2, None, None]

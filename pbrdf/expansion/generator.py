@@ -66,11 +66,7 @@ class WeightCVAE(nn.Module):
 
 @contextlib.contextmanager
 def _one_thread():
-    """Run tiny models on one thread.
-
-    Intra-op threading costs 20x here (measured 9.3 s vs 0.48 s for 200 steps on a loaded 2-core
-    machine).
-    """
+    """Run tiny models on one thread: for MLPs this small, intra-op threading costs more than it gains."""
     n = torch.get_num_threads()
     torch.set_num_threads(1)
     try:

@@ -73,7 +73,7 @@ def load_measured(folder: Path, grid: tuple[int, int, int]) -> list[PBRDFTable]:
     """Measured tables (``*.pbsdf``, ``*.hpbrdf``) resampled to the working grid and 5 bands."""
     files = sorted([*folder.glob("*.pbsdf"), *folder.glob("*.hpbrdf")])
     if not files:
-        raise FileNotFoundError(f"--measured {folder}: no .pbsdf or .hpbrdf files")
+        raise FileNotFoundError(f"--input {folder}: no .pbsdf or .hpbrdf files")
     out = []
     for f in files:
         t = to_mitsuba_bands(load_table(f))

@@ -1,1 +1,1 @@
-"""File mechanics without physics: atomic writes and EXR images."""
+"""File mechanics without physics: atomic writes, EXR images and Mitsuba tensor files."""

@@ -1,4 +1,4 @@
-"""The end-to-end demo on a tiny configuration, its report in headless Chromium, and the shipped model."""
+"""headless/demo.py: the end-to-end demo on a tiny configuration and its report in headless Chromium."""
 
 import html.parser
 import json
@@ -10,9 +10,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-pytest.importorskip("mitsuba")
-pytest.importorskip("bpy")
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -34,6 +31,8 @@ class _Refs(html.parser.HTMLParser):
 
 @pytest.fixture(scope="module")
 def demo_out(tmp_path_factory):
+    pytest.importorskip("mitsuba")
+    pytest.importorskip("bpy")
     out = tmp_path_factory.mktemp("demo")
     cmd = [sys.executable, str(ROOT / "headless" / "demo.py"), "--out", str(out), "--scenes", "2",
            "--measured-scenes", "1", "--resolution", "40", "--spp", "4", "--tables", "2", "--relight-frames", "2",
@@ -44,6 +43,8 @@ def demo_out(tmp_path_factory):
 
 
 @pytest.mark.slow
+@pytest.mark.bpy
+@pytest.mark.mitsuba
 def test_demo_outputs_and_summary(demo_out):
     out, stdout = demo_out
     assert "report:" in stdout and "normal MAE" in stdout
@@ -72,6 +73,8 @@ def test_demo_outputs_and_summary(demo_out):
 
 
 @pytest.mark.slow
+@pytest.mark.bpy
+@pytest.mark.mitsuba
 def test_report_references_exist_and_opens_in_chromium(demo_out):
     out, _ = demo_out
     page = out / "report.html"

@@ -26,6 +26,7 @@ import pytest
 import torch
 import torch.distributed as dist
 
+pytestmark = pytest.mark.mitsuba
 pytest.importorskip("mitsuba")
 if not dist.is_available() or not dist.is_gloo_available():
     pytest.skip("torch.distributed with gloo is not available", allow_module_level=True)
@@ -137,7 +138,7 @@ def test_two_processes_equal_one_process_with_the_global_batch_and_resume(tiny_d
 @pytest.mark.slow
 def test_torchrun_cli(tiny_dataset, tmp_path):
     out = tmp_path / "o"
-    proc = _torchrun("--data", tiny_dataset, "--out", out, "--steps", "2", "--checkpoint-every", "1", "--lr", "1e-3",
+    proc = _torchrun("--input", tiny_dataset, "--out", out, "--steps", "2", "--checkpoint-every", "1", "--lr", "1e-3",
                      "--device", "cpu", "--quiet", "--no-tensorboard")  # fmt: skip
     # Only rank 0 reports and writes; both ranks end with the same parameters.
     assert proc.stdout.count("steps 2, loss first") == 1

@@ -1,4 +1,7 @@
-"""Evaluation: metrics by hand, Table 1 / Table 3 on a tiny rendered dataset with a toy checkpoint, the CLI."""
+"""Tests of network/evaluate.py: Table 1 / Table 3 on a tiny rendered dataset with a toy checkpoint, the CLI.
+
+The CLI is headless/evaluate.py, a thin layer over :func:`network.evaluate.evaluate`.
+"""
 
 import importlib.util
 import json
@@ -13,19 +16,6 @@ import torch
 from network import metrics
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def test_mse_and_scale_invariant_metrics_by_hand():
-    pred = np.array([[[1.0], [2.0]]])
-    target = np.array([[[2.0], [2.0]]])
-    m = np.ones((1, 2), bool)
-    # s = (1*2 + 2*2) / (1 + 4) = 1.2; residuals (1.2 - 2, 2.4 - 2) = (-0.8, 0.4); MSE = (0.64 + 0.16) / 2 = 0.4.
-    assert metrics.ls_scale(pred, target, m) == pytest.approx(1.2)
-    assert metrics.si_mse(pred, target, m) == pytest.approx(0.4)
-    assert metrics.si_rmse(pred, target, m) == pytest.approx(np.sqrt(0.4))
-    assert metrics.si_psnr(pred, target, m) == pytest.approx(10 * np.log10(1 / 0.4))
-    assert metrics.mse(pred, target, m) == pytest.approx(0.5)  # (1 + 0) / 2
-    assert metrics.si_psnr(pred, target, m, peak=2.0) == pytest.approx(10 * np.log10(4 / 0.4))
 
 
 @pytest.fixture(scope="module")
@@ -56,10 +46,11 @@ def _variant_checkpoint(bench, variant):
     return path
 
 
+@pytest.mark.mitsuba
 def test_table1_and_baseline_row(bench, tmp_path):
     from network import baseline, evaluate
+    from network.checkpoint import load_checkpoint
     from network.infer import predict
-    from network.train import load_checkpoint
     from pbrdf.data import dataset as pdataset
     from pbrdf.sensor.rig import Rig
 
@@ -109,10 +100,11 @@ def test_table1_and_baseline_row(bench, tmp_path):
     assert loaded["methods"]["baseline"]["mean"]["normal_mae"] == pytest.approx(base["mean"]["normal_mae"])
 
 
+@pytest.mark.mitsuba
 def test_table3_ablation_applies_each_variant(bench, tmp_path):
     from network import evaluate
+    from network.checkpoint import load_checkpoint
     from network.infer import predict
-    from network.train import load_checkpoint
     from pbrdf.data import dataset as pdataset
 
     ckpts = {"polar": _variant_checkpoint(bench, "polar"), "spectral": _variant_checkpoint(bench, "spectral"),
@@ -143,6 +135,7 @@ def test_table3_ablation_applies_each_variant(bench, tmp_path):
         evaluate.evaluate({"cp": bench["ckpt"]}, bench["data"])
 
 
+@pytest.mark.mitsuba
 def test_lpips_columns_say_why_without_weights(bench, tmp_path, monkeypatch):
     from network import evaluate
 
@@ -157,10 +150,11 @@ def test_lpips_columns_say_why_without_weights(bench, tmp_path, monkeypatch):
     assert "LPIPS n/a: " in table1 and "none.ckpt: LPIPS weight file not found" in table1
 
 
+@pytest.mark.mitsuba
 def test_real_data_rerendering_error(bench):
     from network import evaluate
+    from network.checkpoint import load_checkpoint
     from network.inputs import apply_inputs
-    from network.train import load_checkpoint
 
     result = evaluate.evaluate(bench["ckpt"], bench["data"], limit=1, real=bench["data"])
     real = result["real"]
@@ -171,7 +165,7 @@ def test_real_data_rerendering_error(bench):
     from network.realdata import RealDataset
     from network.rerender import Patches, rerender_dense
 
-    # The same error computed here step by step from Contract 1's pieces.
+    # The same error computed here step by step from network.rerender's and network.realdata's pieces.
     model, _ = load_checkpoint(bench["ckpt"])
     item = RealDataset(bench["data"], model.config.image_size)[0]
     b = {k: v[None] for k, v in item.items()}
@@ -203,26 +197,28 @@ def _main():
     return mod.main
 
 
+@pytest.mark.mitsuba
 def test_cli(bench, tmp_path):
     out = tmp_path / "ev"
-    r = _cli("--checkpoint", bench["ckpt"], "--data", bench["data"], "--out", out, "--limit", "1", "--quiet")
+    r = _cli("--checkpoint", bench["ckpt"], "--input", bench["data"], "--out", out, "--limit", "1", "--quiet")
     assert r.returncode == 0, r.stderr
     assert "| Photometric stereo (baseline) |" in r.stdout and "| Ours |" in r.stdout
     assert {p.name for p in out.iterdir()} == {"metrics.json", "table1.md", "table3.md"}
     assert json.loads((out / "metrics.json").read_text())["methods"]["full"]["count"] == 1
 
 
+@pytest.mark.mitsuba
 def test_cli_help_and_one_line_errors(bench, tmp_path, capsys):
     main = _main()
     with pytest.raises(SystemExit) as exc:
         main(["--help"])
     assert exc.value.code == 0 and "table1.md" in capsys.readouterr().out
     for args, msg in [
-        (("--checkpoint", bench["ckpt"], "--data", tmp_path / "missing"), "dataset folder not found"),
-        (("--checkpoint", tmp_path / "no.pt", "--data", bench["data"]), "checkpoint not found"),
-        (("--checkpoint", f"full={bench['ckpt']}", "--checkpoint", "oops", "--data", bench["data"]), "VARIANT=PATH"),
-        (("--checkpoint", f"rgb={bench['ckpt']}", "--data", bench["data"]), "unknown input variant 'rgb'"),
-        (("--checkpoint", bench["ckpt"], "--data", bench["data"], "--limit", "0"), "limit must be >= 1"),
+        (("--checkpoint", bench["ckpt"], "--input", tmp_path / "missing"), "dataset folder not found"),
+        (("--checkpoint", tmp_path / "no.pt", "--input", bench["data"]), "checkpoint not found"),
+        (("--checkpoint", f"full={bench['ckpt']}", "--checkpoint", "oops", "--input", bench["data"]), "VARIANT=PATH"),
+        (("--checkpoint", f"rgb={bench['ckpt']}", "--input", bench["data"]), "unknown input variant 'rgb'"),
+        (("--checkpoint", bench["ckpt"], "--input", bench["data"], "--limit", "0"), "limit must be >= 1"),
     ]:
         assert main([*map(str, args), "--quiet"]) == 2, args
         err = capsys.readouterr().err.strip().splitlines()

@@ -4,15 +4,14 @@ import numpy as np
 import pytest
 import torch
 
-pytest.importorskip("mitsuba")
-
-from network.infer import DEFAULT_CHECKPOINT, predict  # noqa: E402
-from network.train import load_checkpoint  # noqa: E402
+from network.checkpoint import load_checkpoint
+from network.infer import DEFAULT_CHECKPOINT, predict
 
 
 @pytest.fixture(scope="module")
 def fixed_set(tmp_path_factory):
     """Three scenes never seen in training (the shipped model trained on seed 100)."""
+    pytest.importorskip("mitsuba")
     from blender_addon.core.generate import GenerateConfig, generate
 
     root = tmp_path_factory.mktemp("heldout")
@@ -30,6 +29,7 @@ def test_checkpoint_is_small_and_loads():
 
 
 @pytest.mark.slow
+@pytest.mark.mitsuba
 def test_shipped_model_beats_photometric_stereo(fixed_set):
     from network.evaluate import evaluate
 

@@ -1,59 +1,88 @@
-"""Data pipeline, losses and training: a toy model overfits rendered samples, resume is exact."""
+"""Tests of network/train.py: overfitting and exact resume, the real pass, guards, bf16, input variants, validation.
+
+Also the training CLI (headless/train.py), which is a thin layer over :func:`network.train.train`.
+"""
+
+import csv
+import hashlib
+import json
+import logging
+import math
+import os
+import shutil
+import subprocess
+import sys
+import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-pytest.importorskip("mitsuba")
+from network.checkpoint import load_checkpoint
+from network.train import TrainConfig, train
+from pbrdf.data import dataset as pdataset
+from pbrdf.io import exr
 
-from network import data, losses  # noqa: E402
-from network.train import TrainConfig, gather_pixels, train  # noqa: E402
-
-
-def test_normalize_maps_is_scale_invariant_and_keeps_cp():
-    g = torch.Generator().manual_seed(0)
-    maps = torch.rand(2, 9, 8, 8, generator=g)
-    mask = (torch.rand(2, 1, 8, 8, generator=g) > 0.3).float()
-    a = data.normalize_maps(maps, mask)
-    b = data.normalize_maps(maps * torch.tensor([1.0] * 6 + [1.0] * 3)[None, :, None, None] * 1.0, mask)
-    scaled = maps.clone()
-    scaled[:, :6] *= 37.0  # brighter display / longer exposure: same normalised input
-    c = data.normalize_maps(scaled, mask)
-    torch.testing.assert_close(a, b)
-    torch.testing.assert_close(a, c, rtol=1e-5, atol=1e-6)
-    torch.testing.assert_close(a[:, 6:], maps[:, 6:] * mask)
-    assert torch.all(a[:, :, mask[0, 0] == 0][0] == 0)
+ROOT = Path(__file__).resolve().parents[2]
 
 
-def test_loss_matches_hand_computation_and_skips_zero_weights():
-    pred = {"normal": torch.zeros(1, 3, 2), "albedo": torch.ones(1, 3, 2), "roughness": torch.zeros(1, 1, 2),
-            "metallic": torch.zeros(1, 1, 2)}  # fmt: skip
-    tgt = {"normal": torch.ones(1, 3, 2), "albedo": torch.ones(1, 3, 2) * 0.5, "roughness": torch.ones(1, 1, 2),
-           "metallic": torch.zeros(1, 1, 2)}  # fmt: skip
-    valid = torch.tensor([[[1.0, 0.0]]])
-    w = losses.LossWeights(normal=1.0, albedo=2.0, roughness=1.0, metallic=0.0, chromaticity=0.0)
-    loss, parts = losses.synthetic_loss(pred, tgt, valid, w)
-    # normal: 3 * 1^2 = 3; albedo: 3 * 0.5^2 = 0.75 (x2); roughness: 1; one valid pixel.
-    assert float(loss) == pytest.approx(3 + 2 * 0.75 + 1)
-    assert set(parts) == {"normal", "albedo", "roughness"}
+@pytest.fixture(autouse=True)
+def one_thread():
+    """Two shared cores: one thread per process is several times faster than two here."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
 
 
-def test_gather_pixels():
-    maps = torch.arange(2 * 3 * 4 * 5, dtype=torch.float32).reshape(2, 3, 4, 5)
-    pix = torch.tensor([[0, 7], [19, 5]])
-    g = gather_pixels(maps, pix)
-    assert g.shape == (2, 3, 2)
-    assert float(g[1, 2, 0]) == float(maps[1, 2, 3, 4]) and float(g[0, 1, 1]) == float(maps[0, 1, 1, 2])
+def _cfg(data, out, **kw):
+    base = {"config": "toy", "lr": 1e-3, "seed": 0, "checkpoint_every": 100, "tensorboard": False, "device": "cpu"}
+    return TrainConfig(data=data, out=out, **{**base, **kw})
 
 
-def test_dataset_reads_samples(tiny_dataset):
-    ds = data.SampleDataset(tiny_dataset, size=64)
-    item = ds[0]
-    assert item["maps"].shape == (9, 64, 64) and item["mask"].shape == (1, 64, 64)
-    n = item["normal"][:, item["mask"][0] > 0]
-    torch.testing.assert_close(n.norm(dim=0), torch.ones(n.shape[1]), atol=1e-4, rtol=0)
+def _log(out):
+    with open(out / "log.csv", newline="") as f:
+        return list(csv.DictReader(f))
 
 
+def _copy_with(src, dst, edit):
+    """Copy a dataset, rewrite each sample's EXR channels with ``edit(index, channels)``; keep the sidecars valid."""
+    shutil.copytree(src, dst)
+    for idx in sorted(pdataset.completed_indices(dst)):
+        paths = pdataset.sample_paths(dst, idx)
+        channels = exr.read_exr(paths.exr)
+        edit(idx, channels)
+        exr.write_exr(paths.exr, channels, allow_nonfinite=True)
+        meta = json.loads(paths.sidecar.read_text())
+        meta["sha256"] = hashlib.sha256(paths.exr.read_bytes()).hexdigest()
+        meta["exr_bytes"] = paths.exr.stat().st_size
+        paths.sidecar.write_text(json.dumps(meta))
+    return dst
+
+
+def _needs_real():
+    try:
+        from network.losses import real_loss  # noqa: F401
+        from network.realdata import RealDataset  # noqa: F401
+    except ImportError:
+        pytest.skip("waits for network/realdata.py")
+
+
+# ------------------------------------------------------------------------------------------------
+# settings, overfitting and exact resume
+
+
+def test_config_rejects_bad_values(tmp_path):
+    with pytest.raises(ValueError, match="steps must be a positive integer"):
+        TrainConfig(data=tmp_path, out=tmp_path, steps=0)
+    with pytest.raises(ValueError, match="unknown input variant 'rgb'"):
+        TrainConfig(data=tmp_path, out=tmp_path, inputs="rgb")
+    with pytest.raises(ValueError, match="real_weight"):
+        TrainConfig(data=tmp_path, out=tmp_path, real_weight=-1.0)
+
+
+@pytest.mark.mitsuba
 def test_toy_model_overfits_and_resume_is_exact(tiny_dataset, tmp_path):
     # decay_steps fixes the cosine horizon, so the 20-step "killed" run has the 40-step run's schedule.
     common = {"data": tiny_dataset, "config": "toy", "lr": 1e-3, "seed": 0, "checkpoint_every": 10, "decay_steps": 40}
@@ -68,43 +97,219 @@ def test_toy_model_overfits_and_resume_is_exact(tiny_dataset, tmp_path):
         train(TrainConfig(out=tmp_path / "b", steps=41, **common), progress=False)
 
 
-def test_infer_on_sample_and_capture(tiny_dataset, tmp_path):
-    import subprocess
-    import sys
-    from pathlib import Path
+# ------------------------------------------------------------------------------------------------
+# the real pass
 
-    from network.config import get_config
-    from network.infer import load_input, predict
-    from network.model import PolarInverseModel
-    from pbrdf.data import capture
-    from pbrdf.io import exr
-    from pbrdf.sensor import camera
 
-    root = Path(__file__).resolve().parents[2]
-    torch.manual_seed(0)
-    model = PolarInverseModel(get_config("toy"))
-    ckpt = tmp_path / "model.pt"
-    torch.save({"config": model.config.to_dict(), "model": model.state_dict()}, ckpt)
-    sample = tiny_dataset / "samples" / "000000.exr"
-    maps, mask = load_input(sample)
-    pred = predict(model, maps, mask)
-    assert pred["normal"].shape == (*mask.shape, 3) and pred["roughness"].shape == (*mask.shape, 1)
-    assert np.all(pred["albedo"][~mask] == 0)
-    np.testing.assert_allclose(np.linalg.norm(pred["normal"][mask], axis=-1), 1.0, atol=1e-4)
-    # A capture folder goes through the decoder (any size; here 48 x 64 raw -> 24 x 32 maps).
-    s = np.zeros((48, 64, 3, 4))
-    s[12:36, 16:48, :, 0] = 0.3
-    s[12:36, 16:48, :, 1] = -0.1
-    m = camera.CameraModel()
-    cap = capture.save_capture(tmp_path / "cap", camera.simulate_capture(s, m, rng=np.random.default_rng(0)), m)
-    cmd = [sys.executable, "headless/infer.py", "--checkpoint", str(ckpt), "--input", str(cap)]
-    proc = subprocess.run([*cmd, "--out", str(tmp_path / "o")], cwd=root, capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stderr
-    normal = exr.read_exr(tmp_path / "o" / "cap_normal.exr")
-    assert normal["normal.X"].shape == (24, 32)
-    assert (tmp_path / "o" / "cap_albedo.png").is_file()
-    bad = subprocess.run(
-        [sys.executable, "headless/infer.py", "--checkpoint", str(ckpt), "--input", str(tmp_path / "nope"), "--out",
-         str(tmp_path / "o2")], cwd=root, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-    assert bad.returncode == 2 and bad.stderr.startswith("error:")
+@pytest.mark.mitsuba
+def test_real_pass_skipped_while_weight_is_zero(tiny_dataset, tmp_path):
+    _needs_real()
+    stats = {}
+    # Rendered samples serve as "real" captures (their ground truth is ignored by RealDataset).
+    cfg = _cfg(tiny_dataset, tmp_path / "r", steps=4, real=tiny_dataset, real_weight=0.1, real_start=2, real_warmup=2)
+    losses = train(cfg, progress=False, stats=stats)
+    assert len(losses) == 4
+    # Weights 0, 0, 0 (ramp start), 0.05: one real batch loaded, one real pass, at the last step only.
+    assert stats["real_batches"] == 1 and stats["real_passes"] == 1 and stats["synthetic_batches"] == 4
+    rows = _log(tmp_path / "r")
+    assert [float(r["real_weight"]) for r in rows] == [0.0, 0.0, 0.0, 0.05]
+    assert [r["real"] for r in rows[:3]] == ["", "", ""]
+    real = float(rows[3]["real"])
+    assert math.isfinite(real) and real > 0
+    # The total is the synthetic loss plus the weighted real loss.
+    assert float(rows[3]["loss"]) == pytest.approx(float(rows[3]["synthetic"]) + 0.05 * real, rel=1e-6)
+    for r in rows[:3]:
+        assert float(r["loss"]) == float(r["synthetic"])
+
+
+@pytest.mark.mitsuba
+def test_resume_with_real_loader_is_exact(tiny_dataset, tmp_path):
+    _needs_real()
+    kw = {"real": tiny_dataset, "real_weight": 0.1, "real_start": 1, "real_warmup": 2, "decay_steps": 6}
+    full = train(_cfg(tiny_dataset, tmp_path / "a", steps=6, checkpoint_every=3, **kw), progress=False)
+    train(_cfg(tiny_dataset, tmp_path / "b", steps=3, checkpoint_every=3, **kw), progress=False)  # "killed" at 3
+    stats = {}
+    resumed = train(_cfg(tiny_dataset, tmp_path / "b", steps=6, resume=True, **kw), progress=False, stats=stats)
+    assert stats["steps"] == 3 and stats["real_passes"] == 3  # steps 3..5 all have weight > 0
+    # Bit for bit on the CPU: same data order of both loaders, same pixels, same weights and optimizer state.
+    assert resumed == full
+    a, b = _log(tmp_path / "a"), _log(tmp_path / "b")
+    assert [r["loss"] for r in a] == [r["loss"] for r in b] and [r["real"] for r in a] == [r["real"] for r in b]
+
+
+# ------------------------------------------------------------------------------------------------
+# guards and precision
+
+
+@pytest.mark.mitsuba
+def test_nan_inputs_are_reported_skipped_and_stop_the_run(tiny_dataset, tmp_path, caplog):
+    def poison(idx, ch):
+        if idx == 1:
+            ch["maps.G_unpol"][10, 10] = np.nan
+
+    bad = _copy_with(tiny_dataset, tmp_path / "nan", poison)
+    caplog.set_level(logging.WARNING, logger="network.train")
+    stats = {}
+    losses = train(_cfg(bad, tmp_path / "o", steps=6), progress=False, stats=stats)
+    # Every epoch of 3 steps draws each of the 3 samples once: the poisoned one is skipped once per epoch.
+    rows = _log(tmp_path / "o")
+    skipped = [int(r["step"]) for r in rows if r["skipped"]]
+    assert stats["skipped"] == 2 and len(losses) == 4 and np.all(np.isfinite(losses))
+    assert len(skipped) == 2 and 0 <= skipped[0] < 3 <= skipped[1] < 6
+    ckpt = torch.load(tmp_path / "o" / "checkpoint.pt", weights_only=True)
+    assert ckpt["step"] == 6 and ckpt["skipped"] == 2 and len(ckpt["losses"]) == 4
+    messages = [r.getMessage() for r in caplog.records if "skipped" in r.getMessage()]
+    assert len(messages) == 2
+    for step, msg in zip(skipped, messages, strict=True):
+        assert msg.startswith(f"step {step}: non-finite input (synthetic maps")
+    # Too many: a clear error naming the limit.
+    with pytest.raises(FloatingPointError, match="more than --max-skipped 1"):
+        train(_cfg(bad, tmp_path / "o2", steps=6, max_skipped=1), progress=False)
+
+
+@pytest.mark.mitsuba
+def test_bf16_autocast_runs_on_cpu(tiny_dataset, tmp_path):
+    fp32 = train(_cfg(tiny_dataset, tmp_path / "f", steps=2), progress=False)
+    bf16 = train(_cfg(tiny_dataset, tmp_path / "h", steps=2, bf16=True), progress=True)  # with the progress bar
+    assert np.all(np.isfinite(bf16))
+    # Same weights and pixels at step 0: bf16 rounding (8-bit mantissa) moves the loss a little, not a lot.
+    assert bf16[0] != fp32[0]
+    assert bf16[0] == pytest.approx(fp32[0], rel=0.05)
+
+
+# ------------------------------------------------------------------------------------------------
+# input variants
+
+
+@pytest.mark.mitsuba
+def test_input_variant_is_applied_and_stored(tiny_dataset, tmp_path):
+    from network.data import SampleDataset
+    from network.inputs import apply_inputs
+
+    cp_names = pdataset.CHANNELS["maps"][6:]
+
+    def scramble_cp(idx, ch):
+        rng = np.random.default_rng(idx)
+        for name in cp_names:
+            ch[name] = rng.uniform(-1, 1, ch[name].shape).astype(np.float32)
+
+    other = _copy_with(tiny_dataset, tmp_path / "cp", scramble_cp)
+    runs = {}
+    for variant in ("polar", "full"):
+        for name, data in (("a", tiny_dataset), ("b", other)):
+            runs[variant, name] = train(
+                _cfg(data, tmp_path / f"{variant}_{name}", steps=3, inputs=variant), progress=False
+            )
+    # 'polar' never sees CP: random CP maps change nothing, bit for bit; 'full' sees them.
+    assert runs["polar", "a"] == runs["polar", "b"]
+    assert runs["full", "a"] != runs["full", "b"]
+    ma, ca = load_checkpoint(tmp_path / "polar_a" / "model.pt")
+    mb, cb = load_checkpoint(tmp_path / "polar_b" / "checkpoint.pt")
+    assert ca["inputs"] == cb["inputs"] == "polar"
+    for k, v in ma.state_dict().items():
+        assert torch.equal(v, mb.state_dict()[k]), k
+    # The stored variant applied at inference: the model's output ignores CP.
+    item = SampleDataset(tiny_dataset, size=64)[0]
+    maps, mask = item["maps"][None], item["mask"][None]
+    maps2 = maps.clone()
+    maps2[:, 6:] = torch.rand_like(maps2[:, 6:]) * 2 - 1
+    with torch.no_grad():
+        p1, p2 = ma(apply_inputs(maps, ca["inputs"]), mask), ma(apply_inputs(maps2, ca["inputs"]), mask)
+    torch.testing.assert_close(p1["normal"], p2["normal"], rtol=0, atol=0)
+    # A checkpoint from before input variants (no "inputs" key) means 'full'.
+    old = torch.load(tmp_path / "full_a" / "model.pt", weights_only=True)
+    del old["inputs"]
+    torch.save(old, tmp_path / "old.pt")
+    assert load_checkpoint(tmp_path / "old.pt")[1]["inputs"] == "full"
+    # Resuming with another variant is refused.
+    with pytest.raises(ValueError, match="--inputs polar, not full"):
+        train(_cfg(tiny_dataset, tmp_path / "polar_a", steps=4, resume=True, inputs="full"), progress=False)
+
+
+# ------------------------------------------------------------------------------------------------
+# validation, TensorBoard, the CLI
+
+
+@pytest.mark.mitsuba
+def test_validation_mae_and_tensorboard(tiny_dataset, tmp_path):
+    pytest.importorskip("tensorboard")
+    from network.data import SampleDataset
+
+    out = tmp_path / "v"
+    train(_cfg(tiny_dataset, out, steps=2, val=tiny_dataset, val_every=2, val_samples=2, tensorboard=True),
+          progress=False)  # fmt: skip
+    rows = list(csv.DictReader(open(out / "val.csv")))
+    assert [int(r["step"]) for r in rows] == [2] and int(rows[0]["samples"]) == 2
+    # Independent recomputation from model.pt: angle between unit normals over the mask, in degrees.
+    model, _ = load_checkpoint(out / "model.pt")
+    ds, errs = SampleDataset(tiny_dataset, size=64), []
+    for i in range(2):
+        it = ds[i]
+        with torch.no_grad():
+            n = model(it["maps"][None], it["mask"][None])["normal"][0].double()
+        m = it["mask"][0] > 0
+        p, g = n[:, m], it["normal"].double()[:, m]
+        cos = (p * g).sum(0) / (p.norm(dim=0) * g.norm(dim=0))
+        errs.append(torch.rad2deg(torch.acos(cos.clamp(-1, 1))).mean().item())
+    assert float(rows[0]["normal_mae_deg"]) == pytest.approx(np.mean(errs), rel=1e-4)
+    assert list((out / "tb").glob("events.out.tfevents.*"))
+
+
+@pytest.mark.mitsuba
+def test_runs_without_tensorboard_with_one_warning(tiny_dataset, tmp_path, monkeypatch):
+    monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)  # as if tensorboard were not installed
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        losses = train(_cfg(tiny_dataset, tmp_path / "o", steps=2, tensorboard=True), progress=False)
+    assert len(losses) == 2
+    msgs = [str(w.message) for w in caught if "TensorBoard" in str(w.message)]
+    assert len(msgs) == 1 and "pip install tensorboard" in msgs[0]
+    assert not (tmp_path / "o" / "tb").exists()
+
+
+def _cli(*args, timeout=120):
+    cmd = [sys.executable, "headless/train.py", *map(str, args)]
+    return subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout,
+                          env={**os.environ, "OMP_NUM_THREADS": "1"})  # fmt: skip
+
+
+@pytest.mark.mitsuba
+def test_cli_help_and_one_line_errors(tiny_dataset, tmp_path, capsys):
+    from headless.train import main
+
+    h = _cli("--help")  # the script runs standalone
+    assert h.returncode == 0
+    for flag in ("--real", "--real-weight", "--real-warmup", "--inputs", "--bf16", "--device", "--overrides", "--val"):
+        assert flag in h.stdout
+    r = _cli("--out", tmp_path / "x")
+    assert r.returncode == 2
+    assert r.stderr.strip() == "error: the following arguments are required: --input (see train.py --help)"
+    for args, match in (
+        (["--input", tiny_dataset, "--out", tmp_path / "x", "--inputs", "rgb"], "argument --inputs: invalid choice"),
+        (["--input", tiny_dataset, "--out", tmp_path / "x", "--steps", "0"], "steps must be a positive integer"),
+        (["--input", tmp_path / "missing", "--out", tmp_path / "x"], "dataset folder not found"),
+        (["--input", tiny_dataset, "--out", tmp_path / "x", "--overrides", "image_size"], "expected key=value"),
+        (["--input", tiny_dataset, "--out", tmp_path / "x", "--overrides", "bogus=1"], "Unknown ModelConfig keys"),
+    ):
+        try:
+            code = main([*map(str, args), "--quiet", "--no-tensorboard"])
+        except SystemExit as exc:  # argparse errors
+            code = exc.code
+        err = capsys.readouterr().err
+        lines = err.strip().splitlines()
+        assert code == 2, (args, err)
+        assert len(lines) == 1 and lines[0].startswith("error:") and match in lines[0], err
+
+
+@pytest.mark.mitsuba
+def test_cli_overrides_are_stored(tiny_dataset, tmp_path):
+    from headless.train import main
+
+    out = tmp_path / "o"
+    args = ["--input", tiny_dataset, "--out", out, "--steps", "1", "--quiet", "--device", "cpu", "--no-tensorboard"]
+    assert main([*map(str, args), "--overrides", "image_size=32", "train_pixels=16", "--inputs", "spectral"]) == 0
+    ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
+    assert ckpt["config"]["image_size"] == 32 and ckpt["config"]["train_pixels"] == 16
+    assert ckpt["inputs"] == "spectral"
+    model, meta = load_checkpoint(out / "model.pt")
+    assert model.config.image_size == 32 and meta["inputs"] == "spectral"

@@ -1,104 +1,21 @@
-"""Assets: procedural shapes, loading and cleaning files, UVs, placement in view, PLY for Mitsuba."""
-
-import math
+"""Assets: mesh references, loading and cleaning files, UVs, placement in view, PLY for Mitsuba."""
 
 import numpy as np
 import pytest
 import trimesh
 
 from blender_addon.core import assets
+from blender_addon.core.procedural import PROCEDURAL_SHAPES, diameter, procedural
 from pbrdf.sensor.rig import CameraSpec, Rig
 
-SHAPES = assets.PROCEDURAL_SHAPES
+SHAPES = PROCEDURAL_SHAPES
 
 
 def _bbox_centre(v):
     return (v.min(axis=0) + v.max(axis=0)) / 2
 
 
-class TestProcedural:
-    @pytest.mark.parametrize("shape", SHAPES)
-    @pytest.mark.parametrize("seed", [0, 7])
-    def test_closed_unit_centred_outward(self, shape, seed):
-        m = assets.procedural(shape, seed=seed)
-        v = np.asarray(m.vertices)
-        assert m.is_watertight and m.is_winding_consistent
-        assert m.volume > 0  # signed volume > 0: outward normals
-        assert len(m.nondegenerate_faces()) == len(m.faces)
-        assert assets.diameter(m) == pytest.approx(1.0, abs=1e-12)
-        np.testing.assert_allclose(_bbox_centre(v), 0.0, atol=1e-12)
-        assert np.max(np.linalg.norm(v, axis=1)) == pytest.approx(0.5, abs=1e-12)  # fits a unit-diameter sphere
-        n = np.asarray(m.vertex_normals)
-        np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
-        if shape != "torus":  # star-shaped about the origin: normals point away from it
-            assert np.mean(np.einsum("ij,ij->i", n, v) > 0) > 0.99
-
-    @pytest.mark.parametrize("shape", SHAPES)
-    def test_seed_determinism(self, shape):
-        a = assets.procedural(shape, seed=3)
-        b = assets.procedural(shape, seed=3)
-        np.testing.assert_array_equal(a.vertices, b.vertices)
-        np.testing.assert_array_equal(a.faces, b.faces)
-        if shape != "sphere":  # the sphere has no random parameters
-            c = assets.procedural(shape, seed=4)
-            assert a.vertices.shape != c.vertices.shape or not np.allclose(a.vertices, c.vertices)
-
-    def test_sphere_radius(self):
-        v = assets.procedural("sphere").vertices
-        np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.5, atol=1e-12)
-
-    def test_torus_volume(self):
-        # V = 2 pi^2 R r^2 (Pappus); R + r = 0.5 with r = 0.25 R -> R = 0.4, r = 0.1: V = 0.078957.
-        m = assets.procedural("torus", minor=0.25)
-        assert m.volume == pytest.approx(2 * math.pi**2 * 0.4 * 0.1**2, rel=0.01)  # 64 x 32 polygons: -0.5 %
-
-    def test_superquadric_limits(self):
-        # e1 = e2 = 1 with equal axes is a sphere (Barr 1981).
-        v = assets.procedural("superquadric", e1=1.0, e2=1.0, a=1.0, b=1.0, c=1.0).vertices
-        np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.5, atol=1e-12)
-
-    @pytest.mark.parametrize("e1,e2", [(1.0, 1.0), (0.5, 1.0), (1.0, 0.5), (0.3, 0.3), (0.1, 0.1), (1.5, 1.5)])
-    def test_superquadric_volume(self, e1, e2):
-        # V = 2 a b c e1 e2 B(e1/2 + 1, e1) B(e2/2, e2/2) (Jaklic, Leonardis, Solina 2000, eq. 2.60)
-        # and the bounding box is (2a, 2b, 2c): V / bbox volume = e1 e2 B(...) B(...) / 4.
-        # Measured mesh error at resolution 24: -0.24 % to -0.32 %.
-        from scipy.special import beta
-
-        m = assets.procedural("superquadric", e1=e1, e2=e2, a=1.0, b=0.8, c=0.6)
-        expected = e1 * e2 * beta(e1 / 2 + 1, e1) * beta(e2 / 2, e2 / 2) / 4
-        assert m.volume / np.prod(m.extents) == pytest.approx(expected, rel=0.005)
-        np.testing.assert_allclose(m.extents / m.extents[0], [1.0, 0.8, 0.6], atol=1e-12)
-
-    def test_bevel_box_volume_and_extents(self):
-        m = assets.procedural("bevel_box", x=1.0, y=0.5, z=0.5, bevel=0.2)
-        ext = np.asarray(m.extents)
-        np.testing.assert_allclose(ext / ext[0], [1.0, 0.5, 0.5], atol=1e-12)
-        # Rounded box = inner box (a, b, c) grown by a ball of radius r (Steiner formula):
-        # V = abc + 2r(ab + bc + ca) + pi r^2 (a + b + c) + 4/3 pi r^3, here in units of the x half extent.
-        r = 0.2 * 0.5
-        a, b, c = 2 * (1.0 - r), 2 * (0.5 - r), 2 * (0.5 - r)
-        expected = a * b * c + 2 * r * (a * b + b * c + c * a) + math.pi * r**2 * (a + b + c) + 4 / 3 * math.pi * r**3
-        scale = ext[0] / 2.0  # mesh units per unit half extent
-        assert m.volume == pytest.approx(expected * scale**3, rel=0.005)
-        # Flat faces stay flat: many vertices on the +x face plane.
-        v = np.asarray(m.vertices)
-        assert np.sum(np.isclose(v[:, 0], v[:, 0].max(), atol=1e-12)) >= 50
-
-    def test_blob_radius_bounds(self):
-        v = assets.procedural("blob", seed=1, amplitude=0.3).vertices
-        rad = np.linalg.norm(v - _bbox_centre(v), axis=1)
-        assert rad.min() > 0.5 * 0.7 / 1.3 - 1e-9  # r(d) in [1 - A, 1 + A], scaled to max 0.5
-
-    def test_bad_arguments(self):
-        with pytest.raises(ValueError, match=r"unknown procedural shape 'cone'; valid: \['sphere'"):
-            assets.procedural("cone")
-        with pytest.raises(ValueError, match=r"unknown parameters \['radius'\].*valid"):
-            assets.procedural("torus", radius=2.0)
-        with pytest.raises(ValueError, match="amplitude must be in"):
-            assets.procedural("blob", amplitude=1.5)
-        with pytest.raises(ValueError, match="seed must be a non-negative integer"):
-            assets.procedural("blob", seed=-1)
-
+class TestBuiltinStrings:
     def test_builtin_strings(self):
         assert assets.parse_builtin("builtin:torus?seed=3&minor=0.3&name=x") == (
             "torus",
@@ -107,7 +24,7 @@ class TestProcedural:
         assert assets.parse_builtin("builtin:sphere") == ("sphere", {})
         assert assets.parse_builtin("meshes/bunny.ply") is None
         a = assets.load_mesh("builtin:torus?seed=3")
-        np.testing.assert_array_equal(a.vertices, assets.procedural("torus", seed=3).vertices)
+        np.testing.assert_array_equal(a.vertices, procedural("torus", seed=3).vertices)
 
 
 class TestLoad:
@@ -199,20 +116,9 @@ class TestLoad:
             assets.load_mesh(junk)
 
 
-class TestNormalizeAndUV:
-    def test_normalize(self):
-        m = trimesh.creation.box(extents=(2.0, 1.0, 0.5))
-        m.apply_translation([3.0, -1.0, 2.0])
-        before = np.array(m.vertices)
-        out = assets.normalize(m, diameter=2.0)
-        np.testing.assert_array_equal(m.vertices, before)  # input untouched
-        assert assets.diameter(out) == pytest.approx(2.0, abs=1e-12)
-        np.testing.assert_allclose(_bbox_centre(np.asarray(out.vertices)), 0.0, atol=1e-12)
-        with pytest.raises(ValueError, match="diameter must be > 0"):
-            assets.normalize(m, diameter=0.0)
-
+class TestEnsureUV:
     def test_ensure_uv(self):
-        m = assets.procedural("sphere", subdivisions=2)
+        m = procedural("sphere", subdivisions=2)
         out = assets.ensure_uv(m)
         uv = np.asarray(out.visual.uv)
         assert uv.shape == (len(out.vertices), 2)
@@ -231,7 +137,7 @@ class TestPlace:
         rig = Rig()
         cam = rig.camera
         margin_px = 0.03 * min(cam.sensor_width_px, cam.sensor_height_px)
-        meshes = [assets.procedural(s, seed=1) for s in SHAPES]
+        meshes = [procedural(s, seed=1) for s in SHAPES]
         for seed in range(200):
             mesh = meshes[seed % len(meshes)]
             m = assets.place(mesh, rig, np.random.default_rng(seed))
@@ -242,11 +148,11 @@ class TestPlace:
             assert 0.5 - 1e-12 <= np.linalg.norm(centre) <= 1.0 + 1e-12
             scale = np.cbrt(np.linalg.det(m[:3, :3]))
             np.testing.assert_allclose(m[:3, :3].T @ m[:3, :3], scale**2 * np.eye(3), atol=1e-12)  # similarity
-            assert 0.15 - 1e-12 <= scale * assets.diameter(mesh) <= 0.35 + 1e-12
+            assert 0.15 - 1e-12 <= scale * diameter(mesh) <= 0.35 + 1e-12
             np.testing.assert_array_equal(m[3], [0, 0, 0, 1])
 
     def test_seeded(self):
-        mesh = assets.procedural("blob")
+        mesh = procedural("blob")
         a = assets.place(mesh, Rig(), np.random.default_rng(5))
         b = assets.place(mesh, Rig(), np.random.default_rng(5))
         c = assets.place(mesh, Rig(), np.random.default_rng(6))
@@ -277,9 +183,9 @@ class TestPlace:
 
     def test_impossible(self):
         with pytest.raises(ValueError, match="no pose inside the view after 5 tries"):
-            assets.place(assets.procedural("sphere"), Rig(), np.random.default_rng(0), size=(2, 2), max_tries=5)
+            assets.place(procedural("sphere"), Rig(), np.random.default_rng(0), size=(2, 2), max_tries=5)
         with pytest.raises(ValueError, match="distance must be"):
-            assets.place(assets.procedural("sphere"), Rig(), np.random.default_rng(0), distance=(1.0, 0.5))
+            assets.place(procedural("sphere"), Rig(), np.random.default_rng(0), distance=(1.0, 0.5))
 
 
 class TestFiles:
@@ -293,7 +199,7 @@ class TestFiles:
             assets.list_assets(tmp_path / "nope")
 
     def test_write_ply_round_trip(self, tmp_path):
-        m = assets.ensure_uv(assets.procedural("blob", seed=2, subdivisions=2))
+        m = assets.ensure_uv(procedural("blob", seed=2, subdivisions=2))
         path = tmp_path / "out" / "blob.ply"
         assets.write_ply(m, path)
         assert [p.name for p in path.parent.iterdir()] == ["blob.ply"]  # no temporary file left
@@ -302,11 +208,12 @@ class TestFiles:
         np.testing.assert_array_equal(back.faces, m.faces)
         assert path.read_bytes().startswith(b"ply\nformat binary_little_endian 1.0\n")
 
+    @pytest.mark.mitsuba
     def test_mitsuba_loads_the_ply(self, tmp_path, mitsuba_rgb):
         mi = mitsuba_rgb
         for name, mesh in [
-            ("plain", assets.procedural("torus", seed=1)),
-            ("uv", assets.ensure_uv(assets.procedural("sphere", subdivisions=2))),
+            ("plain", procedural("torus", seed=1)),
+            ("uv", assets.ensure_uv(procedural("sphere", subdivisions=2))),
         ]:
             path = tmp_path / f"{name}.ply"
             assets.write_ply(mesh, path)

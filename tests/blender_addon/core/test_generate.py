@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.mitsuba
 pytest.importorskip("mitsuba")
 
 from blender_addon.core.generate import GenerateConfig, generate  # noqa: E402

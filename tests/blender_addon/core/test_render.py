@@ -6,14 +6,16 @@ object (+X display = world -x, which a mirror facing the camera shows on the ima
 blue is the upper half, and row 0 of every output is the top of the image.
 """
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.mitsuba
 pytest.importorskip("mitsuba")
 
-from blender_addon.core import render  # noqa: E402
+from blender_addon.core import render, scenegen  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
 from pbrdf.data import dataset  # noqa: E402
 from pbrdf.polar import fresnel  # noqa: E402
@@ -324,3 +326,19 @@ def test_spectral_variant_is_the_fallback_route():
     assert res.stokes.shape == (16, 16, 3, 4)
     assert (res.object_index == 0).sum() == res.mask.sum() > 50
     assert np.all(np.isfinite(res.stokes))
+
+
+def test_diffuse_material_depolarizes_the_display_light():
+    """A Lambertian object in the polarized pipeline: lit (unpol > 0) but no linear polarization left."""
+    spec = scenegen.random_scene(Rig(), 5)
+    spec = dataclasses.replace(
+        spec,
+        materials=(MaterialSpec.diffuse("chalk", (0.8, 0.5, 0.3)),),
+        objects=(dataclasses.replace(spec.objects[0], material="chalk"),),
+    )
+    result = render.render_stokes(spec, render.RenderSettings(resolution=16, spp=8))
+    s = result.stokes[result.mask]  # (N, 3, 4)
+    lit = s[..., 0] > 1e-3
+    assert lit[:, 0].mean() > 0.3  # the red half of the display lights the object
+    dolp = np.hypot(s[..., 1], s[..., 2])[lit] / s[..., 0][lit]
+    assert np.median(dolp) < 1e-3

@@ -22,6 +22,7 @@ import math
 import numpy as np
 import pytest
 
+pytestmark = pytest.mark.mitsuba
 pytest.importorskip("mitsuba")
 
 from blender_addon.core import render, spectral  # noqa: E402

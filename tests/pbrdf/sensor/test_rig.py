@@ -12,7 +12,7 @@ from PIL import Image
 from pbrdf.sensor.camera import CameraModel
 from pbrdf.sensor.rig import CameraSpec, DisplaySpec, Rig
 
-# Rig defaults (../shared/DESIGN.md): IMX250MYR 2448 x 2048 px at 3.45 um, 8 mm lens,
+# Rig defaults (FLIR BFS-U3-51S5PC-C datasheet): IMX250MYR 2448 x 2048 px at 3.45 um, 8 mm lens,
 # Samsung Odyssey Ark 55" active area 1209.6 x 680.4 mm.
 W, H = 2448, 2048
 F_PX = 8e-3 / 3.45e-6  # 2318.84 px
@@ -28,7 +28,7 @@ class TestCameraDefaults:
         cam = CameraSpec()
         assert cam.sensor_width_m == pytest.approx(8.4456e-3, rel=1e-12)  # 2448 * 3.45 um
         assert cam.sensor_height_m == pytest.approx(7.0656e-3, rel=1e-12)  # 2048 * 3.45 um
-        # 2 atan(8.4456 / 16) = 0.9713572 rad = 55.655 deg ("about 55.6 deg", DESIGN.md)
+        # 2 atan(8.4456 / 16) = 0.9713572 rad = 55.655 deg (the datasheet says about 55.6 deg)
         assert cam.fov_x == pytest.approx(0.9713572, abs=1e-7)
         assert math.degrees(cam.fov_x) == pytest.approx(55.6, abs=0.1)
         # 2 atan(7.0656 / 16) = 47.65 deg
@@ -41,7 +41,7 @@ class TestCameraDefaults:
     def test_exposures_and_qwp_come_from_the_camera_model(self):
         cam = CameraSpec()
         assert cam.model == CameraModel()
-        assert cam.model.exposures == (0.010, 0.020, 0.100, 0.200)  # DESIGN.md HDR brackets
+        assert cam.model.exposures == (0.010, 0.020, 0.100, 0.200)  # the default HDR brackets
         assert cam.model.qwp_angle == 0.0
 
 
@@ -171,7 +171,7 @@ class TestPattern:
         img = DisplaySpec().pattern_image()
         assert img.shape == (36, 64, 3) and img.dtype == np.float32
         assert set(np.unique(img)) == {0.0, 1.0}
-        # Row 0 = top, column 0 = left, as seen from the front (DESIGN.md quadrant table).
+        # Row 0 = top, column 0 = left, as seen from the front (the pattern quadrants of docs/ARCHITECTURE.md).
         np.testing.assert_array_equal(img[0, 0], [0, 1, 1])  # upper-left cyan
         np.testing.assert_array_equal(img[0, -1], [1, 0, 1])  # upper-right magenta
         np.testing.assert_array_equal(img[-1, 0], [0, 1, 0])  # lower-left green

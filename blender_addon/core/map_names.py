@@ -1,0 +1,245 @@
+"""PBR map files by name: filename tokens, synonyms per map kind and matching a folder's files.
+
+The network (``headless/infer.py``) writes ``DIR/<name>_normal.exr``, ``_albedo.exr``,
+``_roughness.exr``, ``_metallic.exr``, ``_mask.exr`` and a PNG preview of each. Other tools name
+maps ``BaseColor``, ``nrm``, ``Metalness``...: :func:`match_map_files` finds each map kind by
+filename tokens; :mod:`.map_io` then reads and validates the files.
+
+Convention (tokens):
+    A file name (without its suffix) is split into lowercase tokens at every non-alphanumeric
+    character, at lower-to-upper case changes and between letters and digits:
+    ``"chart01_BaseColor.png"`` -> ``("chart", "01", "base", "color")``. A map kind matches when
+    one of its synonyms (:data:`SYNONYMS`, one or more tokens) appears as whole consecutive tokens,
+    so ``"metalness"`` is a metallic map but ``"dialbedo"`` is not an albedo map.
+
+Example:
+    >>> filename_tokens("chart01_BaseColor.png")
+    ('chart', '01', 'base', 'color')
+    >>> match_kinds(filename_tokens("chart01_BaseColor.png"))
+    ('albedo',)
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "MAP_KINDS",
+    "SYNONYMS",
+    "MapFiles",
+    "filename_tokens",
+    "match_kinds",
+    "match_map_files",
+]
+
+#: Map kinds in import order.
+MAP_KINDS = ("normal", "albedo", "roughness", "metallic", "mask", "depth")
+
+#: Filename synonyms per kind; a multi-token synonym (``base color``) must appear as consecutive tokens.
+SYNONYMS: dict[str, tuple[tuple[str, ...], ...]] = {
+    "normal": (("normal",), ("normals",), ("nrm",), ("nrml",)),
+    "albedo": (("albedo",), ("diffuse",), ("basecolor",), ("base", "color"), ("color",), ("colour",)),
+    "roughness": (("roughness",), ("rough",), ("rgh",)),
+    "metallic": (("metallic",), ("metalness",), ("metal",)),
+    "mask": (("mask",), ("alpha",), ("opacity",)),
+    "depth": (("depth",), ("z",), ("zdepth",), ("height",), ("heightmap",)),
+}
+
+#: Readable suffixes, most preferred first: when ``x_normal.exr`` and its preview ``x_normal.png``
+#: both exist, the EXR wins.
+IMAGE_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
+
+
+def filename_tokens(name: str | os.PathLike) -> tuple[str, ...]:
+    """Lowercase tokens of a file name without its image suffix.
+
+    Args:
+        name: file name or path (only the last component is used).
+
+    Returns:
+        The tokens, e.g. ``("chart", "01", "base", "color")`` for ``"chart01_BaseColor.png"``.
+
+    Example:
+        >>> filename_tokens("dir/Rock-Metalness_2K.PNG")
+        ('rock', 'metalness', '2', 'k')
+    """
+    stem = Path(name).name
+    if Path(stem).suffix.lower() in IMAGE_SUFFIXES:
+        stem = stem[: -len(Path(stem).suffix)]
+    tokens: list[str] = []
+    for chunk in re.split(r"[^A-Za-z0-9]+", stem):
+        # "RGBNormal" -> RGB, Normal; "baseColor" -> base, Color; "n2k" -> n, 2, k
+        tokens += re.findall(r"[A-Z]+(?![a-z])|[A-Z]?[a-z]+|\d+", chunk)
+    return tuple(t.lower() for t in tokens)
+
+
+def _find(tokens: tuple[str, ...], synonym: tuple[str, ...]) -> int:
+    """Index of the first occurrence of ``synonym`` as consecutive tokens, or -1."""
+    n = len(synonym)
+    for i in range(len(tokens) - n + 1):
+        if tokens[i : i + n] == synonym:
+            return i
+    return -1
+
+
+def match_kinds(tokens: Iterable[str]) -> tuple[str, ...]:
+    """Map kinds whose synonyms appear in ``tokens`` (in :data:`MAP_KINDS` order).
+
+    Example:
+        >>> match_kinds(("rock", "metalness")), match_kinds(("dialbedo",)), match_kinds(("base", "color"))
+        (('metallic',), (), ('albedo',))
+    """
+    tokens = tuple(tokens)
+    return tuple(k for k in MAP_KINDS if any(_find(tokens, s) >= 0 for s in SYNONYMS[k]))
+
+
+def _strip_common(token_lists: list[tuple[str, ...]]) -> list[tuple[str, ...]]:
+    """Drop the token prefix and suffix shared by all lists (``"chart_color"`` in every name of an asset)."""
+    if len(token_lists) < 2:
+        return token_lists
+    shortest = min(len(t) for t in token_lists)
+    pre = 0
+    while pre < shortest and len({t[pre] for t in token_lists}) == 1:
+        pre += 1
+    suf = 0
+    while suf < shortest - pre and len({t[len(t) - 1 - suf] for t in token_lists}) == 1:
+        suf += 1
+    return [t[pre : len(t) - suf] for t in token_lists]
+
+
+@dataclass(frozen=True)
+class MapFiles:
+    """The result of matching file names to map kinds.
+
+    Attributes:
+        files: kind -> chosen file, in :data:`MAP_KINDS` order.
+        unmatched: image files whose names match no kind (ignored).
+        superseded: files of a chosen map in a less preferred format (``x_normal.png`` beside
+            ``x_normal.exr``).
+    """
+
+    files: dict[str, Path]
+    unmatched: tuple[Path, ...] = ()
+    superseded: tuple[Path, ...] = ()
+
+    @property
+    def missing(self) -> tuple[str, ...]:
+        """Kinds without a file."""
+        return tuple(k for k in MAP_KINDS if k not in self.files)
+
+    def summary(self) -> str:
+        """One line: the found maps, the missing ones and the ignored files."""
+        found = ", ".join(f"{k}={p.name}" for k, p in self.files.items()) or "none"
+        text = f"maps: {found}; missing: {', '.join(self.missing) or 'none'}"
+        if self.unmatched:
+            text += f"; ignored: {', '.join(p.name for p in self.unmatched)}"
+        return text
+
+
+def _folder_images(path: Path) -> list[Path]:
+    return sorted(
+        p for p in path.iterdir() if p.is_file() and not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES
+    )
+
+
+def _image_files(source: str | os.PathLike | Iterable[str | os.PathLike]) -> tuple[list[Path], str]:
+    """Image files of a folder (not recursive, hidden files skipped) or of a list of files and folders."""
+    source = [source] if isinstance(source, (str, os.PathLike)) else list(source)
+    files: list[Path] = []
+    for item in source:
+        p = Path(item)
+        if p.is_dir():
+            files += _folder_images(p)
+            continue
+        if not p.is_file():
+            raise FileNotFoundError(f"{p}: map file not found")
+        if p.suffix.lower() not in IMAGE_SUFFIXES:
+            raise ValueError(f"{p}: unsupported map format {p.suffix!r}; use one of {', '.join(IMAGE_SUFFIXES)}")
+        files.append(p)
+    if not files and not any(Path(x).is_dir() for x in source):
+        raise ValueError("no map files given")
+    return files, ", ".join(str(x) for x in source)
+
+
+def match_map_files(
+    source: str | os.PathLike | Iterable[str | os.PathLike] | Mapping[str, str | os.PathLike],
+    *,
+    required: Iterable[str] = ("normal",),
+) -> MapFiles:
+    """Find the normal, albedo, roughness, metallic, mask and depth maps by filename tokens.
+
+    Rules: tokens shared by all matching names (the asset name) are ignored; a name that then
+    matches two kinds is ambiguous; two names for one kind are ambiguous (one asset per folder, or
+    pass the files); the same name in several formats takes the first of :data:`IMAGE_SUFFIXES`.
+
+    Args:
+        source: a folder, a list of files (and folders), or an explicit ``{kind: file}`` mapping
+            (no matching).
+        required: kinds that must be found.
+
+    Returns:
+        The matched files.
+
+    Raises:
+        FileNotFoundError: the folder, a listed file or a required map is missing.
+        ValueError: ambiguous names (all listed in one line), an unknown kind or format.
+    """
+    required = tuple(required)
+    unknown = [k for k in required if k not in MAP_KINDS]
+    if unknown:
+        raise ValueError(f"unknown map kinds {unknown}; valid: {list(MAP_KINDS)}")
+    if isinstance(source, Mapping):
+        bad = [k for k in source if k not in MAP_KINDS]
+        if bad:
+            raise ValueError(f"unknown map kinds {bad}; valid: {list(MAP_KINDS)}")
+        files = {k: Path(source[k]) for k in MAP_KINDS if k in source}
+        for p in files.values():
+            if not p.is_file():
+                raise FileNotFoundError(f"{p}: map file not found")
+        result, where = MapFiles(files), "the given mapping"
+    else:
+        if isinstance(source, (str, os.PathLike)) and not Path(source).exists():
+            raise FileNotFoundError(f"{source}: no such folder or file")
+        paths, where = _image_files(source)
+        result = _match(paths)
+    missing = [k for k in required if k not in result.files]
+    if missing:
+        looked = "; ".join(f"{k}: {', '.join(' '.join(s) for s in SYNONYMS[k])}" for k in missing)
+        raise FileNotFoundError(f"no {' or '.join(missing)} map in {where} (name tokens looked for: {looked})")
+    return result
+
+
+def _match(paths: list[Path]) -> MapFiles:
+    tokens = {p: filename_tokens(p) for p in paths}
+    candidates = [p for p in paths if match_kinds(tokens[p])]
+    stripped = dict(zip(candidates, _strip_common([tokens[p] for p in candidates]), strict=True))
+    by_kind: dict[str, dict[str, list[Path]]] = {}  # kind -> stem -> files
+    errors: list[str] = []
+    unmatched = [p for p in paths if p not in stripped]
+    for p in candidates:
+        kinds = match_kinds(stripped[p]) or match_kinds(tokens[p])
+        if len(kinds) > 1:
+            errors.append(f"{p.name} matches several maps ({', '.join(kinds)})")
+            continue
+        stem = str(p.with_suffix("")).lower()
+        by_kind.setdefault(kinds[0], {}).setdefault(stem, []).append(p)
+    files: dict[str, Path] = {}
+    superseded: list[Path] = []
+    for kind in MAP_KINDS:
+        stems = by_kind.get(kind, {})
+        if len(stems) > 1:
+            names = ", ".join(sorted(q.name for group in stems.values() for q in group))
+            errors.append(f"{len(stems)} files match {kind} ({names})")
+        elif stems:
+            (group,) = stems.values()
+            group = sorted(group, key=lambda q: IMAGE_SUFFIXES.index(q.suffix.lower()))
+            files[kind] = group[0]
+            superseded += group[1:]
+    if errors:
+        raise ValueError("ambiguous map files: " + "; ".join(errors) + " (pass the files explicitly, one per map)")
+    return MapFiles(files, tuple(unmatched), tuple(superseded))

@@ -1,0 +1,112 @@
+"""One relighting job in a fresh Blender session: predicted maps -> asset, relit frames, ``.blend``.
+
+The body of ``headless/relight.py`` (which runs it in its own process: bpy never shares one with
+torch or Mitsuba). :func:`relight_maps` empties the session, imports the maps as the
+camera-parented Principled BSDF asset (:func:`blender_addon.pbr_import.import_pbr_maps`),
+renders a point light orbiting it and one frame under a procedural sky or an HDR environment
+with Cycles (:mod:`blender_addon.relight`), and optionally saves the scene for artists. It
+takes plain arguments only, so it runs the same from the bpy wheel and inside Blender.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+import bpy
+
+from . import pbr_import
+from . import relight as brelight
+
+__all__ = ["relight_maps", "point_light_power"]
+
+
+def point_light_power(radius: float, height: float, exposure: float = 1.0) -> float:
+    """Point-light power (W) for a radiance of about ``0.5 * exposure`` off a 0.5 albedo facing the light.
+
+    From ``L = rho / pi * P / (4 pi d^2)`` with ``d^2 = radius^2 + height^2``.
+
+    Args:
+        radius: orbit radius in metres.
+        height: orbit height above the asset in metres.
+        exposure: scale of the result.
+
+    Returns:
+        ``4 pi^2 d^2 * exposure``.
+    """
+    return 4.0 * math.pi**2 * (radius**2 + height**2) * exposure
+
+
+def relight_maps(
+    maps: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    name: str = "",
+    frames: int = 8,
+    size: int = 160,
+    samples: int = 16,
+    distance: float = 1.0,
+    exposure: float = 1.0,
+    hdr: str | os.PathLike | None = None,
+    env_strength: float = 0.3,
+    device: str = "CPU",
+    save_blend: bool = False,
+) -> list[Path]:
+    """Import predicted maps into an empty Blender session, relight, render and optionally save.
+
+    Args:
+        maps: folder with ``<name>_normal/_albedo/_roughness/_metallic/_mask.exr`` (any names the
+            add-on's importer recognises), or one map file when ``name`` is empty.
+        out: output folder (created if missing).
+        name: map name prefix; empty for ``maps`` as one file.
+        frames: point-light orbit frames; 0 renders nothing.
+        size: longest side of the rendered frames in pixels.
+        samples: Cycles samples per pixel.
+        distance: asset plane distance from the camera in metres.
+        exposure: point-light power scale.
+        hdr: environment map (``.hdr``/``.exr``); None for a procedural sky.
+        env_strength: environment strength.
+        device: Cycles device, ``"CPU"`` or ``"GPU"`` (falls back to the CPU).
+        save_blend: also save ``OUT/<name>.blend`` (asset, orbit animation, environment).
+
+    Returns:
+        The written files: ``point_NNNN.png`` per orbit frame, ``env_NNNN.png`` and the ``.blend``.
+
+    Raises:
+        FileNotFoundError: no ``<name>_*.exr`` maps in ``maps``.
+        ValueError: ``frames < 0``, ``size < 8`` or ``samples < 1``.
+    """
+    if frames < 0 or size < 8 or samples < 1:
+        raise ValueError(f"need frames >= 0, size >= 8 and samples >= 1, got {frames}, {size}, {samples}")
+    maps, out = Path(maps), Path(out)
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    files = sorted(maps.glob(f"{name}_*.exr")) if name else [maps]
+    if name and not files:
+        raise FileNotFoundError(f"{maps}: no {name}_*.exr maps")
+    obj = pbr_import.import_pbr_maps(bpy.context, files, distance=distance, name=name or None)
+    scale = size / max(scene.render.resolution_x, scene.render.resolution_y)
+    scene.render.resolution_x = max(round(scene.render.resolution_x * scale), 8)
+    scene.render.resolution_y = max(round(scene.render.resolution_y * scale), 8)
+    scene.render.film_transparent = False
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    if frames > 0:
+        # Orbit in front of the asset (its +z faces the camera).
+        radius = height = 0.6 * distance
+        light = brelight.add_point_light_orbit(scene, obj, radius=radius, height=height, frames=frames,
+                                               energy=point_light_power(radius, height, exposure))  # fmt: skip
+        written += brelight.render_relit(scene, out, device=device, samples=samples, prefix="point_")
+        light.hide_render = True
+        brelight.add_environment(scene, hdr_path=hdr, strength=env_strength)
+        written += brelight.render_relit(scene, out, device=device, samples=samples,
+                                         frames=[scene.frame_start], prefix="env_")  # fmt: skip
+        light.hide_render = False
+    if save_blend:
+        path = out / f"{name or obj.name}.blend"
+        tmp = path.with_name(path.stem + ".tmp.blend")
+        bpy.ops.wm.save_as_mainfile(filepath=str(tmp), compress=True, copy=True)
+        os.replace(tmp, path)
+        written.append(path)
+    return written

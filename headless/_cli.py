@@ -1,0 +1,115 @@
+"""The command-line conventions every headless script shares.
+
+Flags: ``--input`` (a file or folder the script reads), ``--out`` (what it writes), ``--seed``
+(where it draws random numbers), ``--quiet`` (no progress bars; the lines a script prints at the
+end, its summary or the paths it wrote, still print so that scripts chain) and ``--help`` (the
+module docstring). Older spellings keep working for one release: :func:`add_deprecated` adds
+them hidden from ``--help``; using one prints exactly one line to stderr naming the new flag.
+
+Every script is a thin ``main(argv=None) -> int`` over a ``build_parser()`` and starts with the
+same bootstrap, so that it runs as ``python headless/x.py``, as ``python -m headless.x`` and
+(``render.py``) as ``blender -b -P headless/render.py -- ...``::
+
+    if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
+        sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+Example:
+    >>> import argparse, contextlib, io
+    >>> parser = argparse.ArgumentParser(prog="x")
+    >>> _ = parser.add_argument("--input")
+    >>> add_deprecated(parser, "--maps", new="--input")
+    >>> err = io.StringIO()
+    >>> with contextlib.redirect_stderr(err):
+    ...     args = parser.parse_args(["--maps", "pred/"])
+    >>> args.input, err.getvalue()
+    ('pred/', 'x: deprecated: --maps is now --input (the old form goes away in the next release)\\n')
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+__all__ = ["DEPRECATION", "add_deprecated", "add_deprecated_positional", "require", "script_args"]
+
+#: The one deprecation line (``prog``, ``old``, ``new``).
+DEPRECATION = "{prog}: deprecated: {old} is now {new} (the old form goes away in the next release)"
+
+
+class _Deprecated(argparse.Action):
+    """Store like ``store`` under the new flag's dest; print the deprecation line once per old form."""
+
+    def __init__(self, option_strings, dest, *, new: str, old: str, **kwargs):
+        self.new, self.old = new, old
+        self.target = new.lstrip("-").replace("-", "_")
+        super().__init__(option_strings, dest, **kwargs)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if values is None:  # an optional positional that was not given
+            return
+        if getattr(namespace, self.target, None) not in (None, values):
+            parser.error(f"{self.old} and {self.new} given together: use {self.new} only")
+        warned = vars(namespace).setdefault("_deprecated_warned", set())
+        if self.old not in warned:
+            warned.add(self.old)
+            print(DEPRECATION.format(prog=parser.prog, old=self.old, new=self.new), file=sys.stderr)
+        setattr(namespace, self.target, values)
+
+
+def add_deprecated(parser: argparse.ArgumentParser, old: str, *, new: str, **kwargs) -> None:
+    """Accept the old flag ``old`` as a hidden alias of ``new`` for one release.
+
+    Args:
+        parser: the script's parser (``new`` already added, with default None: giving both the old
+            and the new flag with different values is an error).
+        old: the old option string, e.g. ``"--maps"``.
+        new: the new option string, e.g. ``"--input"``; the value lands in its ``dest``.
+        **kwargs: further ``add_argument`` arguments (e.g. ``type``).
+    """
+    dest = "_deprecated_" + old.lstrip("-").replace("-", "_")
+    parser.add_argument(old, dest=dest, action=_Deprecated, new=new, old=old, default=argparse.SUPPRESS,
+                        help=argparse.SUPPRESS, **kwargs)  # fmt: skip
+
+
+def add_deprecated_positional(parser: argparse.ArgumentParser, metavar: str, *, new: str, **kwargs) -> None:
+    """Accept an old positional argument as a hidden alias of ``new`` for one release.
+
+    Args:
+        parser: the script's parser (``new`` already added).
+        metavar: the positional's old name, e.g. ``"CAPTURE_DIR"`` (named in the deprecation line).
+        new: the new option string, e.g. ``"--input"``; the value lands in its ``dest``.
+        **kwargs: further ``add_argument`` arguments (e.g. ``type``).
+    """
+    parser.add_argument(f"_deprecated_{metavar.lower()}", nargs="?", metavar=metavar, action=_Deprecated, new=new,
+                        old=f"the positional {metavar}", default=None, help=argparse.SUPPRESS, **kwargs)  # fmt: skip
+
+
+def require(parser: argparse.ArgumentParser, args: argparse.Namespace, *flags: str) -> None:
+    """Fail like argparse's ``required=True`` when a flag (or its deprecated alias) was not given.
+
+    Args:
+        parser: the script's parser (its ``error`` exits with status 2).
+        args: the parsed arguments.
+        *flags: option strings, e.g. ``"--input"``.
+    """
+    missing = [f for f in flags if getattr(args, f.lstrip("-").replace("-", "_"), None) is None]
+    if missing:
+        parser.error(f"the following arguments are required: {', '.join(missing)}")
+
+
+def script_args(argv: list[str]) -> list[str]:
+    """The script's own arguments: those after ``--`` (``blender -b -P script -- ...``), else ``argv[1:]``.
+
+    Args:
+        argv: the full command line, e.g. ``sys.argv``.
+
+    Returns:
+        The arguments for the script's parser.
+
+    Example:
+        >>> script_args(["blender", "-b", "-P", "headless/relight.py", "--", "--input", "pred"])
+        ['--input', 'pred']
+        >>> script_args(["headless/relight.py", "--input", "pred"])
+        ['--input', 'pred']
+    """
+    return argv[argv.index("--") + 1 :] if "--" in argv else argv[1:]

@@ -1,0 +1,267 @@
+"""Dense (evaluation) decoding: every masked pixel against a fixed context, in chunks; optional stride.
+
+In training each sampled pixel attends to all sampled pixels. Dense decoding keeps that cost bounded: a
+deterministic, evenly spread subset of at most ``train_pixels`` masked pixels (:func:`context_pixels`) forms a
+*context*; the context runs through the pixel transformer once, and every other masked pixel (in chunks of
+``infer_chunk``) attends to the context's cached keys and values at each layer. Cost is O(P x train_pixels),
+never O(P^2), and results do not depend on the chunk size. A context pixel decoded as a query attends to exactly
+the context's keys, so its output is the context pass's own output, which is reused. With at most
+``train_pixels`` masked pixels dense decoding equals self-attention over all of them, as in training.
+
+:func:`decode_dense` is the fast route and :func:`decode_dense_reference` the straightforward one (equal to float
+rounding): the fast route gathers features and map values as rows of channels-last tables
+(:func:`~network.model.sampling.sample_bilinear_rows`), folds the pooling's constant query into its key projection
+(:meth:`~network.model.decoder.PoolingAttention.forward_folded`) and embeds pixels in cache-sized pieces
+(:data:`EMBED_ELEMENTS`).
+
+``stride`` > 1 trades accuracy for time: it decodes every s-th row and column (:func:`grid_pixels`) and fills the
+rest by normalised convolution (:func:`fill_from_decoded`), about s^2 times less decoder work.
+
+Example:
+    >>> grid_pixels(torch.arange(16), width=4, stride=2)  # rows and columns 1 and 3 of a 4 x 4 image
+    tensor([ 5,  7, 13, 15])
+    >>> context_pixels(torch.arange(10, 20), 4)
+    tensor([10, 12, 15, 17])
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from network.config import ModelConfig
+
+from .decoder import OUTPUT_CHANNELS, DenseInputs, PixelDecoder, safe_normalize
+from .maps import NUM_MAPS
+
+__all__ = [
+    "EMBED_ELEMENTS",
+    "context_pixels",
+    "decode_dense",
+    "decode_dense_reference",
+    "fill_from_decoded",
+    "grid_pixels",
+]
+
+#: Dense decoding embeds pixels in pieces whose widest intermediate (an observation MLP's hidden layer, 9 rows per
+#: pixel) has about this many elements (16 MiB in float32), so that a piece stays cache-sized
+#: (docs/measurements/network.md has the timings behind the choice).
+EMBED_ELEMENTS = 1 << 22
+
+
+def context_pixels(pixels: Tensor, count: int) -> Tensor:
+    """A deterministic, evenly spread subset of at most ``count`` of the given pixels.
+
+    Args:
+        pixels: (P,) flat pixel indices (e.g. the masked pixels in raster order).
+        count: Maximum subset size.
+
+    Returns:
+        (min(P, count),): all pixels if P <= count, else ``pixels[(i * P) // count]`` for i < count.
+    """
+    p = pixels.shape[0]
+    if p <= count:
+        return pixels
+    idx = torch.arange(count, device=pixels.device) * p // count
+    return pixels[idx]
+
+
+def grid_pixels(pixels: Tensor, width: int, stride: int) -> Tensor:
+    """The pixels on every ``stride``-th row and column (rows and columns ``stride // 2 + k * stride``).
+
+    Args:
+        pixels: (P,) flat indices ``row * width + col``.
+        width: Image width W.
+        stride: Grid spacing (1 keeps all pixels).
+
+    Returns:
+        The subset, in the given order.
+    """
+    if stride == 1:
+        return pixels
+    row = torch.div(pixels, width, rounding_mode="floor")
+    col = pixels - row * width
+    keep = (row % stride == stride // 2) & (col % stride == stride // 2)
+    return pixels[keep]
+
+
+def fill_from_decoded(values: Tensor, decoded: Tensor, stride: int) -> tuple[Tensor, Tensor]:
+    """Normalised convolution: every pixel as the tent-weighted mean of the decoded pixels near it.
+
+    The kernel is separable, ``k(t) = 1 - |t| / stride`` for ``|t| < stride``, so where the four decoded
+    :func:`grid_pixels` around a pixel are all there (and nothing else is decoded nearby) the result is exactly
+    their bilinear interpolation; near the mask's edge the missing ones drop out and the rest are renormalised.
+
+    Args:
+        values: (C, H, W); only the values at ``decoded`` pixels are used.
+        decoded: (H, W) bool.
+        stride: Kernel half-width + 1 (the grid spacing).
+
+    Returns:
+        ``filled`` (C, H, W) (0 where no decoded pixel lies within ``stride - 1`` rows and columns) and the kernel
+        weight sum ``weight`` (H, W) (0 exactly there, >= 1 / stride^2 elsewhere).
+    """
+    c = values.shape[0]
+    t = torch.arange(1 - stride, stride, device=values.device, dtype=values.dtype)
+    k = 1 - t.abs() / stride
+    wgt = decoded.to(values.dtype)
+    stack = torch.cat([values * wgt, wgt[None]])[None]  # (1, C + 1, H, W)
+    ky = k.view(1, 1, -1, 1).expand(c + 1, 1, -1, 1)
+    kx = k.view(1, 1, 1, -1).expand(c + 1, 1, 1, -1)
+    with torch.autocast(values.device.type, enabled=False):  # in the outputs' precision, not bf16
+        acc = F.conv2d(stack, ky, padding=(stride - 1, 0), groups=c + 1)
+        acc = F.conv2d(acc, kx, padding=(0, stride - 1), groups=c + 1)
+    num, den = acc[0, :c], acc[0, c]
+    # Sums of exact zeros stay zero, and any decoded pixel in reach adds at least 1 / stride^2.
+    den = torch.where(den > 0.5 / stride**2, den, torch.zeros_like(den))
+    return num / den.clamp_min(0.5 / stride**2), den
+
+
+def decode_dense(
+    decoder: PixelDecoder,
+    config: ModelConfig,
+    features: Tensor,
+    maps: Tensor,
+    mask: Tensor,
+    chunk: int | None = None,
+    *,
+    stride: int = 1,
+) -> dict[str, Tensor]:
+    """Decode the masked pixels, in chunks, each attending to a fixed context of masked pixels.
+
+    The context (:func:`context_pixels`) runs through the decoder once; its pixels' outputs are taken from that
+    pass (a context pixel decoded as a query attends to exactly the same keys), the other pixels are decoded in
+    chunks against its cached keys and values. Results do not depend on ``chunk``, and at ``stride=1`` equal
+    decoding every masked pixel as a query (to float rounding).
+
+    Args:
+        decoder: The model's :class:`~network.model.decoder.PixelDecoder`.
+        config: The model's configuration (``train_pixels``, ``infer_chunk`` and the decoder widths).
+        features: (B, 9, D, Hc, Wc) DPT features.
+        maps: (B, 9, H, W).
+        mask: (B, 1, H, W).
+        chunk: Query pixels per pixel-transformer call (default ``config.infer_chunk``); the per-pixel
+            embedding runs in smaller pieces (:data:`EMBED_ELEMENTS`).
+        stride: Speed/accuracy trade-off. 1 decodes every masked pixel. s > 1 decodes the masked pixels of
+            :func:`grid_pixels` (every s-th row and column) and the context, and fills the other masked pixels
+            from them by :func:`fill_from_decoded` (bilinear between decoded grid pixels, renormalised
+            normals); masked pixels with no decoded pixel within s - 1 rows and columns (thin parts of the
+            mask) are decoded too. Decoded pixels get exactly their stride-1 values; the decoder does about
+            s^2 times less work.
+
+    Returns:
+        ``normal`` (B, 3, H, W), ``albedo`` (B, 3, H, W), ``roughness`` (B, 1, H, W), ``metallic`` (B, 1, H, W);
+        zeros outside the mask.
+
+    Raises:
+        ValueError: If ``stride`` is not a positive int.
+    """
+    if not isinstance(stride, int) or isinstance(stride, bool) or stride < 1:
+        raise ValueError(f"stride must be a positive int. Got {stride!r}")
+    chunk = chunk or config.infer_chunk
+    b, _, h, w = maps.shape
+    dec = decoder
+    out = {k: torch.zeros(b, c, h * w, device=maps.device, dtype=torch.float32) for k, c in OUTPUT_CHANNELS.items()}
+    pool_query = dec.pool.folded_query()
+    for i in range(b):
+        idx = torch.nonzero(mask[i].reshape(-1) > 0).squeeze(1)
+        if idx.numel() == 0:
+            continue
+        inputs = dec.dense_inputs(features[i], maps[i])
+        ctx = context_pixels(idx, config.train_pixels)
+        cache, x = dec.context_pass(_embed_rows(dec, config, inputs, ctx, pool_query)[None])
+        _store(out, i, ctx, dec.heads(x))
+        decoded = torch.zeros(h * w, dtype=torch.bool, device=maps.device)
+        decoded[ctx] = True
+        queries = idx if stride == 1 else grid_pixels(idx, w, stride)
+        queries = queries[~decoded[queries]]
+        _decode_queries(dec, config, out, i, inputs, queries, cache, pool_query, chunk)
+        if stride == 1:
+            continue
+        decoded[queries] = True
+        inside = mask[i, 0].reshape(-1) > 0
+        filled, weight = fill_from_decoded(
+            torch.cat([out[k][i] for k in OUTPUT_CHANNELS]).reshape(-1, h, w), decoded.reshape(h, w), stride
+        )
+        filled, weight = filled.reshape(filled.shape[0], -1), weight.reshape(-1)
+        todo = inside & ~decoded
+        covered = todo & (weight > 0)
+        start = 0
+        for k, c in OUTPUT_CHANNELS.items():
+            part = filled[start : start + c]
+            start += c
+            if k == "normal":
+                part = safe_normalize(part, dim=0)
+            out[k][i] = torch.where(covered, part, out[k][i])
+        rest = torch.nonzero(todo & ~covered).squeeze(1)
+        _decode_queries(dec, config, out, i, inputs, rest, cache, pool_query, chunk)
+    return {k: v.reshape(b, -1, h, w) for k, v in out.items()}
+
+
+def decode_dense_reference(
+    decoder: PixelDecoder,
+    config: ModelConfig,
+    features: Tensor,
+    maps: Tensor,
+    mask: Tensor,
+    chunk: int | None = None,
+) -> dict[str, Tensor]:
+    """:func:`decode_dense` at stride 1 the straightforward way, for tests and ``headless/bench.py``.
+
+    Every masked pixel, context pixels included, is decoded as a query through the training-mode
+    :meth:`~network.model.decoder.PixelDecoder.embed` (gathers from the (B, 9, D, Hc, Wc) features, full pooling
+    attention). Same arguments (without ``stride``) and outputs as :func:`decode_dense`.
+    """
+    chunk = chunk or config.infer_chunk
+    b, _, h, w = maps.shape
+    out = {k: torch.zeros(b, c, h * w, device=maps.device, dtype=torch.float32) for k, c in OUTPUT_CHANNELS.items()}
+    for i in range(b):
+        idx = torch.nonzero(mask[i].reshape(-1) > 0).squeeze(1)
+        if idx.numel() == 0:
+            continue
+        f, mp = features[i : i + 1], maps[i : i + 1]
+        cache = decoder.context_cache(decoder.embed(f, mp, context_pixels(idx, config.train_pixels)[None]))
+        for part in idx.split(chunk):
+            _store(out, i, part, decoder.heads(decoder.transform_cached(decoder.embed(f, mp, part[None]), cache)))
+    return {k: v.reshape(b, -1, h, w) for k, v in out.items()}
+
+
+def _embed_rows(
+    decoder: PixelDecoder, config: ModelConfig, inputs: DenseInputs, pixels: Tensor, pool_query: Tensor
+) -> Tensor:
+    """:meth:`PixelDecoder.embed_rows` in pieces of bounded memory (pixels are independent): (P, D_a)."""
+    cfg = config
+    hidden = [cfg.agg_dim] + [
+        int(d * cfg.mlp_ratio) for d, n in ((cfg.dpt_dim, cfg.obs_depth), (cfg.agg_dim, cfg.agg_depth)) if n
+    ]
+    piece = max(1, EMBED_ELEMENTS // (NUM_MAPS * max(hidden)))  # the widest per-pixel intermediate: 9 MLP rows
+    parts = [decoder.embed_rows(inputs, p, pool_query) for p in pixels.split(piece)]
+    return parts[0] if len(parts) == 1 else torch.cat(parts)
+
+
+def _decode_queries(
+    decoder: PixelDecoder,
+    config: ModelConfig,
+    out: dict[str, Tensor],
+    i: int,
+    inputs: DenseInputs,
+    pixels: Tensor,
+    cache: Sequence[tuple[Tensor, Tensor]],
+    pool_query: Tensor,
+    chunk: int,
+) -> None:
+    """Decode ``pixels`` (P,) of image ``i`` against the cached context, in chunks, into ``out``."""
+    if pixels.numel() == 0:
+        return
+    for part in pixels.split(chunk):
+        x = decoder.transform_cached(_embed_rows(decoder, config, inputs, part, pool_query)[None], cache)
+        _store(out, i, part, decoder.heads(x))
+
+
+def _store(out: dict[str, Tensor], i: int, pixels: Tensor, pred: dict[str, Tensor]) -> None:
+    """Write decoded (1, C, P) outputs of image ``i`` at flat ``pixels`` into (B, C, H*W) maps."""
+    for k in out:
+        out[k][i, :, pixels] = pred[k][0]

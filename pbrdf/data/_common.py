@@ -1,0 +1,85 @@
+"""Helpers shared by :mod:`pbrdf.data.sample` and :mod:`pbrdf.data.dataset` (private).
+
+Index checks, JSON text with numpy values, format-tagged JSON objects and removal of a sample's
+files or folders.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["check_index", "dumps_json", "check_metadata", "read_json_object", "remove_path"]
+
+
+def check_index(index: Any) -> int:
+    """``index`` as an int; ValueError unless it is an integer >= 0 (booleans are refused).
+
+    Example:
+        >>> check_index(np.int64(3))
+        3
+    """
+    if isinstance(index, bool) or not isinstance(index, int | np.integer) or index < 0:
+        raise ValueError(f"sample index must be an integer >= 0; got {index!r}")
+    return int(index)
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, Path):
+        return str(value)
+    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
+
+
+def dumps_json(data: Mapping[str, Any], what: str) -> str:
+    """Indented JSON text of ``data`` (numpy scalars and arrays, paths converted), ending in a newline.
+
+    Raises:
+        ValueError: ``data`` holds something JSON cannot encode, or NaN/Inf; the message starts with ``what``.
+    """
+    try:
+        return json.dumps(data, indent=2, allow_nan=False, default=_json_default) + "\n"
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"{what} is not valid JSON ({e})") from e
+
+
+def check_metadata(metadata: Any, reserved: Sequence[str], what: str) -> dict[str, Any]:
+    """A copy of ``metadata`` as a dict; ValueError unless it is a dict with string keys, none of them ``reserved``."""
+    if not isinstance(metadata, Mapping):
+        raise ValueError(f"{what} must be a dict; got {type(metadata).__name__}")
+    bad = [k for k in metadata if not isinstance(k, str)]
+    if bad:
+        raise ValueError(f"{what} keys must be strings; got {bad}")
+    clash = sorted(set(metadata) & set(reserved))
+    if clash:
+        raise ValueError(f"{what} may not set the reserved key(s) {clash}")
+    return dict(metadata)
+
+
+def read_json_object(path: Path, fmt: str) -> dict[str, Any]:
+    """A JSON object whose ``format`` is ``fmt``; one-line ValueError naming the file otherwise."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (UnicodeDecodeError, json.JSONDecodeError) as e:
+        raise ValueError(f"{path}: invalid JSON ({e})") from e
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object; got {type(data).__name__}")
+    if data.get("format") != fmt:
+        raise ValueError(f"{path}: unsupported format {data.get('format')!r}; expected {fmt!r}")
+    return data
+
+
+def remove_path(path: Path) -> None:
+    """Remove a file, a link or a folder tree; a missing path is fine."""
+    if path.is_dir() and not path.is_symlink():
+        shutil.rmtree(path)
+    else:
+        path.unlink(missing_ok=True)

@@ -1,0 +1,116 @@
+"""PBR map files as arrays (blender_addon/core/map_io.py): reading, channel picking, validation."""
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from blender_addon.core import map_io
+from blender_addon.core.map_names import match_map_files
+from pbrdf.io.exr import write_exr
+
+
+def _exr(path, prefix, img, comps):
+    img = np.asarray(img, np.float32)
+    img = img[..., None] if img.ndim == 2 else img
+    write_exr(path, {f"{prefix}.{c}": img[..., i] for i, c in enumerate(comps)})
+    return path
+
+
+def _png(path, img01):
+    a = np.rint(np.clip(img01, 0, 1) * 255).astype(np.uint8)
+    Image.fromarray(a).save(path)
+    return path
+
+
+def _sphere_normals(h, w):
+    y, x = np.mgrid[0:h, 0:w]
+    x = (x + 0.5 - w / 2) / (0.45 * w)
+    y = -(y + 0.5 - h / 2) / (0.45 * h)
+    r2 = x**2 + y**2
+    inside = r2 < 1
+    n = np.stack([x, y, np.sqrt(np.clip(1 - r2, 0, 1))], -1)
+    n[~inside] = 0
+    return n.astype(np.float32), inside
+
+
+class TestLoad:
+    def test_exr_maps_round_trip(self, tmp_path):
+        n, inside = _sphere_normals(12, 16)
+        alb = np.random.default_rng(0).uniform(0, 1, (12, 16, 3)).astype(np.float32)
+        _exr(tmp_path / "a_normal.exr", "normal", n, "XYZ")
+        _exr(tmp_path / "a_albedo.exr", "albedo", alb, "RGB")
+        _exr(tmp_path / "a_roughness.exr", "roughness", np.full((12, 16), 0.3), "Y")
+        maps = map_io.load_maps(match_map_files(tmp_path))
+        np.testing.assert_array_equal(maps.valid, inside)  # mask from the non-zero normals
+        assert maps.mask_source == "normal"
+        np.testing.assert_allclose(maps.normal[inside], n[inside], atol=1e-6)
+        assert (maps.normal[~inside] == [0, 0, 1]).all()
+        np.testing.assert_array_equal(maps.albedo, alb)  # EXR albedo is linear: no transfer function
+        assert maps.metallic is None and maps.present() == ("normal", "albedo", "roughness")
+
+    def test_png_normals_and_srgb_albedo(self, tmp_path):
+        n, inside = _sphere_normals(12, 16)
+        _png(tmp_path / "a_nrm.png", 0.5 + 0.5 * n)  # background encodes as (0.5, 0.5, 0.5)...
+        _png(tmp_path / "a_mask.png", inside.astype(float))
+        _png(tmp_path / "a_basecolor.png", np.full((12, 16, 3), 128 / 255))
+        maps = map_io.load_maps(match_map_files(tmp_path))
+        ang = np.degrees(np.arccos(np.clip((maps.normal * n).sum(-1), -1, 1)))[inside]
+        assert ang.max() < 1.0  # 8-bit quantisation: at most ~0.6 degrees
+        np.testing.assert_allclose(np.linalg.norm(maps.normal, axis=-1), 1, atol=1e-6)
+        # IEC 61966-2-1: 128/255 -> ((0.50196 + 0.055) / 1.055) ** 2.4 = 0.21586
+        np.testing.assert_allclose(maps.albedo, 0.21586, atol=1e-4)
+
+    def test_encoded_exr_normals_are_recognised(self, tmp_path):
+        n, inside = _sphere_normals(8, 8)
+        enc = np.where(inside[..., None], 0.5 + 0.5 * n, 0)
+        _exr(tmp_path / "b_normal.exr", "", enc, "RGB")
+        _exr(tmp_path / "b_mask.exr", "mask", inside.astype(float), "Y")
+        maps = map_io.load_maps(match_map_files(tmp_path))
+        np.testing.assert_allclose(maps.normal[inside], n[inside], atol=1e-5)
+
+    def test_sizes_must_agree(self, tmp_path):
+        _exr(tmp_path / "a_normal.exr", "normal", _sphere_normals(8, 8)[0], "XYZ")
+        _exr(tmp_path / "a_albedo.exr", "albedo", np.zeros((8, 9, 3)), "RGB")
+        with pytest.raises(ValueError, match=r"sizes differ.*normal a_normal.exr 8x8, albedo a_albedo.exr 8x9"):
+            map_io.load_maps(match_map_files(tmp_path))
+
+    def test_nonfinite_values(self, tmp_path):
+        alb = np.zeros((8, 8, 3))
+        alb[2, 5, 1] = np.nan
+        write_exr(
+            tmp_path / "a_albedo.exr", {f"albedo.{c}": alb[..., i] for i, c in enumerate("RGB")}, allow_nonfinite=True
+        )
+        with pytest.raises(ValueError, match=r"albedo map has NaN/Inf in 1 pixel\(s\), first at \(row 2, col 5\)"):
+            map_io.load_maps({"albedo": tmp_path / "a_albedo.exr"})
+
+    def test_non_unit_normals(self, tmp_path):
+        n, _ = _sphere_normals(8, 8)
+        n[4, 4] *= 0.8
+        _exr(tmp_path / "a_normal.exr", "normal", n, "XYZ")
+        with pytest.raises(
+            ValueError, match=r"not unit length in 1 of \d+ pixel\(s\) \(first at row 4, col 4: \|n\| = 0.8000"
+        ):
+            map_io.load_maps(match_map_files(tmp_path))
+
+    def test_out_of_range_values_are_clipped_and_reported(self, tmp_path):
+        r = np.full((4, 4), 0.5)
+        r[0, 0] = 1.2
+        _exr(tmp_path / "a_rough.exr", "roughness", r, "Y")
+        maps = map_io.load_maps(match_map_files(tmp_path, required=()))
+        assert maps.roughness[0, 0] == 1.0
+        assert len(maps.warnings) == 1 and "roughness outside [0, 1] in 1 pixel(s)" in maps.warnings[0]
+
+    def test_depth_rules(self, tmp_path):
+        _png(tmp_path / "a_depth.png", np.full((4, 4), 0.5))
+        with pytest.raises(ValueError, match="depth maps must be float EXR"):
+            map_io.load_maps({"depth": tmp_path / "a_depth.png"})
+        d = np.full((4, 4), 2.0)
+        d[1, 2] = -1
+        _exr(tmp_path / "a_depth.exr", "depth", d, "Y")
+        with pytest.raises(ValueError, match=r"depth must be finite and > 0 .*row 1, col 2"):
+            map_io.load_maps({"depth": tmp_path / "a_depth.exr"})
+
+    def test_ambiguous_channels(self, tmp_path):
+        write_exr(tmp_path / "a_rough.exr", {"a.Y": np.zeros((2, 2)), "b.Y": np.zeros((2, 2))})
+        with pytest.raises(ValueError, match="cannot tell which channel holds the roughness map"):
+            map_io.load_maps({"roughness": tmp_path / "a_rough.exr"})

@@ -1,0 +1,123 @@
+"""The command-line conventions of every headless script (cross-cutting).
+
+Every ``headless/*.py`` script: ``--help`` exits 0 and prints the module's one-line summary, from
+any working directory (the bootstrap puts the repository root on ``sys.path``) and as
+``python -m headless.x``; each has ``build_parser()`` and ``main(argv=None) -> int``; the flags
+follow one convention (``--input``, ``--out``, ``--seed``, ``--quiet``); old spellings still work
+for one release and print exactly one deprecation line naming the new flag.
+"""
+
+import argparse
+import ast
+import importlib
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from headless._cli import DEPRECATION
+
+ROOT = Path(__file__).resolve().parents[2]
+SCRIPTS = sorted(p.stem for p in (ROOT / "headless").glob("*.py") if not p.name.startswith("_"))
+#: Scripts that draw random numbers take --seed.
+SEEDED = {"bench", "demo", "expand_pbrdf", "optics_check", "render", "train"}
+#: Scripts that read one input file or folder take --input.
+WITH_INPUT = {"bench", "decode", "evaluate", "expand_pbrdf", "infer", "relight", "train"}
+
+
+def _summary(script: str) -> str:
+    """The first line of the script's module docstring."""
+    doc = ast.get_docstring(ast.parse((ROOT / "headless" / f"{script}.py").read_text()))
+    return doc.splitlines()[0]
+
+
+def test_every_script_is_found():
+    assert {"bench", "decode", "demo", "evaluate", "expand_pbrdf", "infer", "optics_check", "relight", "render",
+            "train"} == set(SCRIPTS)  # fmt: skip
+    assert not (ROOT / "headless" / "pipeline.py").exists() and not (ROOT / "headless" / "report.py").exists()
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_help(script, tmp_path):
+    """--help works from another working directory and describes the script."""
+    proc = subprocess.run([sys.executable, str(ROOT / "headless" / f"{script}.py"), "--help"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "usage" in proc.stdout.lower()
+    assert " ".join(_summary(script).split()) in " ".join(proc.stdout.split())
+    assert "--quiet" in proc.stdout or script == "bench"  # bench: on each sub-command (below)
+
+
+def test_help_as_module():
+    proc = subprocess.run([sys.executable, "-m", "headless.bench", "decode", "--help"], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert proc.returncode == 0 and "polanalyser" in proc.stdout and "--quiet" in proc.stdout
+
+
+@pytest.mark.parametrize("script", SCRIPTS)
+def test_thin_main_and_conventions(script):
+    """Importing a script has no side effects; it has build_parser() and main(); the flags follow the convention."""
+    mod = importlib.import_module(f"headless.{script}")
+    assert callable(mod.main) and mod.main.__defaults__ == (None,)
+    parser = mod.build_parser()
+    if script == "bench":  # flags live on the sub-commands
+        sub = next(a for a in parser._actions if a.dest == "what")
+        options = set().union(*({s for a in p._actions for s in a.option_strings} for p in sub.choices.values()))
+    else:
+        options = {s for a in parser._actions for s in a.option_strings}
+    assert {"--help", "--quiet"} <= options
+    assert ("--seed" in options) == (script in SEEDED), script
+    assert ("--input" in options) == (script in WITH_INPUT), script
+    shown = {s for a in parser._actions if a.help != argparse.SUPPRESS for s in a.option_strings}
+    assert not {"--data", "--maps", "--measured", "--capture"} & shown
+
+
+OLD_FLAGS = [
+    # script, old arguments, new flag, attribute, the old form's name in the message
+    ("decode", ["CAPTURE", "--out", "o"], "--input", "input", "the positional CAPTURE_DIR"),
+    ("relight", ["--maps", "pred", "--out", "o"], "--input", "input", "--maps"),
+    ("train", ["--data", "ds", "--out", "o"], "--input", "input", "--data"),
+    ("evaluate", ["--data", "ds", "--checkpoint", "m.pt"], "--input", "input", "--data"),
+    ("expand_pbrdf", ["--measured", "tabs", "--out", "o"], "--input", "input", "--measured"),
+    ("bench", ["network", "--capture", "cap"], "--input", "input", "--capture"),
+]
+
+
+@pytest.mark.parametrize(("script", "argv", "new", "attr", "old"), OLD_FLAGS, ids=[f[0] for f in OLD_FLAGS])
+def test_old_flag_still_works_with_one_deprecation_line(script, argv, new, attr, old, capsys):
+    parser = importlib.import_module(f"headless.{script}").build_parser()
+    args = parser.parse_args(argv)
+    value = argv[argv.index(old) + 1] if old in argv else argv[0]
+    assert str(getattr(args, attr)) == value
+    err = capsys.readouterr().err.splitlines()
+    assert len(err) == 1, err
+    assert err[0] == DEPRECATION.format(prog=parser.prog + (" network" if script == "bench" else ""), old=old,
+                                        new=new)  # fmt: skip
+
+
+def test_old_and_new_flag_together_is_an_error(capsys):
+    from headless import relight
+
+    with pytest.raises(SystemExit) as exc:
+        relight.build_parser().parse_args(["--input", "a", "--maps", "b", "--out", "o"])
+    assert exc.value.code == 2 and "use --input only" in capsys.readouterr().err
+
+
+def test_repeated_old_flag_warns_once(capsys):
+    from headless import relight
+
+    relight.build_parser().parse_args(["--maps", "a", "--maps", "a", "--out", "o"])
+    assert len(capsys.readouterr().err.splitlines()) == 1
+
+
+def test_bootstrap_is_identical_everywhere():
+    """One bootstrap mechanism: the same two lines in every script."""
+    lines = (
+        "if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first\n"
+        "    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))\n"
+    )
+    for script in SCRIPTS:
+        text = (ROOT / "headless" / f"{script}.py").read_text()
+        assert text.count(lines) == 1, script
+        assert text.count("sys.path") == 1, script

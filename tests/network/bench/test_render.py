@@ -1,0 +1,28 @@
+"""network.bench.render: rendered-map error against time, default vs naive configuration."""
+
+import pytest
+
+pytest.importorskip("mitsuba")
+
+from network.bench import render  # noqa: E402
+
+pytestmark = pytest.mark.mitsuba
+
+
+def test_bench_render_default_beats_naive():
+    result = render.run(resolution=32, ref_spp=128, spp=(4, 16))
+    default = next(v for k, v in result.items() if k.startswith("default"))
+    naive = next(v for k, v in result.items() if k.startswith("naive"))
+    # Error falls with samples, and the default configuration is far more accurate per spp
+    # (next-event estimation through the polarizer sheet, stratified samples).
+    assert default["points"][1]["rel_rmse_unpol_lp"] < default["points"][0]["rel_rmse_unpol_lp"]
+    for d, n in zip(default["points"], naive["points"], strict=True):
+        assert d["rel_rmse_unpol_lp"] < 0.5 * n["rel_rmse_unpol_lp"]
+    assert result["speedup_default_over_naive_at_2pct"] > 5
+    # The one timing rule: one warm-up render per point (the first compiles), one timed render.
+    for entry in (default, naive):
+        assert entry["first_call_seconds_incl_jit"] == entry["points"][0]["warmup_seconds"][0]
+        for p in entry["points"]:
+            assert p["warmup_runs"] == 1 and p["repeats"] == 1 and p["seconds"] == p["seconds_median"] > 0
+            assert f"{p['spp']} spp" in p["what"]
+    assert result["reference"]["warmup_runs"] == 0 and "reference" in result["reference"]["what"]

@@ -1,0 +1,542 @@
+"""Tests for pbrdf.data.capture (capture folders on disk) and the headless/decode.py CLI."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from pbrdf.data import capture as cap
+from pbrdf.sensor.camera import CameraModel, SensorParams, simulate_capture
+from pbrdf.sensor.decode import decode
+
+REPO = Path(__file__).resolve().parents[3]
+H, W = 32, 48
+
+
+def _stokes_scene(rng: np.random.Generator, h: int = H, w: int = W) -> np.ndarray:
+    """Physically valid Stokes images ``(h, w, 3, 4)``: random s0, DoP and polarization state."""
+    s0 = rng.uniform(0.02, 1.0, size=(h, w, 3))
+    dop = rng.uniform(0.0, 1.0, size=(h, w, 3))
+    d = rng.normal(size=(h, w, 3, 3))
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    s = np.empty((h, w, 3, 4))
+    s[..., 0] = s0
+    s[..., 1:] = (dop * s0)[..., None] * d
+    return s
+
+
+def _calibrated_model(**changes) -> CameraModel:
+    """A non-default model, so a round trip has something to lose."""
+    model = CameraModel(
+        qwp_angle=0.0125,
+        qwp_retardance=(1.50, 1.55, 1.62),
+        extinction_ratio=(80.0, 120.0, np.inf),
+        analyzer_transmittance=0.93,
+        exposures=(0.01, 0.02, 0.1, 0.2),
+        sensor=SensorParams(gain=0.41, read_noise=3.1, black_level=64.0, bits=12, saturation=0.9),
+        pattern_offset=(1, 2),
+    )
+    return model.replace(**changes)
+
+
+@pytest.fixture
+def synthetic(rng):
+    """``(raws, model)``: a noisy synthetic 32x48 bracket from camera.simulate_capture."""
+    model = _calibrated_model()
+    raws = simulate_capture(_stokes_scene(rng), model, rng=rng, noise=True)
+    return raws, model
+
+
+def _write_json(folder: Path, meta) -> None:
+    (folder / "capture.json").write_text(json.dumps(meta) if not isinstance(meta, str) else meta)
+
+
+def _read_json(folder: Path) -> dict:
+    return json.loads((folder / "capture.json").read_text())
+
+
+def _edit_json(folder: Path, **changes) -> None:
+    meta = _read_json(folder)
+    meta.update(changes)
+    _write_json(folder, meta)
+
+
+# --------------------------------------------------------------------------------------------
+# Round trips
+
+
+class TestRoundTrip:
+    @pytest.mark.parametrize("file_format", ["png", "tiff", "npy"])
+    def test_exact(self, tmp_path, synthetic, file_format):
+        raws, model = synthetic
+        raws = raws.copy()
+        raws[0, 0, 0], raws[-1, -1, -1] = 0, model.sensor.white_level  # both ends of the range
+        extra = {"object": "bunny", "notes": {"lens": "8 mm", "temps_c": [21.5, 22.0]}}
+        folder = cap.save_capture(tmp_path / "c", raws, model, file_format=file_format, extra=extra)
+        loaded = cap.load_capture(folder)
+        assert loaded.raws.dtype == np.uint16
+        np.testing.assert_allclose(loaded.raws, raws, rtol=0, atol=0)
+        assert loaded.model == model
+        assert loaded.metadata == extra
+        assert loaded.folder == folder
+        assert loaded.raw_files == tuple(f"raw_{t:06.1f}ms.{file_format}" for t in (10.0, 20.0, 100.0, 200.0))
+        assert sorted(p.name for p in folder.iterdir()) == sorted([*loaded.raw_files, "capture.json"])
+
+    @pytest.mark.parametrize("file_format", ["png", "tiff"])
+    def test_full_16_bit_range_through_pillow(self, tmp_path, rng, file_format):
+        # 16-bit PNG/TIFF must keep every bit: values from 0 to 65535, odd and even.
+        model = CameraModel(exposures=(0.01,), sensor=SensorParams(bits=16, black_level=0.0))
+        raws = rng.integers(0, 65536, size=(1, 8, 12), dtype=np.uint16)
+        raws[0, 0, :3] = (0, 1, 65535)
+        folder = cap.save_capture(tmp_path / "c", raws, model, file_format=file_format)
+        with Image.open(folder / cap.load_capture(folder).raw_files[0]) as img:
+            assert img.mode == "I;16"
+            assert img.format == file_format.upper()
+        np.testing.assert_allclose(cap.load_capture(folder).raws, raws, rtol=0, atol=0)
+
+    def test_json_layout(self, tmp_path, synthetic):
+        raws, model = synthetic
+        folder = cap.save_capture(tmp_path / "c", raws, model, file_format="npy", extra={"object": "x"})
+        meta = _read_json(folder)
+        assert meta["format"] == cap.CAPTURE_FORMAT == "pdir-capture/1"
+        assert meta["exposures_s"] == [0.01, 0.02, 0.1, 0.2]
+        assert meta["raw_files"] == ["raw_0010.0ms.npy", "raw_0020.0ms.npy", "raw_0100.0ms.npy", "raw_0200.0ms.npy"]
+        assert (meta["black_level"], meta["white_level"], meta["bits"]) == (64.0, 4095, 12)
+        assert meta["pattern_offset"] == [1, 2]
+        assert meta["camera_model"]["extinction_ratio"] == [80.0, 120.0, "inf"]
+        assert meta["object"] == "x"
+
+    def test_save_sorts_exposures_with_raws(self, tmp_path, synthetic):
+        raws, model = synthetic
+        perm = [2, 0, 3, 1]
+        shuffled = model.replace(exposures=tuple(model.exposures[k] for k in perm))
+        folder = cap.save_capture(tmp_path / "c", raws[perm], shuffled, file_format="npy")
+        loaded = cap.load_capture(folder)
+        assert loaded.model == model
+        np.testing.assert_array_equal(loaded.raws, raws)
+
+    def test_load_sorts_exposures_with_files(self, tmp_path, synthetic):
+        raws, model = synthetic
+        folder = cap.save_capture(tmp_path / "c", raws, model, file_format="npy")
+        meta = _read_json(folder)
+        perm = [3, 1, 0, 2]
+        _edit_json(
+            folder,
+            exposures_s=[meta["exposures_s"][k] for k in perm],
+            raw_files=[meta["raw_files"][k] for k in perm],
+        )
+        loaded = cap.load_capture(folder)
+        assert loaded.model.exposures == model.exposures
+        assert loaded.raw_files == tuple(meta["raw_files"])
+        np.testing.assert_array_equal(loaded.raws, raws)
+
+    def test_top_level_keys_override_camera_model(self, tmp_path, synthetic):
+        raws, model = synthetic
+        folder = cap.save_capture(tmp_path / "c", raws, model, file_format="npy")
+        _edit_json(folder, black_level=100.0, pattern_offset=[3, 0], exposures_s=[0.01, 0.03, 0.1, 0.3])
+        loaded = cap.load_capture(folder)
+        assert loaded.model.sensor.black_level == 100.0
+        assert loaded.model.pattern_offset == (3, 0)
+        assert loaded.model.exposures == (0.01, 0.03, 0.1, 0.3)
+        assert loaded.model.qwp_retardance == model.qwp_retardance  # the rest from camera_model
+
+    def test_minimal_hand_written_capture(self, tmp_path, rng):
+        # Only the required keys; camera model defaults; a 16-bit PNG made by another tool.
+        folder = tmp_path / "c"
+        folder.mkdir()
+        frames = [rng.integers(16, 300 * k, size=(8, 16), dtype=np.uint16) for k in (1, 2)]
+        for k, frame in enumerate(frames):
+            Image.fromarray(frame).save(folder / f"f{k}.png")
+        _write_json(
+            folder, {"format": "pdir-capture/1", "exposures_s": [0.01, 0.02], "raw_files": ["f0.png", "f1.png"]}
+        )
+        loaded = cap.load_capture(folder)
+        assert loaded.model == CameraModel(exposures=(0.01, 0.02))
+        assert loaded.metadata == {}
+        np.testing.assert_array_equal(loaded.raws, np.stack(frames))
+
+    def test_whole_number_float_and_int32_npy_accepted(self, tmp_path, synthetic):
+        raws, model = synthetic
+        folder = cap.save_capture(tmp_path / "c", raws, model, file_format="npy")
+        names = _read_json(folder)["raw_files"]
+        np.save(folder / names[0], raws[0].astype(np.float32))
+        np.save(folder / names[1], raws[1].astype(np.int32))
+        loaded = cap.load_capture(folder)
+        assert loaded.raws.dtype == np.uint16
+        np.testing.assert_array_equal(loaded.raws, raws)
+
+    def test_overwrite(self, tmp_path, synthetic):
+        raws, model = synthetic
+        target = tmp_path / "c"
+        cap.save_capture(target, raws, model, file_format="png")
+        with pytest.raises(FileExistsError, match="not empty"):
+            cap.save_capture(target, raws, model, file_format="npy")
+        cap.save_capture(target, raws, model, file_format="npy", overwrite=True)
+        assert sorted(p.name for p in target.iterdir())[-1] == "raw_0200.0ms.npy"
+        assert not any(p.suffix == ".png" for p in target.iterdir())
+        assert [p.name for p in tmp_path.iterdir()] == ["c"]  # no temp or old folders left
+
+    def test_existing_empty_folder_is_used(self, tmp_path, synthetic):
+        raws, model = synthetic
+        (tmp_path / "c").mkdir()
+        cap.save_capture(tmp_path / "c", raws, model, file_format="npy")
+        assert cap.load_capture(tmp_path / "c").raws.shape == (4, H, W)
+
+
+# --------------------------------------------------------------------------------------------
+# Decoding from disk equals decoding in memory
+
+
+class TestDecodeCapture:
+    @pytest.mark.parametrize("file_format", ["png", "tiff", "npy"])
+    @pytest.mark.parametrize("grid", ["half", "full"])
+    def test_same_as_in_memory(self, tmp_path, rng, file_format, grid):
+        model = CameraModel()  # the default camera, 10/20/100/200 ms
+        raws = simulate_capture(_stokes_scene(rng), model, rng=np.random.default_rng(1234), noise=True)
+        folder = cap.save_capture(tmp_path / "c", raws, model, file_format=file_format)
+        expected = decode(raws, model, grid=grid)
+        for got in (cap.decode_capture(folder, grid=grid), cap.decode_capture(cap.load_capture(folder), grid=grid)):
+            np.testing.assert_array_equal(got.maps, expected.maps)
+            np.testing.assert_array_equal(got.mask, expected.mask)
+            np.testing.assert_array_equal(got.stokes, expected.stokes)
+        n = 2 if grid == "half" else 1
+        assert expected.maps.shape == (H // n, W // n, 9)
+
+    def test_calibrated_model_is_used(self, tmp_path, synthetic):
+        raws, model = synthetic
+        folder = cap.save_capture(tmp_path / "c", raws, model, file_format="npy")
+        got = cap.decode_capture(folder)
+        np.testing.assert_array_equal(got.maps, decode(raws, model).maps)
+        assert not np.array_equal(got.maps, decode(raws, CameraModel()).maps)
+
+
+# --------------------------------------------------------------------------------------------
+# Errors on load
+
+
+@pytest.fixture
+def saved(tmp_path, synthetic):
+    """A valid .npy capture folder and its raws."""
+    raws, model = synthetic
+    return cap.save_capture(tmp_path / "c", raws, model, file_format="npy"), raws
+
+
+def _replace_raw(folder: Path, k: int, array: np.ndarray) -> None:
+    np.save(folder / _read_json(folder)["raw_files"][k], array)
+
+
+def _replace_raw_png(folder: Path, k: int, img: Image.Image, suffix: str = ".png") -> None:
+    name = _read_json(folder)["raw_files"][k].replace(".npy", suffix).replace(".png", suffix)
+    img.save(folder / name)
+    meta = _read_json(folder)
+    meta["raw_files"][k] = name
+    _write_json(folder, meta)
+
+
+def _truncate_png(folder: Path) -> None:
+    frame = np.load(folder / "raw_0010.0ms.npy")
+    buf = folder / "full.png"
+    Image.fromarray(frame).save(buf)
+    data = buf.read_bytes()
+    buf.unlink()
+    (folder / "raw_0010.0ms.png").write_bytes(data[: len(data) // 2])
+    meta = _read_json(folder)
+    meta["raw_files"][0] = "raw_0010.0ms.png"
+    _write_json(folder, meta)
+
+
+LOAD_ERRORS = {
+    # name: (mutation of a valid folder, exception, match)
+    "missing capture.json": (lambda f, r: (f / "capture.json").unlink(), FileNotFoundError, r"capture\.json"),
+    "invalid JSON": (lambda f, r: _write_json(f, '{"format": '), ValueError, r"capture\.json: invalid JSON"),
+    "JSON not an object": (lambda f, r: _write_json(f, "[1, 2]"), ValueError, "JSON object"),
+    "wrong format": (lambda f, r: _edit_json(f, format="pdir-capture/9"), ValueError, "unsupported format"),
+    "no format": (lambda f, r: _edit_json(f, format=None), ValueError, "unsupported format None"),
+    "missing exposures": (
+        lambda f, r: _write_json(f, {"format": cap.CAPTURE_FORMAT, "raw_files": ["a.npy"]}),
+        ValueError,
+        "missing required key 'exposures_s'",
+    ),
+    "missing raw file": (lambda f, r: (f / "raw_0020.0ms.npy").unlink(), FileNotFoundError, r"raw_0020\.0ms\.npy"),
+    "length mismatch": (
+        lambda f, r: _edit_json(f, exposures_s=[0.01, 0.02, 0.1]),
+        ValueError,
+        "3 exposures_s but 4 raw_files",
+    ),
+    "no exposures": (lambda f, r: _edit_json(f, exposures_s=[], raw_files=[]), ValueError, "no exposures"),
+    "zero exposure": (lambda f, r: _edit_json(f, exposures_s=[0.0, 0.02, 0.1, 0.2]), ValueError, "positive and finite"),
+    "negative exposure": (
+        lambda f, r: _edit_json(f, exposures_s=[-0.01, 0.02, 0.1, 0.2]),
+        ValueError,
+        "positive and finite",
+    ),
+    "NaN exposure": (
+        lambda f, r: _write_json(f, (f / "capture.json").read_text().replace("0.02,", "NaN,", 1)),
+        ValueError,
+        "exposure time nan s must be positive and finite",
+    ),
+    "infinite exposure": (
+        lambda f, r: _write_json(f, (f / "capture.json").read_text().replace("0.02,", "Infinity,", 1)),
+        ValueError,
+        "positive and finite",
+    ),
+    "exposure not a number": (
+        lambda f, r: _edit_json(f, exposures_s=["10ms", 0.02, 0.1, 0.2]),
+        ValueError,
+        "must be a number",
+    ),
+    "raw path escapes folder": (
+        lambda f, r: _edit_json(f, raw_files=["../x.npy", "b.npy", "c.npy", "d.npy"]),
+        ValueError,
+        "plain file names",
+    ),
+    "raw listed twice": (
+        lambda f, r: _edit_json(f, raw_files=["raw_0010.0ms.npy"] * 2 + ["raw_0100.0ms.npy", "raw_0200.0ms.npy"]),
+        ValueError,
+        "more than once",
+    ),
+    "unsupported raw type": (
+        lambda f, r: _edit_json(f, raw_files=["a.jpg", "b.npy", "c.npy", "d.npy"]),
+        ValueError,
+        r"a\.jpg: unsupported raw file type",
+    ),
+    "NaN in float raw": (
+        lambda f, r: _replace_raw(f, 1, np.where(np.eye(H, W) > 0, np.nan, r[1]).astype(np.float32)),
+        ValueError,
+        r"raw_0020\.0ms\.npy: NaN in raw",
+    ),
+    "Inf in float raw": (
+        lambda f, r: _replace_raw(f, 1, np.where(np.eye(H, W) > 0, np.inf, r[1])),
+        ValueError,
+        "Inf in raw",
+    ),
+    "fractional float raw": (lambda f, r: _replace_raw(f, 1, r[1] + 0.25), ValueError, "whole DN"),
+    "complex raw": (lambda f, r: _replace_raw(f, 1, r[1].astype(np.complex64)), ValueError, "dtype must be an integer"),
+    "bool raw": (lambda f, r: _replace_raw(f, 1, r[1] > 100), ValueError, "dtype must be an integer"),
+    "int32 above uint16": (
+        lambda f, r: _replace_raw(f, 1, r[1].astype(np.int32) + 70000),
+        ValueError,
+        r"do not fit uint16",
+    ),
+    "negative int raw": (lambda f, r: _replace_raw(f, 1, r[1].astype(np.int16) - 100), ValueError, "do not fit uint16"),
+    "object array (pickle)": (
+        lambda f, r: np.save(f / "raw_0020.0ms.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True),
+        ValueError,
+        r"raw_0020\.0ms\.npy: not a readable \.npy",
+    ),
+    "truncated npy": (
+        lambda f, r: (f / "raw_0020.0ms.npy").write_bytes((f / "raw_0020.0ms.npy").read_bytes()[:300]),
+        ValueError,
+        r"raw_0020\.0ms\.npy: not a readable \.npy",
+    ),
+    "shapes differ": (lambda f, r: _replace_raw(f, 2, r[2][:, :-4]), ValueError, r"raw_0100\.0ms\.npy: raw shape"),
+    "3-D raw": (lambda f, r: _replace_raw(f, 1, np.stack([r[1]] * 3, axis=-1)), ValueError, "2-D"),
+    "size not a multiple of 4": (lambda f, r: _replace_raw(f, 1, r[1][:-2]), ValueError, "multiple of 4"),
+    "too small": (lambda f, r: _replace_raw(f, 1, r[1][:4, :4]), ValueError, "at least 8x8"),
+    "colour PNG": (
+        lambda f, r: _replace_raw_png(f, 0, Image.fromarray(np.zeros((H, W, 3), np.uint8))),
+        ValueError,
+        r"raw_0010\.0ms\.png: colour image \(mode 'RGB', 3 channels\)",
+    ),
+    "float TIFF": (
+        lambda f, r: _replace_raw_png(f, 0, Image.fromarray(r[0].astype(np.float32)), ".tiff"),
+        ValueError,
+        "mode 'F' is not an integer grayscale mode",
+    ),
+    "truncated PNG": (lambda f, r: _truncate_png(f), ValueError, r"raw_0010\.0ms\.png: cannot read image"),
+    "not an image": (
+        lambda f, r: _replace_raw_png(f, 0, Image.new("L", (8, 8))) or (f / "raw_0010.0ms.png").write_text("hello"),
+        ValueError,
+        "not a readable PNG/TIFF image",
+    ),
+    "value above white level": (
+        lambda f, r: _replace_raw(f, 3, np.full((H, W), 4096, np.uint16)),
+        ValueError,
+        r"raw_0200\.0ms\.npy: raw value 4096 above white_level 4095",
+    ),
+    "black level at white level": (
+        lambda f, r: _edit_json(f, black_level=4095),
+        ValueError,
+        "black_level 4095.0 must be below white_level 4095",
+    ),
+    "white level not 2**bits - 1": (
+        lambda f, r: _edit_json(f, white_level=65520, bits=None) or _drop_key(f, "bits"),
+        ValueError,
+        r"white_level 65520 is not 2\*\*bits - 1",
+    ),
+    "white level and bits disagree": (
+        lambda f, r: _edit_json(f, white_level=1023, bits=12),
+        ValueError,
+        "white_level 1023 does not match bits 12",
+    ),
+    "unknown camera model key": (
+        lambda f, r: _edit_json(f, camera_model={"qwp_angel": 0.1}),
+        ValueError,
+        "invalid camera model .*unknown camera model keys",
+    ),
+    "bad camera model value": (
+        lambda f, r: _edit_json(f, camera_model={"extinction_ratio": [0.5, 1, 1]}),
+        ValueError,
+        "invalid camera model .*extinction_ratio",
+    ),
+    "files out of order": (
+        lambda f, r: _edit_json(
+            f, raw_files=["raw_0200.0ms.npy", "raw_0020.0ms.npy", "raw_0100.0ms.npy", "raw_0010.0ms.npy"]
+        ),
+        ValueError,
+        "out of order",
+    ),
+}
+
+
+def _drop_key(folder: Path, key: str) -> None:
+    meta = _read_json(folder)
+    meta.pop(key, None)
+    meta["camera_model"]["sensor"].pop("bits", None)
+    _write_json(folder, meta)
+
+
+class TestLoadErrors:
+    @pytest.mark.parametrize("case", list(LOAD_ERRORS), ids=list(LOAD_ERRORS))
+    def test_raises(self, saved, case):
+        folder, raws = saved
+        mutate, exc, match = LOAD_ERRORS[case]
+        mutate(folder, raws)
+        with pytest.raises(exc, match=match) as info:
+            cap.load_capture(folder)
+        message = str(info.value)
+        assert "\n" not in message
+        assert str(folder) in message  # every message names the folder or a file in it
+
+    def test_missing_folder(self, tmp_path):
+        with pytest.raises(FileNotFoundError, match="capture folder does not exist"):
+            cap.load_capture(tmp_path / "nope")
+
+    def test_folder_is_a_file(self, tmp_path):
+        (tmp_path / "f").write_text("x")
+        with pytest.raises(NotADirectoryError, match="not a folder"):
+            cap.load_capture(tmp_path / "f")
+
+    def test_dark_frames_are_not_judged_for_order(self, saved):
+        folder, raws = saved
+        black = np.full((H, W), 64, np.uint16)
+        for k in range(4):
+            _replace_raw(folder, k, black + (k % 2))
+        assert cap.load_capture(folder).raws.shape == (4, H, W)
+
+
+# --------------------------------------------------------------------------------------------
+# Errors on save, validate_capture, atomicity
+
+
+class TestSaveErrors:
+    def test_bad_file_format(self, tmp_path, synthetic):
+        with pytest.raises(ValueError, match="file_format must be one of"):
+            cap.save_capture(tmp_path / "c", *synthetic, file_format="jpg")
+
+    def test_extra_uses_reserved_key(self, tmp_path, synthetic):
+        with pytest.raises(ValueError, match=r"extra may not set the capture format keys \['exposures_s'\]"):
+            cap.save_capture(tmp_path / "c", *synthetic, extra={"exposures_s": [1.0]})
+
+    @pytest.mark.parametrize("extra", [{"x": float("nan")}, {"x": object()}])
+    def test_extra_not_json(self, tmp_path, synthetic, extra):
+        with pytest.raises(ValueError, match="not valid JSON"):
+            cap.save_capture(tmp_path / "c", *synthetic, extra=extra)
+        assert not (tmp_path / "c").exists()
+
+    def test_wrong_number_of_raws(self, tmp_path, synthetic):
+        raws, model = synthetic
+        with pytest.raises(ValueError, match="3 raw frames for 4 exposure times"):
+            cap.save_capture(tmp_path / "c", raws[:3], model)
+
+    def test_above_white_level(self, tmp_path, synthetic):
+        raws, model = synthetic
+        with pytest.raises(ValueError, match="above white_level 4095"):
+            cap.save_capture(tmp_path / "c", raws.astype(np.int32) * 16, model)
+
+    def test_raws_out_of_order(self, tmp_path, synthetic):
+        raws, model = synthetic
+        with pytest.raises(ValueError, match="out of order"):
+            cap.save_capture(tmp_path / "c", raws[::-1], model)
+
+    def test_target_is_a_file(self, tmp_path, synthetic):
+        (tmp_path / "c").write_text("x")
+        with pytest.raises(FileExistsError, match="not a folder"):
+            cap.save_capture(tmp_path / "c", *synthetic, overwrite=True)
+
+    def test_missing_parent(self, tmp_path, synthetic):
+        with pytest.raises(FileNotFoundError, match="parent folder"):
+            cap.save_capture(tmp_path / "a" / "c", *synthetic)
+
+
+class TestValidateCapture:
+    def test_valid(self, synthetic):
+        raws, model = synthetic
+        cap.validate_capture(cap.Capture(raws=raws, model=model))
+
+    @pytest.mark.parametrize(
+        ("change", "match"),
+        [
+            (lambda r, m: (r[0], m), r"raws must have shape \(E, H, W\)"),
+            (lambda r, m: (r[:2], m), "2 raw frames for 4 exposure times"),
+            (lambda r, m: (r[:, :30], m), "multiple of 4"),
+            (lambda r, m: (r.astype(np.float64) + 0.5, m), "whole DN"),
+            (lambda r, m: (r, m.replace(sensor=SensorParams(bits=4))), "black_level 16.0 must be below"),
+        ],
+    )
+    def test_invalid(self, synthetic, change, match):
+        raws, model = change(*synthetic)
+        with pytest.raises(ValueError, match=match):
+            cap.validate_capture(cap.Capture(raws=raws, model=model))
+
+    def test_decode_capture_validates_in_memory_capture(self, synthetic):
+        raws, model = synthetic
+        with pytest.raises(ValueError, match="above white_level"):
+            cap.decode_capture(cap.Capture(raws=raws.astype(np.int32) + 8000, model=model))
+
+
+class TestAtomicSave:
+    @staticmethod
+    def _failing_writer(monkeypatch, after: int = 1):
+        real = cap._write_raw
+        calls = []
+
+        def writer(path, raw, file_format):
+            if len(calls) >= after:
+                raise OSError("disk full (simulated)")
+            calls.append(path)
+            real(path, raw, file_format)
+
+        monkeypatch.setattr(cap, "_write_raw", writer)
+        return calls
+
+    @pytest.mark.parametrize("file_format", ["png", "npy"])
+    def test_failure_leaves_nothing(self, tmp_path, monkeypatch, synthetic, file_format):
+        calls = self._failing_writer(monkeypatch)
+        with pytest.raises(OSError, match="disk full"):
+            cap.save_capture(tmp_path / "c", *synthetic, file_format=file_format)
+        assert len(calls) == 1 and calls[0].parent != tmp_path / "c"  # wrote into a temp folder
+        assert list(tmp_path.iterdir()) == []  # neither the target nor a temp folder
+
+    def test_failure_keeps_previous_capture(self, tmp_path, monkeypatch, synthetic):
+        raws, model = synthetic
+        target = cap.save_capture(tmp_path / "c", raws, model, file_format="npy")
+        before = sorted((p.name, p.read_bytes()) for p in target.iterdir())
+        self._failing_writer(monkeypatch, after=2)
+        with pytest.raises(OSError, match="disk full"):
+            cap.save_capture(target, raws, model, file_format="png", overwrite=True)
+        assert sorted((p.name, p.read_bytes()) for p in target.iterdir()) == before
+        assert [p.name for p in tmp_path.iterdir()] == ["c"]
+
+    def test_interrupt_leaves_nothing(self, tmp_path, monkeypatch, synthetic):
+        def interrupted(path, raw, file_format):
+            raise KeyboardInterrupt
+
+        monkeypatch.setattr(cap, "_write_raw", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            cap.save_capture(tmp_path / "c", *synthetic)
+        assert list(tmp_path.iterdir()) == []
