@@ -9,7 +9,7 @@ LLVM_STAMP := $(VENV)/.llvm-ok
 CHROMIUM_STAMP := $(VENV)/.chromium-ok
 OUT ?= out
 
-.PHONY: setup demo test test-fast bench lint format clean help addon train-model
+.PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets
 
 help:  ## list targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -60,14 +60,22 @@ MODEL_DATA := $(OUT)/model-data
 MODEL_RUN := $(OUT)/model-small
 MODEL_STEPS ?= 700
 train-model: setup  ## reproduce models/small/model.pt: render data, train `small`, evaluate on held-out scenes
-	$(PY) headless/render.py --out $(MODEL_DATA)/train --count 158 --resolution 128 --spp 16 --seed 100 --resume --quiet
-	$(PY) headless/render.py --out $(MODEL_DATA)/val --count 12 --resolution 128 --spp 16 --seed 9000 --resume --quiet
+	$(PY) headless/render.py --split train --out $(MODEL_DATA)/train --resume --quiet
+	$(PY) headless/render.py --split val --out $(MODEL_DATA)/val --resume --quiet
 	$(PY) headless/train.py --input $(MODEL_DATA)/train --val $(MODEL_DATA)/val --config small \
 	    --overrides image_size=128 canonical_size=64 train_pixels=1024 infer_chunk=4096 \
 	    --steps $(MODEL_STEPS) --batch-size 4 --lr 2e-4 --min-lr-ratio 1.0 --seed 0 --checkpoint-every 25 \
 	    --out $(MODEL_RUN) --resume
 	$(PY) headless/evaluate.py --checkpoint $(MODEL_RUN)/model.pt --input $(MODEL_DATA)/val --out $(MODEL_RUN)/eval
 	cp $(MODEL_RUN)/model.pt models/small/model.pt
+
+# The fixed test splits (pbrdf/data/splits.py): rendered once, read only by the final evaluation.
+SPLITS_DIR := $(OUT)/splits
+test-sets: setup  ## render the test splits (48 scenes each, raw brackets kept) into $(OUT)/splits
+	$(PY) headless/render.py --split test-procedural --out $(SPLITS_DIR)/test-procedural --resume --quiet
+	$(PY) headless/render.py --split test-meshes --out $(SPLITS_DIR)/test-meshes --resume --quiet
+	$(PY) headless/expand_pbrdf.py --out $(SPLITS_DIR)/pbrdfs-test --count 24 --seed 22000 --quiet
+	$(PY) headless/render.py --split test-pbrdf --pbrdfs $(SPLITS_DIR)/pbrdfs-test --out $(SPLITS_DIR)/test-pbrdf --resume --quiet
 
 addon: setup  ## build the Blender extension zip into dist/
 	$(PY) tools/build_addon.py --out dist

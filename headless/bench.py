@@ -10,9 +10,9 @@ decode: a raw IMX250MYR HDR bracket decoded into the nine maps on the half and f
 to polanalyser's demosaic + Stokes (network.bench.decode). render: error of the rendered maps
 against time for the default and a naive Mitsuba configuration (network.bench.render). pbrdf:
 PCA error against components, validity-filter throughput, expansion speed
-(network.bench.expansion). network: inference and training time, memory and the error of each
-decoding stride per model config, and network.infer.predict on a capture with the shipped
-model (network.bench.model).
+(network.bench.expansion). network: inference and training time and memory per model config,
+and network.infer.predict on a capture with the shipped model: its time and the error of each
+decoding stride against stride 1 (network.bench.model).
 
 One timing rule everywhere (network.bench.timing): --warmup untimed calls, then --repeat timed
 calls; every timed entry reports what it timed, its median (seconds_median) and all samples
@@ -23,7 +23,6 @@ a smoke test. `network --capture` still works for one release (use --input).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -31,6 +30,7 @@ if not __package__:  # run as a file (python headless/x.py, blender -b -P): the 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from headless._cli import add_deprecated  # noqa: E402
+from pbrdf.io.strict_json import dumps_strict  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Sizes of --quick (a smoke test), per benchmark.
@@ -81,7 +81,7 @@ def build_parser() -> argparse.ArgumentParser:
     q = add("pbrdf", "PCA error vs components, validity-filter throughput, expansion speed", "network.bench.expansion")
     q.add_argument("--count", type=int, default=40, help="tables generated to time the expansion (default 40)")
     _common(q, repeat=3)
-    nb = add("network", "inference and training time, memory and stride error per model config", "network.bench.model")
+    nb = add("network", "time and memory per model config; stride error of the shipped model", "network.bench.model")
     nb.add_argument("--configs", nargs="+", default=["toy", "small"], choices=["toy", "small", "paper"])
     nb.add_argument("--paper", action="store_true", help="also run the paper config (minutes on a CPU)")
     nb.add_argument("--size", type=int, help="input size (default: the config's)")
@@ -146,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
     except (ValueError, OSError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    text = json.dumps(result, indent=2)
+    text = dumps_strict(result)
     print(text)
     if args.out:
         from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415

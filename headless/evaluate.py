@@ -1,5 +1,7 @@
-"""Evaluate trained models against ground truth and the photometric-stereo baseline.
+"""Evaluate trained models against ground truth, the photometric-stereo baseline and constant answers.
 
+    python headless/evaluate.py --split test [--input out/splits] [--checkpoint models/small/model.pt] [--out DIR]
+    python headless/evaluate.py --write-train-stats FILE --input TRAIN_DIR
     python headless/evaluate.py --checkpoint runs/full/model.pt --input DIR [--out DIR] [--limit N] [--quiet]
     python headless/evaluate.py --checkpoint white=runs/w/model.pt --checkpoint spectral=runs/s/model.pt \\
         --checkpoint polar=runs/p/model.pt --checkpoint full=runs/f/model.pt --input DIR --white-data WDIR
@@ -14,6 +16,15 @@ The 'white' variant needs the same scenes rendered with the white display patter
 (`headless/render.py --rig white.json`, white.json = {"display": {"pattern": "white"}}): --white-data.
 --real DIR adds the re-rendering error on real captures (real.md). --data still works for one
 release (use --input).
+
+--split test scores every test split found under --input (default out/splits; render them with
+`make test-sets`), --split NAME one of them, through the real-capture path (raw brackets ->
+decode -> automatic foreground mask -> model), against the calibrated photometric-stereo
+baseline and the constant predictor (normal facing the camera, training means from
+--train-stats, default train_stats.json beside the checkpoint), on the object coverage, with
+per-scene and pixel-weighted means and 95 % bootstrap intervals. Writes test_splits.md and
+test_splits.json (strict JSON) to --out (default INPUT/eval). Only test splits are accepted.
+--write-train-stats FILE computes those training means from the train split at --input.
 """
 
 from __future__ import annotations
@@ -57,8 +68,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="evaluate.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--checkpoint", action="append", required=True, metavar="[VARIANT=]PATH",
-                        help="model.pt/checkpoint.pt; repeat as VARIANT=PATH for the input ablation")  # fmt: skip
+    parser.add_argument("--checkpoint", action="append", metavar="[VARIANT=]PATH",
+                        help="model.pt/checkpoint.pt; repeat as VARIANT=PATH for the input ablation "
+                             "(default with --split: the shipped model)")  # fmt: skip
+    parser.add_argument("--split", metavar="NAME", help="'test' (every test split under --input) or one split name")
+    parser.add_argument("--train-stats", type=Path, help="training means for the constant row (--split)")
+    parser.add_argument("--write-train-stats", type=Path, metavar="FILE", help="compute training means from --input")
     parser.add_argument("--input", type=Path, metavar="DIR", help="rendered dataset with ground truth (required)")
     parser.add_argument("--white-data", type=Path, help="the same scenes rendered with the white pattern")
     parser.add_argument("--real", type=Path, help="folder of real captures: re-rendering error")
@@ -73,8 +88,15 @@ def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error)."""
     parser = build_parser()
     args = parser.parse_args(argv)
-    require(parser, args, "--input")
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
+    if args.write_train_stats is not None:
+        require(parser, args, "--input")
+        return _write_train_stats(args)
+    if args.split is not None:
+        return _evaluate_splits(args)
+    require(parser, args, "--input")
+    if not args.checkpoint:
+        parser.error("the following arguments are required: --checkpoint")
     from network.evaluate import evaluate, real_markdown, table1_markdown, table3_markdown, write_results  # noqa: PLC0415
 
     try:
@@ -90,6 +112,57 @@ def main(argv: list[str] | None = None) -> int:
     if result.get("real"):
         print(real_markdown(result))
     print("wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+def _write_train_stats(args: argparse.Namespace) -> int:
+    from network.constant import save_statistics, train_statistics  # noqa: PLC0415
+
+    try:
+        stats = train_statistics(args.input, limit=args.limit)
+        path = save_statistics(stats, args.write_train_stats)
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    print(f"{stats['samples']} samples, {stats['pixels']} pixels: albedo {stats['albedo']}, "
+          f"roughness {stats['roughness']:.3f}, metallic {stats['metallic']:.3f}\nwrote {path}")  # fmt: skip
+    return 0
+
+
+def _evaluate_splits(args: argparse.Namespace) -> int:
+    import time  # noqa: PLC0415
+
+    from network.checkpoint import load_checkpoint  # noqa: PLC0415
+    from network.constant import STATS_FILE, load_statistics  # noqa: PLC0415
+    from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
+    from network.split_eval import evaluate_split, split_markdown, write_split_results  # noqa: PLC0415
+    from pbrdf.data.splits import get_split, test_splits  # noqa: PLC0415
+
+    t0 = time.perf_counter()
+    root = args.input or Path("out/splits")
+    try:
+        if args.checkpoint and len(args.checkpoint) > 1:
+            raise ValueError("--split scores one checkpoint")
+        ckpt_path = Path(args.checkpoint[0]) if args.checkpoint else Path(DEFAULT_CHECKPOINT)
+        names = [s.name for s in test_splits()] if args.split == "test" else [get_split(args.split).name]
+        folders = [root / n for n in names if (root / n).is_dir()] if args.split == "test" else [root / names[0]]
+        if not folders or not all(f.is_dir() for f in folders):
+            raise FileNotFoundError(
+                f"{root}: no test split folders ({', '.join(names)}); render them with `make test-sets`"
+            )
+        stats = load_statistics(args.train_stats or ckpt_path.parent / STATS_FILE)
+        model, ckpt = load_checkpoint(ckpt_path)
+        results = [evaluate_split(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet) for f in folders]
+        files = write_split_results(results, args.out or root / "eval")
+    except (ValueError, OSError) as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 2
+    for r in results:
+        print(split_markdown(r))
+    missing = [n for n in names if not (root / n).is_dir()]
+    if missing:
+        print(f"not rendered (skipped): {', '.join(missing)}")
+    print(f"checkpoint {ckpt_path}; {time.perf_counter() - t0:.0f} s; wrote " + ", ".join(str(f) for f in files))
     return 0
 
 

@@ -3,6 +3,7 @@
 Random objects in front of the polarized display are rendered with Mitsuba 3, passed through
 the camera model and the decoder.
 
+    python headless/render.py --split NAME [--out DIR] [--count N] [--resume]
     python headless/render.py --out DIR --count N [--resolution 384] [--seed S] [--spp 32]
         [--assets DIR] [--pbrdfs DIR] [--rig FILE] [--resume] [--shard K/N]
         [--scene SPEC.json] [--via-blender] [--npz] [--quiet]
@@ -13,9 +14,15 @@ versions); DIR/manifest.json lists the completed samples. Every sample is a pure
 --seed and its index: --shard K/N renders the indices i with i % N == K (run N processes, e.g.
 a job array, into the same folder), --resume skips completed samples after a kill.
 
-Without --assets the built-in procedural shapes are used; without --pbrdfs, analytic
-polarimetric materials (pplastic and rough conductors) with random parameters. --scene renders
-one given scene spec (e.g. exported by the Blender add-on) instead of random scenes (--count
+--split renders one of the project's fixed splits (train, val, test-procedural, test-meshes,
+test-pbrdf; pbrdf/data/splits.py) with its own seed, count, resolution, spp and shapes; test
+splits keep the raw brackets so they are scored through the real-capture path. The manifest
+and every sidecar record the split; training refuses test splits.
+
+Without --assets the built-in procedural shapes are used (--shapes meshes: the unseen test
+meshes); without --pbrdfs, analytic polarimetric materials (pplastic and rough conductors)
+with random parameters. --scene renders one given scene spec (e.g. exported by the Blender
+add-on) instead of random scenes (--count
 defaults to 1). --npz also writes DIR/arrays/NNNNNN.npz (numpy only, read by the add-on).
 
 Two routes, same arguments, same files for the same seeds:
@@ -43,6 +50,7 @@ if not __package__:  # run as a file (python headless/x.py, blender -b -P): the 
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from headless._cli import script_args  # noqa: E402
+from pbrdf.data.splits import SPLITS, get_split  # noqa: E402
 
 
 def _in_blender_binary() -> bool:
@@ -51,16 +59,52 @@ def _in_blender_binary() -> bool:
     return bpy is not None and bool(getattr(bpy.app, "binary_path", ""))
 
 
+def _apply_split(args: argparse.Namespace) -> str | None:
+    """Fill the arguments a ``--split`` fixes; returns the split name (None without --split)."""
+    if args.split is None:
+        return None
+    split = get_split(args.split)
+    if args.seed is not None and args.seed != split.seed:
+        raise ValueError(f"--split {split.name} renders with seed {split.seed}; --seed cannot change it")
+    if args.scene is not None or args.assets is not None:
+        raise ValueError("--split draws its own scenes: it cannot be combined with --scene or --assets")
+    if split.pbrdfs and args.pbrdfs is None:
+        raise ValueError(f"--split {split.name} needs --pbrdfs DIR (expanded tables; `make test-sets` makes them)")
+    if not split.pbrdfs and args.pbrdfs is not None:
+        raise ValueError(f"--split {split.name} uses analytic materials: drop --pbrdfs")
+    if args.count is not None and not 1 <= args.count <= split.count:
+        raise ValueError(f"--count must be in 1..{split.count} for --split {split.name}, got {args.count}")
+    args.seed = split.seed
+    args.count = split.count if args.count is None else args.count
+    args.resolution = split.resolution if args.resolution is None else args.resolution
+    args.spp = split.spp if args.spp is None else args.spp
+    args.shapes = args.shapes or split.shapes
+    if args.shapes != split.shapes:
+        raise ValueError(f"--split {split.name} uses --shapes {split.shapes}")
+    args.keep_raw = args.keep_raw or split.keep_raw
+    args.out = args.out or Path("out/splits") / split.name
+    return split.name
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (see the module docstring)."""
     parser = argparse.ArgumentParser(
         prog="render.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--out", type=Path, required=True, help="dataset folder")
+    parser.add_argument("--out", type=Path, help="dataset folder (default with --split: out/splits/NAME)")
+    parser.add_argument(
+        "--split",
+        choices=list(SPLITS),
+        help="render a fixed split (pbrdf/data/splits.py): its seed, count, resolution, spp, shapes and raw "
+        "brackets; --count renders only its first N scenes",
+    )
     parser.add_argument("--count", type=int, help="total number of samples in the dataset (default 1 with --scene)")
-    parser.add_argument("--resolution", type=int, default=384, help="sample size in pixels (default 384)")
-    parser.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
-    parser.add_argument("--spp", type=int, default=32, help="samples per pixel per colour pass (default 32)")
+    parser.add_argument("--resolution", type=int, help="sample size in pixels (default 384)")
+    parser.add_argument("--seed", type=int, help="run seed (default 0)")
+    parser.add_argument("--spp", type=int, help="samples per pixel per colour pass (default 32)")
+    parser.add_argument(
+        "--shapes", choices=["procedural", "meshes"], help="built-in shapes: the training ones or the unseen meshes"
+    )
     parser.add_argument("--assets", type=Path, help="folder of GLB/GLTF/OBJ/PLY assets (default: procedural shapes)")
     parser.add_argument("--pbrdfs", type=Path, help="folder with materials.json and pBRDF tables (default: analytic)")
     parser.add_argument("--rig", type=Path, help="rig JSON overriding the default rig (calibrated rigs)")
@@ -86,8 +130,11 @@ def main(argv: list[str] | None = None) -> int:
     from pbrdf.data.dataset import parse_shard  # noqa: PLC0415
 
     try:
+        split = _apply_split(args)
+        if args.out is None:
+            raise ValueError("--out is required (unless --split is given)")
         if args.count is None and args.scene is None:
-            raise ValueError("--count is required (unless --scene is given)")
+            raise ValueError("--count is required (unless --scene or --split is given)")
         spec_hook = None
         if args.via_blender or _in_blender_binary():
             try:
@@ -101,9 +148,11 @@ def main(argv: list[str] | None = None) -> int:
         cfg = GenerateConfig(
             out=args.out,
             count=1 if args.count is None else args.count,
-            resolution=args.resolution,
-            seed=args.seed,
-            spp=args.spp,
+            resolution=384 if args.resolution is None else args.resolution,
+            seed=0 if args.seed is None else args.seed,
+            spp=32 if args.spp is None else args.spp,
+            shapes=args.shapes or "procedural",
+            split=split,
             assets=args.assets,
             pbrdfs=args.pbrdfs,
             rig=args.rig,

@@ -29,7 +29,6 @@ unpol and LP maps against the measured ones) uses :mod:`network.rerender` and
 from __future__ import annotations
 
 import importlib.util
-import json
 import math
 from collections.abc import Mapping
 from pathlib import Path
@@ -40,6 +39,7 @@ import torch
 
 from pbrdf.data import dataset as pdataset
 from pbrdf.io.atomic import atomic_write_text
+from pbrdf.io.strict_json import dumps_strict
 
 from . import baseline, metrics
 from .checkpoint import load_checkpoint
@@ -95,22 +95,20 @@ def _pattern(meta: Mapping) -> str:
 def baseline_predict(maps: np.ndarray, mask: np.ndarray, meta: Mapping) -> dict[str, np.ndarray]:
     """Photometric-stereo normal and albedo ``(H, W, 3)`` for a sample, calibrated from its sidecar.
 
-    The light directions are those of the sample's rig (display pattern regions seen from the
-    centre of the objects), rotated into the camera frame; the irradiance scale includes the
-    display's radiance.
-    """
-    from pbrdf.sensor.rig import Rig  # noqa: PLC0415  (bpy-free geometry)
+    :func:`network.baseline.predict_sample`: the display's colour regions as planar patches
+    (the sample's rig) in the camera frame, at each pixel's point (the object's centre depth, then
+    the integrated normals), the albedo colour calibrated from the image, normals fitted to the
+    horizon-clipped Lambertian model of the ``unpol`` maps (regions whose light is mostly
+    polarized, e.g. metals, get a constant normal toward the camera).
 
+    Raises:
+        ValueError: the sample shows the white pattern (no colour regions), or its sidecar has no
+            objects or intrinsics.
+    """
     if _pattern(meta) == "white":
         raise ValueError("photometric stereo needs the display's colour regions, not the white pattern")
-    rig = Rig.from_dict(meta["rig"])
-    objects = meta.get("objects") or []
-    centre = np.mean([np.asarray(o["to_world"], dtype=np.float64)[:3, 3] for o in objects], axis=0) if objects else None
-    if centre is None:
-        raise ValueError("sample sidecar has no objects: cannot place the baseline's light directions")
-    dirs, scale = baseline.region_light_directions(rig.display, centre)
-    rot = rig.camera.world_to_camera()[:3, :3]
-    return baseline.photometric_stereo(maps[..., :3], mask, dirs @ rot.T, scale * rig.display.radiance)
+    out = baseline.predict_sample(maps, mask, meta)
+    return {"normal": out["normal"], "albedo": out["albedo"]}
 
 
 def sample_metrics(pred: Mapping[str, np.ndarray], gt: Mapping[str, np.ndarray], mask: np.ndarray, *,
@@ -402,22 +400,12 @@ def real_markdown(result: Mapping) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _jsonable(x: Any) -> Any:
-    if isinstance(x, float) and not math.isfinite(x):
-        return str(x)  # "inf" for a perfect PSNR: strict JSON has no Infinity
-    if isinstance(x, dict):
-        return {k: _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    return x
-
-
 def write_results(result: Mapping, out_dir: str | Path) -> list[Path]:
     """Write ``metrics.json``, ``table1.md``, ``table3.md`` (and ``real.md`` with real data) atomically."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = {
-        "metrics.json": json.dumps(_jsonable(result), indent=2) + "\n",
+        "metrics.json": dumps_strict(result) + "\n",
         "table1.md": table1_markdown(result),
         "table3.md": table3_markdown(result),
     }

@@ -33,11 +33,16 @@ OUTPUTS = {"normal": 3, "albedo": 3, "roughness": 1, "metallic": 1}
 
 
 def load_input(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
-    """Nine maps ``(H, W, 9)`` and mask ``(H, W)`` from a sample EXR/JSON or a capture folder."""
+    """Nine maps ``(H, W, 9)`` and mask ``(H, W)`` from a sample EXR/JSON or a capture folder.
+
+    For a capture folder the mask is the object (its ``mask.png``, else the automatic foreground
+    mask of :mod:`pbrdf.sensor.foreground`) restricted to the measured pixels:
+    :attr:`pbrdf.data.capture.DecodedCapture.input_mask`, not the decoder's validity mask.
+    """
     path = Path(path)
     if path.is_dir() and (path / pcapture.CAPTURE_JSON).is_file():
         dec = pcapture.decode_capture(path)
-        return dec.maps, dec.mask
+        return dec.maps, dec.input_mask
     if path.suffix in (".exr", ".json") and path.exists():
         sample, _ = pdataset.read_sample(path, keys=("maps", "mask"))
         return sample["maps"], sample["mask"]

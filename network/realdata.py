@@ -135,7 +135,7 @@ def load_real_input(
             raise ValueError(f"{path / pcapture.CAPTURE_JSON}: {exc}") from None
         k = k.copy()
         k[:2] *= dec.maps.shape[0] / h  # half grid: pixel centres scale with the grid
-        return dec.maps, dec.mask, k, rig, None, distance
+        return dec.maps, dec.input_mask, k, rig, None, distance
     keys = ("maps", "mask", "depth") if use_depth else ("maps", "mask")
     sample, meta = pdataset.read_sample(path, keys=keys)
     try:

@@ -49,6 +49,8 @@ import torch.distributed as dist
 from torch import nn
 from torch.utils.data import DataLoader, Dataset
 
+from pbrdf.data.splits import require_role
+
 from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, params_sha256, save_checkpoint
 from .config import get_config
 from .data import TARGET_KEYS, SampleDataset, gather_pixels
@@ -330,6 +332,12 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
     ckpt_path = out / "checkpoint.pt"
     main = dd.rank == 0
     model_cfg = get_config(cfg.config, **cfg.overrides)
+    # Test splits are read by the final evaluation only; selection reads val only.
+    require_role(cfg.data, ("train",), "training")
+    if cfg.val is not None:
+        require_role(cfg.val, ("val",), "validation")
+    if cfg.real is not None:
+        require_role(cfg.real, ("train",), "training (real-data loss)")
     ds = SampleDataset(cfg.data, size=model_cfg.image_size)
     real_ds, real_loss = None, None
     if cfg.real is not None:

@@ -110,3 +110,65 @@ def empty_blend_file():
     """An empty Blender file before the test (the add-on stays registered)."""
     bpy = pytest.importorskip("bpy")
     bpy.ops.wm.read_homefile(use_empty=True)
+
+
+@pytest.fixture
+def bpy(addon_registered):
+    """bpy with an empty scene (factory settings); the add-on stays registered for the module."""
+    import bpy
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    return bpy
+
+
+@pytest.fixture(scope="module")
+def build_spec(addon_registered):
+    """The add-on's ``build_spec`` module (needs the registered add-on)."""
+    from blender_addon import build_spec
+
+    return build_spec
+
+
+@pytest.fixture(scope="module")
+def export_spec(addon_registered):
+    """The add-on's ``export_spec`` module (needs the registered add-on)."""
+    from blender_addon import export_spec
+
+    return export_spec
+
+
+@pytest.fixture(scope="module")
+def render_operator(addon_registered):
+    """The add-on's ``render_operator`` module (needs the registered add-on)."""
+    from blender_addon import render_operator
+
+    return render_operator
+
+
+@pytest.fixture
+def clean_file(addon_registered):
+    """A factory-fresh scene set up for tiny, deterministic Cycles renders (CPU, 2 threads, no denoising)."""
+    bpy = pytest.importorskip("bpy")
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    scene = bpy.context.scene
+    scene.render.engine = "CYCLES"
+    scene.cycles.device = "CPU"
+    scene.cycles.use_denoising = False
+    scene.cycles.use_adaptive_sampling = False
+    scene.render.threads_mode = "FIXED"
+    scene.render.threads = 2
+    scene.cycles.filter_width = 0.01  # sample pixel centres: compare with per-pixel analytic values
+    scene.view_settings.view_transform = "Standard"
+    yield scene
+
+
+@pytest.fixture
+def torch_one_thread():
+    """Torch limited to one thread during the test (a shared 2-core machine: faster and steadier)."""
+    torch = pytest.importorskip("torch")
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(threads)

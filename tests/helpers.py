@@ -61,3 +61,222 @@ def assert_samples_equal(got, want):
         np.testing.assert_array_equal(got[key], arr, err_msg=key)
         if arr.dtype == np.float32:  # bit for bit (the test data has no -0.0, but say so anyway)
             np.testing.assert_array_equal(got[key].view(np.uint32), arr.view(np.uint32), err_msg=key)
+
+
+# --------------------------------------------------------------------------- polarization
+
+#: Unit Stokes vectors of the named polarization states (s1 > 0 horizontal, s3 > 0 right circular).
+HORIZONTAL = [1.0, 1.0, 0.0, 0.0]
+VERTICAL = [1.0, -1.0, 0.0, 0.0]
+PLUS_45 = [1.0, 0.0, 1.0, 0.0]
+MINUS_45 = [1.0, 0.0, -1.0, 0.0]
+RIGHT_CIRCULAR = [1.0, 0.0, 0.0, 1.0]
+LEFT_CIRCULAR = [1.0, 0.0, 0.0, -1.0]
+UNPOLARIZED = [1.0, 0.0, 0.0, 0.0]
+
+
+def random_stokes(rng, n):
+    """Physical Stokes vectors, valid by construction: s0 in [0.1, 2], any DoP, AoLP and ellipticity."""
+    from pbrdf.polar import stokes
+
+    pi = np.pi
+    return stokes.stokes(
+        rng.uniform(0.1, 2.0, n), rng.uniform(0, 1, n), rng.uniform(0, pi, n), rng.uniform(-pi / 4, pi / 4, n)
+    )
+
+
+def assert_angles_close_mod_pi(actual, expected, atol):
+    """Angles of linear polarization are defined modulo pi."""
+    d = np.mod(np.asarray(actual) - np.asarray(expected) + np.pi / 2, np.pi) - np.pi / 2
+    assert np.all(np.abs(d) <= atol), f"max angle error {np.max(np.abs(d))} > {atol}"
+
+
+def assert_pure_mueller(m, atol):
+    """Non-depolarizing (Mueller-Jones) matrices satisfy tr(M^T M) = 4 m00^2.
+
+    J. J. Gil and E. Bernabeu, "A depolarization criterion in Mueller matrices", Optica Acta 32(3):259, 1985.
+    """
+    m = np.asarray(m)
+    np.testing.assert_allclose(np.einsum("...ij,...ij->...", m, m), 4 * m[..., 0, 0] ** 2, atol=atol)
+
+
+def assert_maps_physical_to_physical(m, rng):
+    """Stokes criterion: physical input states give physical output states."""
+    from pbrdf.polar import mueller, stokes
+
+    s_in = random_stokes(rng, 64)
+    s_out = mueller.apply(np.asarray(m)[..., None, :, :], s_in)
+    assert np.all(stokes.is_physical_stokes(s_out, rtol=1e-9, atol=1e-12))
+
+
+def assert_mueller_physical(m, rng):
+    """Cloude and Givens-Kostinski tests of pbrdf.polar.validity, plus the Stokes criterion done here."""
+    from pbrdf.polar import validity
+
+    assert np.all(validity.is_mueller_physical(m))
+    assert_maps_physical_to_physical(m, rng)
+
+
+def mi_matrix(m):
+    """A Mitsuba matrix as a float64 numpy array."""
+    return np.array(m, dtype=np.float64)
+
+
+# --------------------------------------------------------------------------- polarization camera
+
+#: The IMX250MYR 4x4 super-pixel, (row, col), row 0 at the top of the image.
+IMX250MYR_LAYOUT = (
+    ("R90", "R45", "G90", "G45"),
+    ("R135", "R0", "G135", "G0"),
+    ("G90", "G45", "B90", "B45"),
+    ("G135", "G0", "B135", "B0"),
+)
+#: Camera-model options of ideal optics: perfect micro-polarizers and an exact quarter-wave plate.
+IDEAL_OPTICS = {"extinction_ratio": np.inf, "qwp_retardance": np.pi / 2}
+
+
+def parse_layout_entry(entry: str) -> tuple[int, int]:
+    """'G135' -> (colour index in R, G, B; angle in degrees)."""
+    return "RGB".index(entry[0]), int(entry[1:])
+
+
+def elliptical_states() -> np.ndarray:
+    """Three distinct fully polarized elliptical states (R, G, B), s2 != 0 included, shape (3, 4)."""
+    from pbrdf.polar.stokes import stokes
+
+    return stokes(1.0, 1.0, np.deg2rad([20.0, 75.0, 140.0]), np.deg2rad([12.0, -25.0, 33.0]))
+
+
+# --------------------------------------------------------------------------- network models
+
+
+def make_model(name="toy", seed=0, **overrides):
+    """A seeded PolarInverseModel of configuration ``name`` in eval mode."""
+    import torch
+
+    from network.config import get_config
+    from network.model.polar_model import PolarInverseModel
+
+    torch.manual_seed(seed)
+    return PolarInverseModel(get_config(name, **overrides)).eval()
+
+
+def toy_model(seed=0, **overrides):
+    """A seeded toy PolarInverseModel (left in training mode)."""
+    import torch
+
+    from network.config import get_config
+    from network.model.polar_model import PolarInverseModel
+
+    torch.manual_seed(seed)
+    return PolarInverseModel(get_config("toy", **overrides))
+
+
+def toy_inputs(batch=1, size=64, seed=1):
+    """Random maps (B, 9, size, size) and a rectangular mask with a hole (B, 1, size, size)."""
+    import torch
+
+    g = torch.Generator().manual_seed(seed)
+    maps = torch.rand(batch, 9, size, size, generator=g)
+    mask = torch.zeros(batch, 1, size, size)
+    mask[..., 8:56, 12:52] = 1.0
+    mask[..., 20:24, 20:40] = 0.0  # a hole
+    return maps, mask
+
+
+# --------------------------------------------------------------------------- scene specs
+
+
+def rigid_pose(t=(0.0, 0.0, 0.0), rot=None) -> np.ndarray:
+    """4x4 pose with translation ``t`` and 3x3 block ``rot`` (identity if None)."""
+    m = np.eye(4)
+    if rot is not None:
+        m[:3, :3] = rot
+    m[:3, 3] = t
+    return m
+
+
+def rot_x(a: float) -> np.ndarray:
+    """3x3 rotation by ``a`` radians about x."""
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]], dtype=float)
+
+
+# --------------------------------------------------------------------------- Blender (bpy imported on use)
+
+
+def write_pbr_maps(folder, normal, *, albedo=None, mask=None, depth=None, roughness=None, prefix="cap"):
+    """Write a PBR map folder (``<prefix>_normal.exr`` and the optional maps) for the add-on's importer."""
+    from pbrdf.io.exr import write_exr
+
+    folder.mkdir(parents=True, exist_ok=True)
+    write_exr(folder / f"{prefix}_normal.exr", {f"normal.{c}": normal[..., i] for i, c in enumerate("XYZ")})
+    if albedo is not None:
+        write_exr(folder / f"{prefix}_albedo.exr", {f"albedo.{c}": albedo[..., i] for i, c in enumerate("RGB")})
+    if mask is not None:
+        write_exr(folder / f"{prefix}_mask.exr", {"mask.Y": mask.astype(np.float32)})
+    if depth is not None:
+        write_exr(folder / f"{prefix}_depth.exr", {"depth.Y": depth.astype(np.float32)}, allow_nonfinite=True)
+    if roughness is not None:
+        write_exr(folder / f"{prefix}_roughness.exr", {"roughness.Y": roughness.astype(np.float32)})
+    return folder
+
+
+def add_camera(scene, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0)):
+    """A default camera ("Cam") linked to ``scene`` as its active camera; the view layer is updated."""
+    import bpy
+
+    cam = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
+    scene.collection.objects.link(cam)
+    scene.camera = cam
+    cam.location, cam.rotation_euler = location, rotation
+    bpy.context.view_layer.update()
+    return cam
+
+
+def add_render_camera(bpy, location, rotation=(0.0, 0.0, 0.0), *, res=(32, 32), lens=50.0):
+    """The context scene's active camera ("Camera", focal length ``lens``) and its resolution ``res``."""
+    scene = bpy.context.scene
+    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
+    scene.collection.objects.link(cam)
+    cam.location, cam.rotation_euler = location, rotation
+    cam.data.lens = lens
+    scene.camera = cam
+    scene.render.resolution_x, scene.render.resolution_y = res
+    scene.render.resolution_percentage = 100
+    return cam
+
+
+def add_light(bpy, kind: str, location, rotation=(0.0, 0.0, 0.0), **props):
+    """A light of type ``kind`` ("POINT", "SUN", ...) with data properties ``props`` in the context scene."""
+    data = bpy.data.lights.new(kind.lower(), kind)
+    for k, v in props.items():
+        setattr(data, k, v)
+    obj = bpy.data.objects.new(kind.lower(), data)
+    bpy.context.scene.collection.objects.link(obj)
+    obj.location, obj.rotation_euler = location, rotation
+    return obj
+
+
+def world_matrix(obj):
+    """``obj.matrix_world`` (float64) after a view-layer update."""
+    import bpy
+
+    bpy.context.view_layer.update()
+    return np.array(obj.matrix_world, dtype=np.float64)
+
+
+def display_quadrature(display, point, normal=None, n=400):
+    """Irradiance vectors (3, 3) (or, with ``normal``, the irradiance (3,)) by brute-force quadrature."""
+    xs = (np.arange(n) + 0.5) / n * display.width - display.width / 2
+    ys = (np.arange(n // 2) + 0.5) / (n // 2) * display.height - display.height / 2
+    xy = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)
+    to = display.surface_points_world(xy) - point
+    d2 = np.sum(to**2, -1)
+    w = to / np.sqrt(d2)[:, None]
+    cos_d = np.clip(-np.sum(w * display.surface_normals_world(xy), -1), 0, None)
+    weight = cos_d / d2 * display.width * display.height / len(xy) * display.radiance
+    rgb = display.pattern_rgb_at(xy)
+    if normal is None:
+        return np.einsum("pk,p,pc->ck", w, weight, rgb)
+    return np.einsum("p,p,pc->c", np.clip(w @ normal, 0, None), weight, rgb)

@@ -38,6 +38,7 @@ except ModuleNotFoundError:  # Blender's Python: specs, placement and PLY output
 from pbrdf.sensor.rig import Rig, atomic_write_bytes
 
 from .procedural import PROCEDURAL_SHAPES, diameter, normalize, procedural, require_trimesh
+from .unseen_shapes import UNSEEN_SHAPES, unseen_shape
 
 __all__ = [
     "MESH_SUFFIXES",
@@ -161,6 +162,10 @@ def load_mesh(path_or_builtin: str | os.PathLike) -> trimesh.Trimesh:
     builtin = parse_builtin(str(path_or_builtin)) if isinstance(path_or_builtin, str) else None
     if builtin is not None:
         shape, params = builtin
+        if shape in UNSEEN_SHAPES:
+            if params:
+                raise ValueError(f"builtin:{shape} takes no parameters, got {sorted(params)}")
+            return unseen_shape(shape)
         return procedural(shape, **params)
     path = Path(path_or_builtin)
     name = str(path)

@@ -29,9 +29,14 @@ from pbrdf.io.atomic import atomic_write_bytes
 from pbrdf.sensor.rig import Rig
 
 from . import assets, render, scenegen
+from .procedural import PROCEDURAL_SHAPES
 from .spec import SceneSpec
+from .unseen_shapes import UNSEEN_SHAPES
 
 __all__ = ["ARRAYS_DIR", "GenerateConfig", "GenerateReport", "generate", "render_sample", "versions", "write_arrays"]
+
+#: ``--shapes`` choices: the training shapes, or the unseen meshes of the ``test-meshes`` split.
+SHAPE_SETS = {"procedural": PROCEDURAL_SHAPES, "meshes": UNSEEN_SHAPES}
 
 #: Folder of a dataset holding the optional ``NNNNNN.npz`` copies of the samples (``--npz``).
 ARRAYS_DIR = "arrays"
@@ -58,6 +63,8 @@ class GenerateConfig:
     noise: bool = True
     scene: Path | None = None
     npz: bool = False
+    shapes: str = "procedural"
+    split: str | None = None
 
     def __post_init__(self) -> None:
         if self.count < 1:
@@ -66,6 +73,8 @@ class GenerateConfig:
             p = getattr(self, name)
             if p is not None and not Path(p).exists():
                 raise FileNotFoundError(f"--{name} {p}: does not exist")
+        if self.shapes not in SHAPE_SETS:
+            raise ValueError(f"--shapes must be one of {sorted(SHAPE_SETS)}, got {self.shapes!r}")
         if self.scene is not None and (self.assets is not None or self.pbrdfs is not None):
             raise ValueError("--scene renders the given scene: it cannot be combined with --assets or --pbrdfs")
 
@@ -197,6 +206,8 @@ def generate(
         "rig": rig.to_dict(),
         "versions": versions(),
     }
+    if cfg.split is not None:
+        info["split"] = cfg.split
     if spec_hook is not None:
         info["spec_hook"] = f"{spec_hook.__module__}.{spec_hook.__qualname__}"
     bar = None
@@ -211,7 +222,9 @@ def generate(
             if fixed is not None:
                 spec = fixed
             else:
-                spec = scenegen.random_scene(rig, seed, asset_files=asset_files, materials=materials)
+                spec = scenegen.random_scene(
+                    rig, seed, asset_files=asset_files, materials=materials, shapes=SHAPE_SETS[cfg.shapes]
+                )
             if spec_hook is not None:
                 spec = spec_hook(spec)
             t1 = time.perf_counter()
@@ -219,6 +232,8 @@ def generate(
                 spec, settings, sample_seed=seed, noise=cfg.noise, keep_stokes=cfg.keep_stokes, keep_raw=cfg.keep_raw
             )
             meta.update(sample_seed=seed, run_seed=cfg.seed, versions=info["versions"], spec=spec.to_dict())
+            if cfg.split is not None:
+                meta["split"] = cfg.split
             t3 = time.perf_counter()
             t2 = t1 + stages["render"]
             dataset.write_sample(out, index, sample, meta)

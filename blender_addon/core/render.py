@@ -162,7 +162,8 @@ def synthesize_sample(
 
     Returns:
         ``(sample, metadata)`` in :mod:`pbrdf.data.dataset` format: ``maps`` (H,W,9), ``mask``,
-        ``normal``, ``albedo``, ``roughness``, ``metallic``, ``depth`` (+ ``stokes``, ``raw``).
+        ``normal``, ``albedo``, ``roughness``, ``metallic``, ``depth``, ``object`` (+ ``stokes``,
+        ``raw``); the ground truth covers every object pixel, the mask only decoded ones.
     """
     model = spec.rig.camera.model
     t0 = time.perf_counter()
@@ -171,14 +172,17 @@ def synthesize_sample(
     raws = pcamera.simulate_capture(up, model, rng=rng, noise=noise)
     dec = pdecode.decode(raws, model, grid="half")
     t_camera = time.perf_counter() - t0
-    mask = result.mask & dec.mask
+    # Ground truth lives on the object coverage; the training mask also needs a decoded value.
+    cover = result.mask & (result.object_index >= 0)
+    mask = cover & dec.mask
     gt = ground_truth(spec, result)
     sample: dict[str, NDArray] = {
         "maps": np.where(mask[..., None], dec.maps, 0.0).astype(np.float32),
         "mask": mask,
-        "normal": np.where(mask[..., None], result.normal, 0.0).astype(np.float32),
-        "depth": np.where(mask, result.depth, 0.0).astype(np.float32),
-        **{k: np.where(mask[..., None] if v.ndim == 3 else mask, v, 0.0).astype(np.float32) for k, v in gt.items()},
+        "normal": np.where(cover[..., None], result.normal, 0.0).astype(np.float32),
+        "depth": np.where(cover, result.depth, 0.0).astype(np.float32),
+        "object": np.where(cover, result.object_index, -1).astype(np.float32),
+        **{k: np.where(cover[..., None] if v.ndim == 3 else cover, v, 0.0).astype(np.float32) for k, v in gt.items()},
     }
     if keep_stokes:
         sample["stokes"] = result.stokes

@@ -19,6 +19,7 @@ from pbrdf.sensor.rig import Rig
 from . import assets
 from .procedural import PROCEDURAL_SHAPES
 from .spec import MaterialSpec, ObjectSpec, SceneSpec
+from .unseen_shapes import UNSEEN_SHAPES
 
 __all__ = ["METALS", "sample_seed", "random_material", "load_material_library", "random_scene"]
 
@@ -84,6 +85,7 @@ def random_scene(
     *,
     asset_files: list[Path] | None = None,
     materials: list[MaterialSpec] | None = None,
+    shapes: tuple[str, ...] = PROCEDURAL_SHAPES,
     distance: tuple[float, float] = (0.5, 1.0),
     size: tuple[float, float] = (0.15, 0.35),
 ) -> SceneSpec:
@@ -92,7 +94,9 @@ def random_scene(
     Args:
         rig: the capture rig.
         seed: scene seed (e.g. :func:`sample_seed`).
-        asset_files: asset meshes to choose from; None uses the built-in procedural shapes.
+        asset_files: asset meshes to choose from; None uses the built-in ``shapes``.
+        shapes: built-in shapes to choose from (:data:`.procedural.PROCEDURAL_SHAPES`, the
+            training shapes, or :data:`.unseen_shapes.UNSEEN_SHAPES`).
         materials: material library to choose from; None draws analytic materials.
         distance: object distance from the camera in metres.
         size: object diameter in metres.
@@ -101,8 +105,9 @@ def random_scene(
     if asset_files:
         mesh_ref = str(asset_files[int(rng.integers(len(asset_files)))])
     else:
-        shape = PROCEDURAL_SHAPES[int(rng.integers(len(PROCEDURAL_SHAPES)))]
-        mesh_ref = f"builtin:{shape}?seed={int(rng.integers(2**31))}"
+        shape = shapes[int(rng.integers(len(shapes)))]
+        shape_seed = int(rng.integers(2**31))  # drawn for every shape, so the stream does not depend on it
+        mesh_ref = f"builtin:{shape}" if shape in UNSEEN_SHAPES else f"builtin:{shape}?seed={shape_seed}"
     mesh = assets.load_mesh(mesh_ref)
     to_world = assets.place(mesh, rig, rng, distance=distance, size=size)
     material = materials[int(rng.integers(len(materials)))] if materials else random_material(rng)

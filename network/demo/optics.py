@@ -19,7 +19,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +27,7 @@ import numpy as np
 
 from network.demo.report import image_grid
 from pbrdf.io.atomic import atomic_open, atomic_write_text
+from pbrdf.io.strict_json import dumps_strict
 from pbrdf.polar import fresnel, mueller
 from pbrdf.sensor import camera, decode
 
@@ -373,6 +373,6 @@ def run_optics_check(
         t0 = time.perf_counter()
         write_outputs(out, result)
         result.metrics["timings"]["write_s"] = time.perf_counter() - t0
-        atomic_write_text(out / "metrics.json", json.dumps(result.metrics, indent=2) + "\n")
+        atomic_write_text(out / "metrics.json", dumps_strict(result.metrics) + "\n")
         bar.update()
     return result.metrics

@@ -32,7 +32,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 import subprocess
 import sys
 import time
@@ -44,6 +43,7 @@ import numpy as np
 
 from network.demo import report
 from network.metrics import normal_angle_deg
+from pbrdf.io.strict_json import dumps_strict
 
 __all__ = ["DemoConfig", "run_demo"]
 
@@ -205,11 +205,10 @@ def run_demo(cfg: DemoConfig) -> dict:
         ValueError, OSError: from the stages (bad checkpoint, unwritable folder).
     """
     from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
-    from network import evaluate as nevaluate  # noqa: PLC0415
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
-    from network.infer import DEFAULT_CHECKPOINT, predict, write_predictions  # noqa: PLC0415
-    from pbrdf.data import capture as pcapture  # noqa: PLC0415
-    from pbrdf.data import dataset as pdataset  # noqa: PLC0415
+    from network.constant import load_statistics  # noqa: PLC0415
+    from network.infer import DEFAULT_CHECKPOINT, write_predictions  # noqa: PLC0415
+    from network.split_eval import predict_scene, score_scene  # noqa: PLC0415
     from pbrdf.expansion.run import ExpansionConfig, run_expansion  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
 
@@ -255,53 +254,39 @@ def run_demo(cfg: DemoConfig) -> dict:
     samples = [p for sub in ("analytic", "measured") for p in _samples(out / "data" / sub)]
     overall.update()
 
-    # 3. Decode every raw capture folder (the real-capture path).
-    step("decode")
-    decoded = {}
-    with timer.stage("decode (HDR merge, demosaic, Stokes)"):
-        bar = _bar(len(samples), "decode", cfg.progress)
-        for s in samples:
-            raw = s.with_name(s.stem + pdataset.RAW_SUFFIX)
-            decoded[s] = pcapture.decode_capture(raw)
-            bar.update()
-        bar.close()
-    overall.update()
-
-    # 4. The shipped model.
+    # 3-4. Every raw capture folder through the user's path (decode, automatic foreground mask),
+    # then the shipped model, the photometric-stereo baseline and the constant predictor.
     step("infer")
     model, ckpt = load_checkpoint(ckpt_path)
     variant = ckpt.get("inputs", "full")
-    preds, names, truths = {}, {}, {}
-    with timer.stage("network inference"):
-        bar = _bar(len(samples), "infer", cfg.progress)
+    stats = load_statistics(_stats_path(cfg, ckpt_path))
+    scenes, names = {}, {}
+    with timer.stage("capture path: decode, mask, model, baselines"):
+        bar = _bar(len(samples), "predict", cfg.progress)
         for s in samples:
-            sample, meta = pdataset.read_sample(s)
-            mask = sample["mask"].astype(bool)
             name = f"{s.parent.parent.name}_{s.stem}"
-            pred = predict(model, decoded[s].maps, mask, inputs=variant)
-            write_predictions(out / "predictions" / name, name, pred)
-            preds[s], names[s], truths[s] = pred, name, (sample, meta)
+            scene = predict_scene(model, variant, s.parent.parent, int(s.stem), stats)
+            if scene.ours is not None:
+                write_predictions(out / "predictions" / name, name, scene.ours)
+            scenes[s], names[s] = scene, name
             bar.update()
         bar.close()
     overall.update()
+    overall.update()  # the decode stage is part of the capture path above
 
-    # 5. Metrics: ours and the photometric-stereo baseline against the ground truth.
+    # 5. Metrics against the ground truth, on the object coverage.
     step("evaluate")
     rows, figures = [], []
-    with timer.stage("evaluate (+ baseline)"):
+    with timer.stage("evaluate"):
         bar = _bar(len(samples), "evaluate", cfg.progress)
         for s in samples:
-            sample, meta = truths[s]
-            mask = sample["mask"].astype(bool)
-            maps = decoded[s].maps
-            base = nevaluate.baseline_predict(maps, mask, meta)
-            gt = {k: sample[k] for k in ("normal", "albedo", "roughness", "metallic")}
-            ours = nevaluate.sample_metrics(preds[s], gt, mask)
-            theirs = nevaluate.sample_metrics(base, gt, mask)
-            kind = next(iter(meta["materials"].values()))["kind"]
-            rows.append({"scene": names[s], "material": kind, "pixels": int(mask.sum()), "ours": ours,
-                         "baseline": theirs})  # fmt: skip
-            figures += _scene_figures(fig_dir, names[s], maps, mask, gt, preds[s], base)
+            scene = scenes[s]
+            row = score_scene(scene, lpips=True)
+            kind = next(iter(scene.meta["materials"].values()))["kind"]
+            rows.append({"scene": names[s], "material": kind, **row})
+            figures += _scene_figures(
+                fig_dir, names[s], scene.maps, scene.region, scene.gt, scene.preds["ours"], scene.preds["baseline"]
+            )
             bar.update()
         bar.close()
     overall.update()
@@ -316,6 +301,8 @@ def run_demo(cfg: DemoConfig) -> dict:
             script = str(ROOT / "headless" / "relight.py")
             for s in samples:  # one Blender process per asset: bpy never shares a process with torch
                 name, dest = names[s], out / "relit" / names[s]
+                if scenes[s].ours is None:
+                    continue
                 cmd = [sys.executable, script, "--input", str(out / "predictions" / name),
                        "--name", name, "--out", str(dest), "--frames", str(cfg.relight_frames),
                        "--size", str(cfg.relight_size), "--samples", str(cfg.relight_samples), "--save-blend",
@@ -343,8 +330,12 @@ def run_demo(cfg: DemoConfig) -> dict:
         summary = _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, variant, blender_note)
     overall.update()
     overall.close()
-    atomic_write_text(out / "timings.json", json.dumps(timer.seconds, indent=2) + "\n")
+    atomic_write_text(out / "timings.json", dumps_strict(timer.seconds) + "\n")
     return summary
+
+
+def _deg(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.1f} deg"
 
 
 def _read_png(path: Path) -> np.ndarray:
@@ -354,33 +345,37 @@ def _read_png(path: Path) -> np.ndarray:
     return np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
 
 
-def _mean(rows: list[dict], who: str, key: str) -> float:
-    """Mask-weighted mean of ``rows[i][who][key]`` over the rows that have it; NaN if none."""
-    vals = [(r[who][key], r["pixels"]) for r in rows if r[who].get(key) is not None]
-    if not vals:
-        return float("nan")
-    return float(sum(v * w for v, w in vals) / sum(w for _, w in vals))
+def _stats_path(cfg: DemoConfig, ckpt_path: Path) -> Path:
+    """Training statistics for the constant row: beside the checkpoint, else the shipped model's."""
+    from network.constant import STATS_FILE  # noqa: PLC0415
+    from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
+
+    beside = Path(ckpt_path).parent / STATS_FILE
+    return beside if beside.is_file() else Path(DEFAULT_CHECKPOINT).parent / STATS_FILE
 
 
 def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, variant, blender_note) -> dict:
     """Write metrics.json, metrics.md, the charts and report.html; returns the summary."""
-    from network.evaluate import COLUMNS  # noqa: PLC0415
+    from network.split_eval import split_markdown, split_table, summarize_rows  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
+    from pbrdf.io.strict_json import dumps_strict  # noqa: PLC0415
 
     fig_dir = out / "figures"
-    keys = [k for k, _, _ in COLUMNS]
-    header = ["method"] + [label for _, label, _ in COLUMNS]
-    means = {who: {k: _mean(rows, who, k) for k in keys} for who in ("baseline", "ours")}
-    table = [["Photometric stereo (baseline)", *[means["baseline"][k] for k in keys]],
-             ["Ours (shipped model)", *[means["ours"][k] for k in keys]]]  # fmt: skip
-    per_scene_header = ["scene", "material", "normal MAE ours", "normal MAE baseline", "albedo si-PSNR ours",
-                        "albedo si-PSNR baseline", "roughness RMSE ours", "metallic RMSE ours"]  # fmt: skip
-    per_scene = [[r["scene"], r["material"], r["ours"]["normal_mae"], r["baseline"]["normal_mae"],
-                  r["ours"]["albedo_si_psnr"], r["baseline"]["albedo_si_psnr"], r["ours"]["roughness_rmse"],
-                  r["ours"]["metallic_rmse"]] for r in rows]  # fmt: skip
+    result = {"split": "demo scenes", "data": str(out / "data"), "scenes": len(rows), "lpips": True,
+              "description": "the demo's scenes through the real-capture path (raw brackets, decode, automatic "
+                             "mask), scored on the object coverage",
+              **summarize_rows(rows)}  # fmt: skip
+    header, table = split_table(result)
+    means = {m: {k: v["mean"] for k, v in result["methods"][m].items()} for m in ("baseline", "constant", "ours")}
+    per_scene_header = ["scene", "material", "mask IoU", "normal MAE ours", "normal MAE baseline",
+                        "normal MAE constant", "albedo si-PSNR ours", "roughness RMSE ours",
+                        "roughness RMSE constant", "metallic RMSE ours"]  # fmt: skip
+    per_scene = [[r["scene"], r["material"], r["mask_iou"], r["ours"]["normal_mae"], r["baseline"]["normal_mae"],
+                  r["constant"]["normal_mae"], r["ours"]["albedo_si_psnr"], r["ours"]["roughness_rmse"],
+                  r["constant"]["roughness_rmse"], r["ours"]["metallic_rmse"]] for r in rows]  # fmt: skip
     chart = report.metric_chart(
         fig_dir / "metrics.png",
-        {"baseline (PS)": means["baseline"], "ours": means["ours"]},
+        {"baseline (PS)": means["baseline"], "constant": means["constant"], "ours": means["ours"]},
         [("normal_mae", "normal MAE (deg)", True), ("albedo_si_psnr", "albedo si-PSNR (dB)", False),
          ("roughness_rmse", "roughness RMSE", True), ("metallic_rmse", "metallic RMSE", True)],
     )  # fmt: skip
@@ -390,16 +385,18 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
         "checkpoint": str(ckpt_path),
         "inputs": variant,
         "mean": means,
-        "normal_mae_improvement_deg": means["baseline"]["normal_mae"] - means["ours"]["normal_mae"],
+        "methods": result["methods"],
+        "mask_iou": result["mask_iou"],
         "scenes": rows,
         "timings_s": timer.seconds,
         "pbrdf_expansion": exp.summary(),
     }
-    atomic_write_text(out / "metrics.json", json.dumps(summary, indent=2, default=float) + "\n")
-    md = "# Demo metrics\n\n" + report.markdown_table(header, table) + "\n## Per scene\n\n"
+    atomic_write_text(out / "metrics.json", dumps_strict(summary) + "\n")
+    md = "# Demo metrics\n\n" + split_markdown(result) + "\n## Per scene\n\n"
     md += report.markdown_table(per_scene_header, per_scene)
     md += "\n## Time per stage (s)\n\n" + report.markdown_table(["stage", "seconds"], list(timer.seconds.items()))
     atomic_write_text(out / "metrics.md", md)
+    ours_mae, base_mae, const_mae = (means[m]["normal_mae"] for m in ("ours", "baseline", "constant"))
     exp_figs = sorted((out / "pbrdfs").glob("*.png"))
     sections = [
         {
@@ -408,15 +405,21 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
                 f"{len(rows)} synthetic scenes ({cfg.resolution}x{cfg.resolution} maps, {cfg.spp} spp per colour pass) "
                 f"were rendered with Mitsuba 3 under the polarized RGB display, captured through the camera model as "
                 f"four noisy 12-bit raw brackets, decoded into the nine maps, and reconstructed by the shipped model "
-                f"({ckpt_path.name}, inputs '{variant}'). Mean normal error: ours "
-                f"{means['ours']['normal_mae']:.1f} deg, photometric stereo {means['baseline']['normal_mae']:.1f} deg. "
+                f"({ckpt_path.name}, inputs '{variant}') from the automatic foreground mask, exactly as a user's "
+                f"capture is processed. Mean normal error on the object coverage: ours {_deg(ours_mae)}, "
+                f"photometric stereo {_deg(base_mae)}, the constant normal facing the camera {_deg(const_mae)}. "
                 + blender_note
             ),
         },  # fmt: skip
         {
-            "title": "Metrics (mask-weighted means)",
+            "title": "Metrics (per-scene means with 95 % bootstrap intervals, object coverage)",
             "html": report.html_table(header, table),
-            "figures": [(chart.relative_to(out).as_posix(), "ours against the photometric-stereo baseline")],
+            "figures": [
+                (
+                    chart.relative_to(out).as_posix(),
+                    "ours against the photometric-stereo baseline and the constant predictor",
+                )
+            ],
         },
         {"title": "Per scene", "html": report.html_table(per_scene_header, per_scene)},
         {"title": "Inputs, predictions, ground truth and errors", "figures": figures},

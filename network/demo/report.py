@@ -142,7 +142,7 @@ def metric_chart(
 
     Args:
         path: output PNG.
-        rows: ``{method: {metric: value}}``; a missing or NaN value is drawn as "n/a".
+        rows: ``{method: {metric: value}}``; a missing, None or NaN value is drawn as "n/a".
         metrics: ``(key, label, lower_is_better)`` per panel.
 
     Returns:
@@ -153,7 +153,7 @@ def metric_chart(
     fig, axes = plt.subplots(1, len(metrics), figsize=(2.3 * len(metrics), 2.6), squeeze=False)
     colours = ["#c44e52", "#4c72b0", "#55a868", "#8172b2", "#ccb974", "#64b5cd"]
     for ax, (key, label, lower) in zip(axes[0], metrics, strict=True):
-        vals = [rows[m].get(key, float("nan")) for m in methods]
+        vals = [float("nan") if rows[m].get(key) is None else float(rows[m][key]) for m in methods]
         ax.bar(range(len(methods)), np.nan_to_num(vals), color=colours[: len(methods)])
         for i, v in enumerate(vals):
             ax.text(i, np.nan_to_num(v), "n/a" if not np.isfinite(v) else f"{v:.3g}", ha="center", va="bottom",

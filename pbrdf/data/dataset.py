@@ -31,29 +31,10 @@ from typing import Any
 
 import numpy as np
 
+from pbrdf.data import sample as _sample
 from pbrdf.data._common import check_index, check_metadata, dumps_json, read_json_object, remove_path
-from pbrdf.data.sample import (
-    CHANNELS,
-    COLOURS,
-    LAYOUT,
-    NORMAL_TOLERANCE,
-    OPTIONAL_KEYS,
-    RAW_SUFFIX,
-    REQUIRED_KEYS,
-    SAMPLE_FORMAT,
-    SAMPLE_KEYS,
-    SAMPLES_DIR,
-    SIDECAR_KEYS,
-    STOKES_COMPONENTS,
-    TRAILING_SHAPES,
-    SamplePaths,
-    check_complete,
-    parse_sample_name,
-    read_sample,
-    sample_paths,
-    validate_sample,
-    write_sample,
-)
+from pbrdf.data.sample import *  # noqa: F403 (re-exported: the public names of pbrdf.data.sample)
+from pbrdf.data.sample import SAMPLES_DIR, check_complete, parse_sample_name, sample_paths
 from pbrdf.io.atomic import atomic_write_text, temporary_target
 
 __all__ = [
@@ -66,27 +47,7 @@ __all__ = [
     "shard_indices",
     "parse_shard",
     "plan_work",
-    # re-exported from pbrdf.data.sample
-    "SAMPLE_FORMAT",
-    "SAMPLES_DIR",
-    "RAW_SUFFIX",
-    "COLOURS",
-    "STOKES_COMPONENTS",
-    "LAYOUT",
-    "CHANNELS",
-    "REQUIRED_KEYS",
-    "OPTIONAL_KEYS",
-    "SAMPLE_KEYS",
-    "TRAILING_SHAPES",
-    "SIDECAR_KEYS",
-    "NORMAL_TOLERANCE",
-    "SamplePaths",
-    "sample_paths",
-    "parse_sample_name",
-    "validate_sample",
-    "write_sample",
-    "read_sample",
-    "check_complete",
+    *_sample.__all__,  # re-exported from pbrdf.data.sample (the star import above)
 ]
 
 logger = logging.getLogger(__name__)

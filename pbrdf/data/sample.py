@@ -17,20 +17,28 @@ A sample is a dict of arrays on the decoder's output grid ``(H, W)``:
 key            shape, dtype         meaning (EXR channels)
 =============  ===================  ==========================================================
 ``maps``       (H, W, 9) float32    nine maps in ``NINE_MAP_NAMES`` order (``maps.R_unpol``, ...)
-``mask``       (H, W) bool          object pixels (``mask.Y``, stored as uint32 0/1)
-``normal``     (H, W, 3) float32    camera-frame unit normals, OpenGL axes, 0 outside the mask
-                                    (``normal.X/Y/Z``)
+``mask``       (H, W) bool          object pixels the decoder measured: the training mask
+                                    (``mask.Y``, stored as uint32 0/1)
+``normal``     (H, W, 3) float32    camera-frame unit normals, OpenGL axes, 0 outside the
+                                    ground-truth region (``normal.X/Y/Z``)
 ``albedo``     (H, W, 3) float32    linear RGB in [0, 1] (``albedo.R/G/B``)
 ``roughness``  (H, W) float32       in [0, 1] (``roughness.Y``)
 ``metallic``   (H, W) float32       in [0, 1] (``metallic.Y``)
-``depth``      (H, W) float32       camera-frame z distance in metres, > 0 inside the mask and
-                                    0 outside (``depth.Z``)
+``depth``      (H, W) float32       camera-frame z distance in metres, > 0 inside the
+                                    ground-truth region and 0 outside (``depth.Z``)
 ``stokes``     (H, W, 3, 4) float32 optional: per colour R, G, B the Stokes vector
                                     (``stokes.R.S0`` ... ``stokes.B.S3``)
 ``raw``        (E, 2H, 2W) uint16   optional: raw HDR bracket, saved with
                                     :func:`pbrdf.data.capture.save_capture` in ``<index>_raw/``;
                                     the camera model comes from ``metadata["camera_model"]``
+``object``     (H, W) float32       optional: index of the object covering the pixel, -1 on the
+                                    background (``object.Y``)
 =============  ===================  ==========================================================
+
+The ground-truth region (where ``normal``, ``albedo``, ``roughness``, ``metallic`` and ``depth``
+are defined) is the object coverage ``object >= 0`` when ``object`` is stored, else ``mask``; the
+mask lies inside it. Evaluation scores on the object coverage (dark pixels the decoder could not
+measure, e.g. on mirror-like metals, count); training uses the mask.
 
 Writes are atomic and ordered so that a killed run never leaves a sample that looks complete:
 :func:`write_sample` first removes an old sidecar, then writes the EXR (temporary file + rename)
@@ -106,6 +114,7 @@ LAYOUT: dict[str, tuple[str, tuple[str, ...]]] = {
     "metallic": ("metallic", ("Y",)),
     "depth": ("depth", ("Z",)),
     "stokes": ("stokes", STOKES_COMPONENTS),
+    "object": ("object", ("Y",)),
 }
 #: Sample key -> its EXR channel names, in array order.
 CHANNELS: dict[str, tuple[str, ...]] = {
@@ -114,7 +123,7 @@ CHANNELS: dict[str, tuple[str, ...]] = {
 #: Keys every sample has.
 REQUIRED_KEYS = ("maps", "mask", "normal", "albedo", "roughness", "metallic", "depth")
 #: Keys a sample may have.
-OPTIONAL_KEYS = ("stokes", "raw")
+OPTIONAL_KEYS = ("stokes", "object", "raw")
 #: All sample keys.
 SAMPLE_KEYS = REQUIRED_KEYS + OPTIONAL_KEYS
 #: Shape of each EXR-stored key after the leading ``(H, W)``.
@@ -127,6 +136,7 @@ TRAILING_SHAPES: dict[str, tuple[int, ...]] = {
     "metallic": (),
     "depth": (),
     "stokes": (3, 4),
+    "object": (),
 }
 #: Sidecar keys written by :func:`write_sample`; the caller's metadata may not use them.
 SIDECAR_KEYS = ("format", "index", "exr", "sha256", "exr_bytes", "channels", "shape", "raw_capture")
@@ -273,25 +283,35 @@ def validate_sample(sample: Mapping[str, Any], metadata: Mapping[str, Any] | Non
         if lo < 0 or hi > 1:
             raise ValueError(f"{_where(key)} values must be in [0, 1]; got [{lo:g}, {hi:g}]")
     mask = arrays["mask"]
+    region, inside, outside_of = mask, "inside the mask", "the mask"
+    if "object" in arrays:
+        obj = arrays["object"]
+        if not np.all((obj == np.round(obj)) & (obj >= -1)):
+            bad = ~((obj == np.round(obj)) & (obj >= -1))
+            raise ValueError(f"{_where('object')} must hold object indices >= 0 or -1; not at {_first_pixel(bad)}")
+        region, inside, outside_of = obj >= 0, "on the objects (object >= 0)", "the objects"
+        stray = mask & ~region
+        if stray.any():
+            raise ValueError(f"{_where('mask')} must lie on the objects (object >= 0); not at {_first_pixel(stray)}")
     normal = arrays["normal"]
     length = np.sqrt(np.sum(normal.astype(np.float64) ** 2, axis=-1))
-    off = mask & (np.abs(length - 1) > NORMAL_TOLERANCE)
+    off = region & (np.abs(length - 1) > NORMAL_TOLERANCE)
     if off.any():
         worst = float(length[off][np.argmax(np.abs(length[off] - 1))])
         raise ValueError(
-            f"{_where('normal')} must be unit vectors inside the mask (|n| = 1 +- {NORMAL_TOLERANCE:g}); "
+            f"{_where('normal')} must be unit vectors {inside} (|n| = 1 +- {NORMAL_TOLERANCE:g}); "
             f"{int(off.sum())} are not, e.g. |n| = {worst:.6g} at {_first_pixel(off)}"
         )
-    outside = ~mask & np.any(normal != 0, axis=-1)
+    outside = ~region & np.any(normal != 0, axis=-1)
     if outside.any():
-        raise ValueError(f"{_where('normal')} must be 0 outside the mask; nonzero at {_first_pixel(outside)}")
+        raise ValueError(f"{_where('normal')} must be 0 outside {outside_of}; nonzero at {_first_pixel(outside)}")
     depth = arrays["depth"]
-    bad = mask & ~(depth > 0)
+    bad = region & ~(depth > 0)
     if bad.any():
-        raise ValueError(f"{_where('depth')} must be > 0 inside the mask; not at {_first_pixel(bad)}")
-    bad = ~mask & (depth != 0)
+        raise ValueError(f"{_where('depth')} must be > 0 {inside}; not at {_first_pixel(bad)}")
+    bad = ~region & (depth != 0)
     if bad.any():
-        raise ValueError(f"{_where('depth')} must be 0 outside the mask; nonzero at {_first_pixel(bad)}")
+        raise ValueError(f"{_where('depth')} must be 0 outside {outside_of}; nonzero at {_first_pixel(bad)}")
     if "raw" in sample:
         _check_raw(sample["raw"], hw, metadata)
     return hw

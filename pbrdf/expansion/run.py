@@ -22,6 +22,7 @@ from pbrdf.brdf import seeds
 from pbrdf.brdf.table import PBRDFTable, evaluate, load_table, resample, save_table, to_mitsuba_bands
 from pbrdf.expansion import expand
 from pbrdf.io.atomic import atomic_write_text
+from pbrdf.io.strict_json import dumps_strict
 
 __all__ = ["ExpansionConfig", "ExpansionReport", "run_expansion", "load_measured", "sphere_polarimetry"]
 
@@ -244,7 +245,7 @@ def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionRe
                 "attempt": attempt,
                 "seed": cfg.seed,
             }
-            atomic_write_text(sidecar, json.dumps(meta, indent=1))
+            atomic_write_text(sidecar, dumps_strict(meta, indent=1))
             report.written += 1
             done = True
             break
@@ -263,7 +264,7 @@ def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionRe
 def _write_index(out: Path, cfg: ExpansionConfig, report: ExpansionReport, fits, seed_set) -> None:
     entries = [json.loads(p.read_text()) for p in sorted((out / "tables").glob("gen_*.json"))]
     materials = [{k: e[k] for k in ("name", "table", "albedo", "roughness", "metallic")} for e in entries]
-    atomic_write_text(out / "materials.json", json.dumps(materials, indent=1))
+    atomic_write_text(out / "materials.json", dumps_strict(materials, indent=1))
     manifest = {
         "format": "pdir-pbrdf-expansion/1",
         "count": len(entries),
@@ -292,7 +293,7 @@ def _write_index(out: Path, cfg: ExpansionConfig, report: ExpansionReport, fits,
         },
         "seconds": report.seconds,
     }
-    atomic_write_text(out / "manifest.json", json.dumps(manifest, indent=1))
+    atomic_write_text(out / "manifest.json", dumps_strict(manifest, indent=1))
     if cfg.figures and entries:
         pick = entries[:: max(1, len(entries) // cfg.figures)][: cfg.figures]
         tables = [load_table(out / e["table"]) for e in pick]

@@ -1,7 +1,6 @@
 """Scene spec -> Blender -> scene spec (blender_addon/build_spec.py and its inverse, export_spec.py)."""
 
 import dataclasses
-import math
 
 import numpy as np
 import pytest
@@ -9,69 +8,32 @@ import pytest
 from blender_addon.core import assets, scenegen
 from blender_addon.core.spec import EnvironmentSpec, LightSpec, MaterialSpec, ObjectSpec, SceneSpec
 from pbrdf.sensor.rig import Rig
+from tests.helpers import rigid_pose, rot_x
 
 pytestmark = pytest.mark.bpy
-
-
-@pytest.fixture(scope="module")
-def addon(addon_registered):
-    """The add-on registered in the bpy wheel (skips without bpy); unregistered afterwards."""
-    return addon_registered
-
-
-@pytest.fixture
-def bpy(addon):
-    """bpy with an empty scene."""
-    import bpy
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    return bpy
-
-
-@pytest.fixture(scope="module")
-def build_spec(addon):
-    from blender_addon import build_spec
-
-    return build_spec
-
-
-@pytest.fixture(scope="module")
-def export_spec(addon):
-    from blender_addon import export_spec
-
-    return export_spec
-
-
-def _pose(t=(0.0, 0.0, 0.0), rot=None) -> np.ndarray:
-    m = np.eye(4)
-    if rot is not None:
-        m[:3, :3] = rot
-    m[:3, 3] = t
-    return m
-
-
-def _rot_x(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]], dtype=float)
 
 
 def _full_spec(tmp_path) -> SceneSpec:
     from pbrdf.io.exr import write_exr
 
     spec = scenegen.random_scene(Rig(), 11)
-    second = ObjectSpec("ring", "builtin:torus?seed=2", _pose((0.05, -0.05, -0.8), _rot_x(0.4) * 0.15), "chalk")
+    second = ObjectSpec("ring", "builtin:torus?seed=2", rigid_pose((0.05, -0.05, -0.8), rot_x(0.4) * 0.15), "chalk")
     sky = write_exr(tmp_path / "env.exr", {c: np.full((4, 8), 0.5, np.float32) for c in "RGB"})
     return dataclasses.replace(
         spec,
         objects=(*spec.objects, second),
         materials=(*spec.materials, MaterialSpec.diffuse("chalk", (0.9, 0.85, 0.8), 0.7)),
         lights=(
-            LightSpec("key", "area", _pose((0.3, 0.4, -0.1), _rot_x(-0.5)), (1.0, 0.95, 0.9), 40.0, size=(0.4, 0.3)),
-            LightSpec("fill", "point", _pose((-0.4, 0.2, 0.0)), power=12.5),
-            LightSpec("cone", "spot", _pose((0, 0.5, -0.5), _rot_x(1.2)), power=80.0, spot_angle=0.9, spot_blend=0.3),
-            LightSpec("sun", "sun", _pose(rot=_rot_x(0.7)), (1.0, 0.9, 0.7), 2.5),
+            LightSpec(
+                "key", "area", rigid_pose((0.3, 0.4, -0.1), rot_x(-0.5)), (1.0, 0.95, 0.9), 40.0, size=(0.4, 0.3)
+            ),
+            LightSpec("fill", "point", rigid_pose((-0.4, 0.2, 0.0)), power=12.5),
+            LightSpec(
+                "cone", "spot", rigid_pose((0, 0.5, -0.5), rot_x(1.2)), power=80.0, spot_angle=0.9, spot_blend=0.3
+            ),
+            LightSpec("sun", "sun", rigid_pose(rot=rot_x(0.7)), (1.0, 0.9, 0.7), 2.5),
         ),
-        environment=EnvironmentSpec(strength=0.7, image=str(sky), to_world=_pose(rot=_rot_x(0.25))),
+        environment=EnvironmentSpec(strength=0.7, image=str(sky), to_world=rigid_pose(rot=rot_x(0.25))),
         metadata={"source": "test", "tags": [1, 2]},
     )
 

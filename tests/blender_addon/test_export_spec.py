@@ -10,33 +10,14 @@ import math
 import numpy as np
 import pytest
 
+from tests.helpers import add_light, add_render_camera
+
 pytestmark = pytest.mark.bpy
 mi = pytest.importorskip("mitsuba")
 
 
-# --------------------------------------------------------------------------- fixtures and helpers
-
-
-@pytest.fixture(scope="module")
-def addon(addon_registered):
-    """The add-on registered in the bpy wheel (skips without bpy); unregistered afterwards."""
-    return addon_registered
-
-
-@pytest.fixture
-def bpy(addon):
-    """bpy with an empty scene."""
-    import bpy
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    return bpy
-
-
-@pytest.fixture(scope="module")
-def export_spec(addon):
-    from blender_addon import export_spec
-
-    return export_spec
+# --------------------------------------------------------------------------- helpers
+# (the bpy and export_spec fixtures are in tests/conftest.py)
 
 
 def _cycles(bpy, path, samples: int, *, transparent: bool = False) -> np.ndarray:
@@ -60,18 +41,6 @@ def _cycles(bpy, path, samples: int, *, transparent: bool = False) -> np.ndarray
     return np.stack([ch[c] for c in "RGBA"], axis=-1)
 
 
-def _camera(bpy, location, rotation=(0.0, 0.0, 0.0), *, res=(32, 32), lens=50.0):
-    scene = bpy.context.scene
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    scene.collection.objects.link(cam)
-    cam.location, cam.rotation_euler = location, rotation
-    cam.data.lens = lens
-    scene.camera = cam
-    scene.render.resolution_x, scene.render.resolution_y = res
-    scene.render.resolution_percentage = 100
-    return cam
-
-
 def _grey_plane(bpy, albedo=0.5, size=4.0, principled=False):
     """A grey Lambertian plane at z = 0 facing +z."""
     bpy.ops.mesh.primitive_plane_add(size=size)
@@ -89,16 +58,6 @@ def _grey_plane(bpy, albedo=0.5, size=4.0, principled=False):
         links.new(bsdf.outputs["BSDF"], nodes["Material Output"].inputs["Surface"])
     plane.data.materials.append(mat)
     return plane
-
-
-def _light(bpy, kind: str, location, rotation=(0.0, 0.0, 0.0), **props):
-    data = bpy.data.lights.new(kind.lower(), kind)
-    for k, v in props.items():
-        setattr(data, k, v)
-    obj = bpy.data.objects.new(kind.lower(), data)
-    bpy.context.scene.collection.objects.link(obj)
-    obj.location, obj.rotation_euler = location, rotation
-    return obj
 
 
 def _mitsuba(spec, tmp_path, spp: int, *, resolution=None):
@@ -119,7 +78,7 @@ def _centre(img: np.ndarray, half: int = 4) -> np.ndarray:
 @pytest.mark.mitsuba
 def test_mask_matches_cycles(bpy, export_spec, tmp_path):
     """Object masks of Cycles and of Mitsuba on the exported scene agree (IoU > 0.95)."""
-    _camera(bpy, (0.3, -2.5, 1.1), (math.radians(70), 0.0, math.radians(8)), res=(64, 48), lens=40.0)
+    add_render_camera(bpy, (0.3, -2.5, 1.1), (math.radians(70), 0.0, math.radians(8)), res=(64, 48), lens=40.0)
     bpy.ops.mesh.primitive_monkey_add(size=0.9, location=(0.1, 0.0, 0.6), rotation=(0.3, 0.2, 0.5))
     monkey = bpy.context.object
     monkey.modifiers.new("subsurf", "SUBSURF").levels = 1
@@ -145,20 +104,20 @@ def test_mask_matches_cycles(bpy, export_spec, tmp_path):
 def test_brightness_matches_cycles(bpy, export_spec, tmp_path, kind):
     """A grey Lambertian plane under one light: Cycles and Mitsuba agree within 2 % at the centre."""
     _grey_plane(bpy, principled=kind == "point")
-    _camera(bpy, (0.0, 0.0, 0.9))  # below the lights, looking straight down at the plane
+    add_render_camera(bpy, (0.0, 0.0, 0.9))  # below the lights, looking straight down at the plane
     scene = bpy.context.scene
     scene.world = None
     if kind == "area":
-        _light(bpy, "AREA", (0.1, 0.0, 1.0), (0.15, 0.0, 0.0), energy=10.0, size=0.5)
+        add_light(bpy, "AREA", (0.1, 0.0, 1.0), (0.15, 0.0, 0.0), energy=10.0, size=0.5)
     elif kind == "area_disk_unnormalized":
-        _light(bpy, "AREA", (0.0, 0.1, 1.2), energy=4.0, shape="DISK", size=0.6, normalize=False)
+        add_light(bpy, "AREA", (0.0, 0.1, 1.2), energy=4.0, shape="DISK", size=0.6, normalize=False)
     elif kind == "point":
-        _light(bpy, "POINT", (0.2, 0.0, 1.0), energy=30.0, shadow_soft_size=0.0)
+        add_light(bpy, "POINT", (0.2, 0.0, 1.0), energy=30.0, shadow_soft_size=0.0)
     elif kind == "spot":
-        _light(bpy, "SPOT", (0.0, 0.0, 1.0), energy=30.0, spot_size=math.radians(60), spot_blend=0.1,
+        add_light(bpy, "SPOT", (0.0, 0.0, 1.0), energy=30.0, spot_size=math.radians(60), spot_blend=0.1,
                shadow_soft_size=0.0)  # fmt: skip
     elif kind == "sun":
-        _light(bpy, "SUN", (0.0, 0.0, 3.0), (0.4, 0.0, 0.0), energy=2.0)
+        add_light(bpy, "SUN", (0.0, 0.0, 3.0), (0.4, 0.0, 0.0), energy=2.0)
     else:
         world = bpy.data.worlds.new("w")
         world.node_tree.nodes["Background"].inputs["Color"].default_value = (0.3, 0.5, 0.7, 1.0)
@@ -199,7 +158,7 @@ def test_environment_map_orientation_matches_cycles(bpy, export_spec, tmp_path):
     nodes["Background"].inputs["Strength"].default_value = 2.0
     world.cycles.sampling_method = "NONE"  # only seen directly: skip building the importance map
     scene.world = world
-    _camera(bpy, (0.0, 0.0, 0.0), (math.radians(60), 0.0, math.radians(-30)), res=(48, 32), lens=18.0)
+    add_render_camera(bpy, (0.0, 0.0, 0.0), (math.radians(60), 0.0, math.radians(-30)), res=(48, 32), lens=18.0)
     ref = _cycles(bpy, tmp_path / "sky_ref.exr", 16)[..., :3]
     spec = export_spec.export_scene(scene, tmp_path / "export", xml=False)
     assert spec.environment.image == str(path) and spec.environment.strength == 2.0

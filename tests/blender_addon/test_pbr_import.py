@@ -5,58 +5,17 @@ import warnings
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.bpy
+# clean_file (tests/conftest.py): the registered add-on and a fresh scene set up for Cycles.
+pytestmark = [pytest.mark.bpy, pytest.mark.usefixtures("clean_file")]
 bpy = pytest.importorskip("bpy")
 
 from blender_addon import pbr_import  # noqa: E402
 from blender_addon.core import map_io  # noqa: E402
 from blender_addon.core.frustum import blender_frustum  # noqa: E402
-from pbrdf.io.exr import read_exr, write_exr  # noqa: E402
+from pbrdf.io.exr import read_exr  # noqa: E402
+from tests.helpers import add_camera, write_pbr_maps  # noqa: E402
 
 H, W = 24, 32
-
-
-@pytest.fixture(scope="module", autouse=True)
-def addon(addon_registered):
-    return addon_registered
-
-
-@pytest.fixture(autouse=True)
-def clean_file():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.use_denoising = False
-    scene.cycles.use_adaptive_sampling = False
-    scene.render.threads_mode = "FIXED"
-    scene.render.threads = 2
-    scene.cycles.filter_width = 0.01  # sample pixel centres: compare with per-pixel analytic values
-    scene.view_settings.view_transform = "Standard"
-    yield scene
-
-
-def _write_maps(folder, normal, *, albedo=None, mask=None, depth=None, roughness=None, prefix="cap"):
-    folder.mkdir(parents=True, exist_ok=True)
-    write_exr(folder / f"{prefix}_normal.exr", {f"normal.{c}": normal[..., i] for i, c in enumerate("XYZ")})
-    if albedo is not None:
-        write_exr(folder / f"{prefix}_albedo.exr", {f"albedo.{c}": albedo[..., i] for i, c in enumerate("RGB")})
-    if mask is not None:
-        write_exr(folder / f"{prefix}_mask.exr", {"mask.Y": mask.astype(np.float32)})
-    if depth is not None:
-        write_exr(folder / f"{prefix}_depth.exr", {"depth.Y": depth.astype(np.float32)}, allow_nonfinite=True)
-    if roughness is not None:
-        write_exr(folder / f"{prefix}_roughness.exr", {"roughness.Y": roughness.astype(np.float32)})
-    return folder
-
-
-def _camera(scene, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0)):
-    cam = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    cam.location, cam.rotation_euler = location, rotation
-    bpy.context.view_layer.update()
-    return cam
 
 
 def _sphere_field(h, w, centre=(0.03, -0.02, -2.0), radius=0.35):
@@ -95,10 +54,10 @@ def _angles(a, b):
 
 def test_import_operator_builds_camera_plane(clean_file, tmp_path):
     scene = clean_file
-    cam = _camera(scene, (0.5, -3.0, 1.0), (1.2, 0.0, 0.3))
+    cam = add_camera(scene, (0.5, -3.0, 1.0), (1.2, 0.0, 0.3))
     n, mask, _ = _sphere_field(H, W)
     alb = np.random.default_rng(0).uniform(0.1, 0.9, (H, W, 3)).astype(np.float32)
-    folder = _write_maps(tmp_path / "maps", n, albedo=alb, mask=mask, roughness=np.full((H, W), 0.25))
+    folder = write_pbr_maps(tmp_path / "maps", n, albedo=alb, mask=mask, roughness=np.full((H, W), 0.25))
     assert bpy.ops.pdir.import_pbr(directory=str(folder), distance=2.0) == {"FINISHED"}
     obj = next(o for o in scene.objects if o.type == "MESH")
     assert obj.parent == cam and tuple(obj.scale) == (1.0, 1.0, 1.0)
@@ -132,7 +91,7 @@ def test_import_operator_builds_camera_plane(clean_file, tmp_path):
 
 def test_import_operator_reports_errors(clean_file, tmp_path):
     n, _, _ = _sphere_field(H, W)
-    folder = _write_maps(tmp_path / "amb", n, albedo=np.zeros((H, W, 3), np.float32))
+    folder = write_pbr_maps(tmp_path / "amb", n, albedo=np.zeros((H, W, 3), np.float32))
     (folder / "other_diffuse.png").write_bytes(b"")
     with pytest.raises(RuntimeError, match=r"ambiguous map files: 2 files match albedo"):
         bpy.ops.pdir.import_pbr(directory=str(folder))
@@ -146,10 +105,10 @@ def test_import_operator_reports_errors(clean_file, tmp_path):
 @pytest.mark.parametrize("space", ["TANGENT", "OBJECT"])
 def test_rendered_normals_match_input(clean_file, tmp_path, space):
     scene = clean_file
-    cam = _camera(scene, (0.3, -2.0, 0.5), (1.3, 0.1, 0.2))
+    cam = add_camera(scene, (0.3, -2.0, 0.5), (1.3, 0.1, 0.2))
     n, mask, _ = _sphere_field(H * 2, W * 2)
     obj = pbr_import.import_pbr_maps(
-        bpy.context, _write_maps(tmp_path / "s", n, mask=mask), distance=1.5, normal_space=space
+        bpy.context, write_pbr_maps(tmp_path / "s", n, mask=mask), distance=1.5, normal_space=space
     )
     # AOV of the Normal Map node's output (the shading normal the BSDF receives)
     nt = obj.active_material.node_tree
@@ -188,10 +147,10 @@ def test_rendered_normals_match_input(clean_file, tmp_path, space):
 
 def test_depth_mesh_lies_on_the_surface_and_keeps_normals(clean_file, tmp_path):
     scene = clean_file
-    cam = _camera(scene, (1.0, 0.5, 0.2), (0.2, -0.3, 0.4))
+    cam = add_camera(scene, (1.0, 0.5, 0.2), (0.2, -0.3, 0.4))
     centre, radius = (0.03, -0.02, -2.0), 0.35
     n, mask, depth = _sphere_field(H, W, centre, radius)
-    folder = _write_maps(tmp_path / "d", n, mask=mask, depth=depth)
+    folder = write_pbr_maps(tmp_path / "d", n, mask=mask, depth=depth)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         obj = pbr_import.import_pbr_maps(bpy.context, folder)  # TANGENT requested, OBJECT used

@@ -6,57 +6,16 @@ import warnings
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.bpy
+# clean_file (tests/conftest.py): the registered add-on and a fresh scene set up for Cycles.
+pytestmark = [pytest.mark.bpy, pytest.mark.usefixtures("clean_file")]
 bpy = pytest.importorskip("bpy")
 
 from blender_addon import pbr_import, relight  # noqa: E402
 from blender_addon.core.frustum import blender_frustum  # noqa: E402
 from pbrdf.io.exr import read_exr, write_exr  # noqa: E402
+from tests.helpers import add_camera, write_pbr_maps  # noqa: E402
 
 H, W = 24, 32
-
-
-@pytest.fixture(scope="module", autouse=True)
-def addon(addon_registered):
-    return addon_registered
-
-
-@pytest.fixture(autouse=True)
-def clean_file():
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    scene = bpy.context.scene
-    scene.render.engine = "CYCLES"
-    scene.cycles.device = "CPU"
-    scene.cycles.use_denoising = False
-    scene.cycles.use_adaptive_sampling = False
-    scene.render.threads_mode = "FIXED"
-    scene.render.threads = 2
-    scene.cycles.filter_width = 0.01  # sample pixel centres: compare with per-pixel analytic values
-    scene.view_settings.view_transform = "Standard"
-    yield scene
-
-
-def _write_maps(folder, normal, *, albedo=None, mask=None, depth=None, roughness=None, prefix="cap"):
-    folder.mkdir(parents=True, exist_ok=True)
-    write_exr(folder / f"{prefix}_normal.exr", {f"normal.{c}": normal[..., i] for i, c in enumerate("XYZ")})
-    if albedo is not None:
-        write_exr(folder / f"{prefix}_albedo.exr", {f"albedo.{c}": albedo[..., i] for i, c in enumerate("RGB")})
-    if mask is not None:
-        write_exr(folder / f"{prefix}_mask.exr", {"mask.Y": mask.astype(np.float32)})
-    if depth is not None:
-        write_exr(folder / f"{prefix}_depth.exr", {"depth.Y": depth.astype(np.float32)}, allow_nonfinite=True)
-    if roughness is not None:
-        write_exr(folder / f"{prefix}_roughness.exr", {"roughness.Y": roughness.astype(np.float32)})
-    return folder
-
-
-def _camera(scene, location=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0)):
-    cam = bpy.data.objects.new("Cam", bpy.data.cameras.new("Cam"))
-    scene.collection.objects.link(cam)
-    scene.camera = cam
-    cam.location, cam.rotation_euler = location, rotation
-    bpy.context.view_layer.update()
-    return cam
 
 
 def _principled(obj):
@@ -66,7 +25,7 @@ def _principled(obj):
 def _flat_plane(scene, tmp_path, albedo=0.5, distance=1.0):
     normal = np.zeros((H, W, 3), np.float32)
     normal[..., 2] = 1
-    folder = _write_maps(tmp_path / "flat", normal, albedo=np.full((H, W, 3), albedo, np.float32))
+    folder = write_pbr_maps(tmp_path / "flat", normal, albedo=np.full((H, W, 3), albedo, np.float32))
     obj = pbr_import.import_pbr_maps(bpy.context, folder, distance=distance)
     _principled(obj).inputs["Specular IOR Level"].default_value = 0.0  # pure Lambert
     return obj
@@ -81,7 +40,7 @@ def _keyframe_counts(obj):
 
 def test_orbit_keyframes_on_circle(clean_file, tmp_path):
     scene = clean_file
-    _camera(scene, (0.0, -1.0, 0.3), (1.4, 0.0, 0.1))
+    add_camera(scene, (0.0, -1.0, 0.3), (1.4, 0.0, 0.1))
     plane = _flat_plane(scene, tmp_path, distance=1.2)
     bpy.context.view_layer.objects.active = plane
     scene.pdir_relight.radius, scene.pdir_relight.height, scene.pdir_relight.frames = 0.5, 0.3, 12

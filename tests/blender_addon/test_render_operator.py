@@ -12,77 +12,19 @@ import pytest
 from blender_addon.core import scenegen
 from blender_addon.core.spec import SceneSpec
 from pbrdf.sensor.rig import Rig
+from tests.helpers import add_light, add_render_camera, rigid_pose
 
 pytestmark = [pytest.mark.bpy, pytest.mark.mitsuba]
 mi = pytest.importorskip("mitsuba")
-
-
-@pytest.fixture(scope="module")
-def addon(addon_registered):
-    """The add-on registered in the bpy wheel (skips without bpy); unregistered afterwards."""
-    return addon_registered
-
-
-@pytest.fixture
-def bpy(addon):
-    """bpy with an empty scene."""
-    import bpy
-
-    bpy.ops.wm.read_factory_settings(use_empty=True)
-    return bpy
-
-
-@pytest.fixture(scope="module")
-def build_spec(addon):
-    from blender_addon import build_spec
-
-    return build_spec
-
-
-@pytest.fixture(scope="module")
-def render_operator(addon):
-    from blender_addon import render_operator
-
-    return render_operator
-
-
-def _pose(t=(0.0, 0.0, 0.0), rot=None) -> np.ndarray:
-    m = np.eye(4)
-    if rot is not None:
-        m[:3, :3] = rot
-    m[:3, 3] = t
-    return m
-
-
-def _camera(bpy, location, rotation=(0.0, 0.0, 0.0), *, res=(32, 32), lens=50.0):
-    scene = bpy.context.scene
-    cam = bpy.data.objects.new("Camera", bpy.data.cameras.new("Camera"))
-    scene.collection.objects.link(cam)
-    cam.location, cam.rotation_euler = location, rotation
-    cam.data.lens = lens
-    scene.camera = cam
-    scene.render.resolution_x, scene.render.resolution_y = res
-    scene.render.resolution_percentage = 100
-    return cam
-
-
-def _light(bpy, kind: str, location, rotation=(0.0, 0.0, 0.0), **props):
-    data = bpy.data.lights.new(kind.lower(), kind)
-    for k, v in props.items():
-        setattr(data, k, v)
-    obj = bpy.data.objects.new(kind.lower(), data)
-    bpy.context.scene.collection.objects.link(obj)
-    obj.location, obj.rotation_euler = location, rotation
-    return obj
 
 
 # --------------------------------------------------------------------------- operators
 
 
 def test_export_operator_writes_spec_ply_and_xml(bpy, tmp_path):
-    _camera(bpy, (0.0, -3.0, 0.5), (math.radians(85), 0.0, 0.0))
+    add_render_camera(bpy, (0.0, -3.0, 0.5), (math.radians(85), 0.0, 0.0))
     bpy.ops.mesh.primitive_cube_add(size=0.5)
-    _light(bpy, "POINT", (1.0, -1.0, 2.0), energy=100.0)
+    add_light(bpy, "POINT", (1.0, -1.0, 2.0), energy=100.0)
     bpy.context.scene.pdir_export.output_dir = str(tmp_path / "out")
     assert bpy.ops.pdir.export_scene() == {"FINISHED"}
     spec = SceneSpec.load(tmp_path / "out" / "scene.json")
@@ -142,7 +84,9 @@ def test_render_through_external_python_equals_in_process(bpy, build_spec, rende
 
 def test_render_operator_reports_invalid_scene(bpy, build_spec, tmp_path):
     spec = scenegen.random_scene(Rig(), 4)
-    far = dataclasses.replace(spec.objects[0], to_world=_pose((5.0, 0.0, -0.5)) @ np.asarray(spec.objects[0].to_world))
+    far = dataclasses.replace(
+        spec.objects[0], to_world=rigid_pose((5.0, 0.0, -0.5)) @ np.asarray(spec.objects[0].to_world)
+    )
     build_spec.build_from_spec(bpy.context.scene, dataclasses.replace(spec, objects=(far,)))
     bpy.context.scene.pdir_export.output_dir = str(tmp_path)
     with pytest.raises(RuntimeError, match="leaves the camera view"):

@@ -12,21 +12,13 @@ import math
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.bpy
+# The add-on registered once per module (tests/conftest.py), an empty Blender file for each test.
+pytestmark = [pytest.mark.bpy, pytest.mark.usefixtures("addon_registered", "empty_blend_file")]
 bpy = pytest.importorskip("bpy")
 
 from blender_addon import rig_bpy  # noqa: E402
 from pbrdf.sensor.rig import CameraSpec, DisplaySpec, Rig  # noqa: E402
-
-
-@pytest.fixture(scope="module", autouse=True)
-def addon(addon_registered):
-    return addon_registered
-
-
-@pytest.fixture(autouse=True)
-def empty_file(empty_blend_file):
-    return empty_blend_file
+from tests.helpers import world_matrix  # noqa: E402
 
 
 def _rot(axis, angle):
@@ -47,14 +39,9 @@ def _custom_rig():
     return Rig(display=display, camera=camera)
 
 
-def _world(obj):
-    bpy.context.view_layer.update()
-    return np.array(obj.matrix_world, dtype=np.float64)
-
-
 def _in_root(root, obj):
     """Blender's world matrix of ``obj`` expressed in the root's frame."""
-    return np.linalg.inv(_world(root)) @ _world(obj)
+    return np.linalg.inv(world_matrix(root)) @ world_matrix(obj)
 
 
 def _vertices_in_root(root, obj):
@@ -82,8 +69,8 @@ def test_add_rig_operator_creates_the_rig():
 def test_root_looks_along_blender_y():
     root = rig_bpy.add_rig(bpy.context.scene, Rig())
     cam, _ = rig_bpy.rig_parts(root)
-    view = _world(cam)[:3, :3] @ np.array([0.0, 0.0, -1.0])
-    up = _world(cam)[:3, :3] @ np.array([0.0, 1.0, 0.0])
+    view = world_matrix(cam)[:3, :3] @ np.array([0.0, 0.0, -1.0])
+    up = world_matrix(cam)[:3, :3] @ np.array([0.0, 1.0, 0.0])
     np.testing.assert_allclose(view, [0.0, 1.0, 0.0], atol=1e-7)
     np.testing.assert_allclose(up, [0.0, 0.0, 1.0], atol=1e-7)
 
@@ -119,7 +106,7 @@ def test_rig_matches_spec(rig):
     points = pc @ m[:3, :3].T + m[:3, 3]  # rig frame
     uv_spec, depth_spec = spec_cam.project(points)
     np.testing.assert_allclose(uv_spec, uv_true, atol=1e-6)
-    root_w = _world(root)
+    root_w = world_matrix(root)
     blender_pts = points @ root_w[:3, :3].T + root_w[:3, 3]
     ndc = np.array([tuple(world_to_camera_view(scene, cam, Vector(p))) for p in blender_pts])
     uv_blender = np.stack([ndc[:, 0] * w, (1.0 - ndc[:, 1]) * h], axis=-1)

@@ -6,24 +6,15 @@ import math
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.bpy
+# The add-on registered once per module (tests/conftest.py), an empty Blender file for each test.
+pytestmark = [pytest.mark.bpy, pytest.mark.usefixtures("addon_registered", "empty_blend_file")]
 bpy = pytest.importorskip("bpy")
 trimesh = pytest.importorskip("trimesh")
 
 from blender_addon import rig_bpy, scene_builder  # noqa: E402
 from blender_addon.core import scenegen  # noqa: E402
 from blender_addon.core.spec import MaterialSpec  # noqa: E402
-
-
-@pytest.fixture(scope="module", autouse=True)
-def addon(addon_registered):
-    return addon_registered
-
-
-@pytest.fixture(autouse=True)
-def empty_file(empty_blend_file):
-    return empty_blend_file
-
+from tests.helpers import world_matrix  # noqa: E402
 
 # Source meshes with distinct bounding-box proportions (in their own units and placement).
 SOURCES = {
@@ -68,13 +59,8 @@ def library_dir(tmp_path_factory):
     return folder
 
 
-def _world(obj):
-    bpy.context.view_layer.update()
-    return np.array(obj.matrix_world, dtype=np.float64)
-
-
 def _rig_frame(root, obj):
-    return np.linalg.inv(_world(root)) @ _world(obj)
+    return np.linalg.inv(world_matrix(root)) @ world_matrix(obj)
 
 
 def _principled(obj):

@@ -1,9 +1,12 @@
 """headless/bench.py: the JSON on stdout equals the file, argument checks, the network benchmark end to end."""
 
 import json
+import statistics
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -14,16 +17,16 @@ def _run(*args: str) -> subprocess.CompletedProcess:
 
 def test_bench_decode_json(tmp_path):
     out = tmp_path / "bench.json"
-    proc = _run("headless/bench.py", "decode", "--height", "64", "--width", "96", "--repeat", "1", "--out", str(out))
+    proc = _run("headless/bench.py", "decode", "--height", "64", "--width", "96", "--repeat", "3", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     result = json.loads(out.read_text())
     assert result == json.loads(proc.stdout)
     for grid, shape in (("half", [32, 48, 9]), ("full", [64, 96, 9])):
         entry = result[f"ours_{grid}"]
         assert entry["output_shape"] == shape
-        assert entry["seconds_median"] > 0
         # The one timing rule: one warm-up, then --repeat timed calls, each entry saying what it timed.
-        assert entry["warmup_runs"] == 1 and entry["repeats"] == 1 and len(entry["seconds_all"]) == 1
+        assert entry["warmup_runs"] == 1 and entry["repeats"] == 3 and len(entry["seconds_all"]) == 3
+        assert entry["seconds_median"] == statistics.median(entry["seconds_all"])
         assert "decode" in entry["what"] and f"grid='{grid}'" in entry["what"]
         # Smooth scene, no noise, no quantisation: only interpolation error of a slowly varying
         # field (s0 is up to about 1) remains.
@@ -39,15 +42,36 @@ def test_bench_rejects_bad_size():
 
 
 def test_bench_network_toy(tmp_path):
+    from network.bench.model import EXAMPLE_CAPTURE, SHIPPED_CHECKPOINT, smooth_input
+    from network.config import get_config
+    from network.model import PolarInverseModel, count_parameters
+
     out = tmp_path / "net.json"
-    proc = _run("headless/bench.py", "network", "--configs", "toy", "--out", str(out))
+    proc = _run("headless/bench.py", "network", "--configs", "toy", "--strides", "1", "2", "--repeat", "2", "--out",
+                str(out))  # fmt: skip
     assert proc.returncode == 0, proc.stderr
-    toy = json.loads(out.read_text())["configs"]["toy"]
-    assert toy["parameters"] > 1000 and toy["train_step_seconds"] > 0 and toy["decoder_pixels_per_second"] > 0
-    # Every timed entry follows the one rule and names what it timed.
-    for entry in (toy["train_forward"], toy["train_step"], toy["encode"], toy["inference"]["stride_2"]["decode"]):
-        assert entry["warmup_runs"] == 1 and entry["repeats"] == 1 and entry["what"]
-        assert entry["seconds_median"] == entry["seconds_all"][0]
+    result = json.loads(out.read_text())
+    toy = result["configs"]["toy"]
+    size = get_config("toy").image_size
+    assert toy["parameters"] == count_parameters(PolarInverseModel(get_config("toy")))
+    assert toy["image_size"] == size and toy["masked_pixels"] == int(smooth_input(size, 0.5)[1].sum())
+    # Every timed entry follows the one rule, names what it timed, and the summary keys are its medians.
+    s1, s2 = toy["inference"]["stride_1"], toy["inference"]["stride_2"]
+    for entry in (toy["train_forward"], toy["train_step"], toy["encode"], s1["decode"], s2["decode"]):
+        assert entry["warmup_runs"] == 1 and entry["repeats"] == 2 and entry["what"]
+        assert entry["seconds_median"] == statistics.median(entry["seconds_all"])
+    assert toy["train_forward"]["what"].startswith("training-mode forward with gradients enabled")
+    assert toy["train_forward"]["grad_enabled"] is True
+    assert toy["train_step_seconds"] == toy["train_step"]["seconds_median"]
+    assert toy["decoder_pixels_per_second"] == pytest.approx(toy["masked_pixels"] / s1["decode"]["seconds_median"])
+    assert s1["total_seconds"] == pytest.approx(toy["encode"]["seconds_median"] + s1["decode"]["seconds_median"])
+    if SHIPPED_CHECKPOINT.is_file():  # the stride error comes from the shipped model on the example capture
+        pred = result["predict"]
+        assert pred["checkpoint"] == str(SHIPPED_CHECKPOINT) and pred["capture"] == str(EXAMPLE_CAPTURE)
+        err = pred["stride_2"]["error_vs_stride_1"]
+        assert set(err) >= {"normal_deg_mean", "normal_deg_p99", "albedo_mae", "roughness_mae", "metallic_mae"}
+        assert 0.0 < err["normal_deg_mean"] <= err["normal_deg_p99"] <= err["normal_deg_max"] < 90.0
+        assert "at stride 2" in pred["stride_2"]["what"] and "error_vs_stride_1" not in pred["stride_1"]
 
 
 def test_bench_quick_and_old_capture_flag(tmp_path):

@@ -135,3 +135,40 @@ def test_blender_binary_route(tmp_path):  # pragma: no cover - needs a Blender 4
     assert proc.returncode == 0, proc.stderr[-2000:]
     generate(GenerateConfig(out=tmp_path / "plain", count=1, seed=2, resolution=32, spp=4), progress=False)
     _assert_same_dataset(tmp_path / "plain", tmp_path / "bl", [0])
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--split", "test-meshes", "--seed", "3"], "renders with seed 21000; --seed cannot change it"),
+        (["--split", "test-meshes", "--count", "49"], "--count must be in 1..48"),
+        (["--split", "test-pbrdf"], "needs --pbrdfs DIR"),
+        (["--split", "val", "--shapes", "meshes"], "uses --shapes procedural"),
+        (["--split", "nope"], "invalid choice: 'nope'"),
+    ],
+)
+def test_split_flag_errors_are_one_line(tmp_path, extra, message):
+    res = subprocess.run([sys.executable, "headless/render.py", "--out", str(tmp_path / "o"), *extra],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120)  # fmt: skip
+    assert res.returncode == 2
+    assert message in res.stderr
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.mitsuba
+def test_split_prefix_is_labelled_and_keeps_raw(tmp_path):
+    from pbrdf.data import dataset
+    from pbrdf.data.splits import dataset_split
+
+    out = tmp_path / "tm"
+    cmd = [sys.executable, "headless/render.py", "--split", "test-meshes", "--count", "1", "--out", str(out), *SMALL]
+    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    assert dataset_split(out) == "test-meshes" and dataset.read_manifest(out)["seed"] == 21000
+    sample, meta = dataset.read_sample(out, 0)
+    assert meta["split"] == "test-meshes" and "raw" in sample
+    assert meta["objects"][0]["mesh"].split("?")[0].removeprefix("builtin:") in {
+        "torus_knot", "vase", "gear", "l_block", "dumbbell", "thin_plate"}  # fmt: skip
+    # The ground truth covers the object; the training mask is the decoded part of it.
+    cover = sample["object"] >= 0
+    assert np.all(sample["mask"] <= cover) and np.all(np.linalg.norm(sample["normal"][cover], axis=-1) > 0.99)

@@ -14,21 +14,11 @@ from network.model.polar_model import PolarInverseModel
 from pbrdf.data import capture
 from pbrdf.io import exr
 from pbrdf.sensor import camera
+from tests.helpers import make_model
+
+pytestmark = pytest.mark.usefixtures("torch_one_thread")  # tests/conftest.py
 
 KEYS = ("normal", "albedo", "roughness", "metallic")
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # a shared 2-core machine: one thread is faster and steadier for these sizes
-    yield
-    torch.set_num_threads(threads)
-
-
-def make_model(name="toy", seed=0, **overrides):
-    torch.manual_seed(seed)
-    return PolarInverseModel(get_config(name, **overrides)).eval()
 
 
 class TestPredict:

@@ -122,7 +122,14 @@ def test_masked_metric_and_scale_invariance():
     half = 0.5 * im
     assert metrics.lpips(half, im, mask) > 0.05
     assert metrics.si_lpips(half, im, mask) == pytest.approx(0.0, abs=1e-6)
-    assert metrics.lpips(other, im, mask) > 0
+    # Orderings that a wrong metric would break (measured: 0.005 < 0.55; shift 0.12 > scale 0.0 under si-LPIPS).
+    noise = np.random.default_rng(0).standard_normal(im.shape)
+    slight = metrics.lpips(np.clip(im + 0.02 * noise, 0, 1), im, mask)
+    heavy = metrics.lpips(np.clip(im + 0.2 * noise, 0, 1), im, mask)
+    assert 1e-4 < slight < 0.1 * heavy
+    assert metrics.lpips(other, im, mask) == pytest.approx(metrics.lpips(im, other, mask), rel=1e-6)
+    shifted = np.roll(im, 3, axis=1)  # a 3-pixel shift is a structural change that no brightness scale undoes
+    assert metrics.si_lpips(shifted, im, mask) > metrics.si_lpips(half, im, mask) + 0.05
     # Same value as LPIPS on the box upsampled to 64 px (the documented procedure).
     box, size = (slice(5, 35), slice(8, 30)), (round(30 * 64 / 22), 64)  # 30 x 22 box, short side -> 64
     t0 = torch.nn.functional.interpolate(_t(im[box]).float(), size=size, mode="bilinear") * 2 - 1

@@ -313,3 +313,16 @@ def test_cli_overrides_are_stored(tiny_dataset, tmp_path):
     assert ckpt["inputs"] == "spectral"
     model, meta = load_checkpoint(out / "model.pt")
     assert model.config.image_size == 32 and meta["inputs"] == "spectral"
+
+
+@pytest.mark.parametrize(("role", "where"), [("test-procedural", "data"), ("test-meshes", "val"), ("val", "data")])
+def test_training_and_selection_refuse_other_splits(tiny_dataset, tmp_path, role, where):
+    labelled = tmp_path / role
+    shutil.copytree(tiny_dataset, labelled)
+    manifest = json.loads((labelled / "manifest.json").read_text())
+    (labelled / "manifest.json").write_text(json.dumps({**manifest, "split": role}))
+    kw = {"data": labelled} if where == "data" else {"data": tiny_dataset, "val": labelled}
+    cfg = TrainConfig(out=tmp_path / "o", config="toy", steps=1, device="cpu", tensorboard=False, **kw)
+    with pytest.raises(ValueError, match=f"split '{role}'; .* may read only"):
+        train(cfg, progress=False)
+    assert not (tmp_path / "o" / "model.pt").exists()

@@ -11,6 +11,7 @@ import trimesh
 from blender_addon.core import assets, procedural
 from blender_addon.core.spec import EnvironmentSpec, LightSpec, MaterialSpec, ObjectSpec, SceneSpec
 from pbrdf.sensor.rig import CameraSpec, Rig
+from tests.helpers import rigid_pose, rot_x
 
 
 def _pose(x=0.0, y=0.0, z=-0.7, scale=0.2):
@@ -224,28 +225,15 @@ class TestValidate:
 # --------------------------------------------------------------------------- lights and world
 
 
-def _rigid_pose(t=(0.0, 0.0, 0.0), rot=None) -> np.ndarray:
-    m = np.eye(4)
-    if rot is not None:
-        m[:3, :3] = rot
-    m[:3, 3] = t
-    return m
-
-
-def _rot_x(a: float) -> np.ndarray:
-    c, s = math.cos(a), math.sin(a)
-    return np.array([[1, 0, 0], [0, c, -s], [0, s, c]], dtype=float)
-
-
 def test_light_and_environment_specs_round_trip_and_validate(tmp_path):
     lights = (
-        LightSpec("key", "area", _rigid_pose((0.1, 0.2, 0.3)), (1.0, 0.9, 0.8), 25.0, size=(0.3, 0.2), shape="ellipse",
+        LightSpec("key", "area", rigid_pose((0.1, 0.2, 0.3)), (1.0, 0.9, 0.8), 25.0, size=(0.3, 0.2), shape="ellipse",
                   normalize=False),
         LightSpec("bulb", "point", power=5.0),
-        LightSpec("cone", "spot", _rigid_pose(rot=_rot_x(0.3)), power=100.0, spot_angle=0.8, spot_blend=0.2),
+        LightSpec("cone", "spot", rigid_pose(rot=rot_x(0.3)), power=100.0, spot_angle=0.8, spot_blend=0.2),
         LightSpec("sun", "sun", power=3.0),
     )  # fmt: skip
-    env = EnvironmentSpec(strength=0.5, image="sky.exr", to_world=_rigid_pose(rot=_rot_x(math.pi / 2)))
+    env = EnvironmentSpec(strength=0.5, image="sky.exr", to_world=rigid_pose(rot=rot_x(math.pi / 2)))
     spec = SceneSpec(lights=lights, environment=env, materials=(MaterialSpec.diffuse("d", (0.2, 0.3, 0.4)),))
     spec.save(tmp_path / "s.json")
     assert SceneSpec.load(tmp_path / "s.json") == spec
@@ -266,7 +254,7 @@ def test_light_and_environment_specs_round_trip_and_validate(tmp_path):
     with pytest.raises(ValueError, match="rigid transform"):
         LightSpec("x", "point", to_world=np.diag([2.0, 1, 1, 1]))
     with pytest.raises(ValueError, match="pure rotation"):
-        EnvironmentSpec(to_world=_rigid_pose((0, 0, 1)))
+        EnvironmentSpec(to_world=rigid_pose((0, 0, 1)))
     with pytest.raises(ValueError, match="duplicate light name 'bulb'"):
         SceneSpec(lights=(lights[1], lights[1])).validate()
     with pytest.raises(FileNotFoundError, match="environment image not found"):

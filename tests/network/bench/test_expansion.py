@@ -1,5 +1,7 @@
 """network.bench.expansion: PCA error falls with components; validity filter and expansion are timed."""
 
+import statistics
+
 import pytest
 
 from network.bench import expansion
@@ -7,10 +9,13 @@ from network.bench import expansion
 
 @pytest.mark.slow
 def test_small_run():
-    result = expansion.run(count=2, repeat=1, warmup=0)
+    result = expansion.run(count=2, repeat=2, warmup=0)
     errors = [r["rel_rmse_held_in"] for r in result["reconstruction"]]
     assert errors == sorted(errors, reverse=True) and errors[-1] < errors[0]
-    assert all(r["repeats"] == 1 and r["warmup_runs"] == 0 and r["seconds"] > 0 for r in result["reconstruction"])
+    for r in result["reconstruction"]:
+        assert r["repeats"] == 2 and r["warmup_runs"] == 0 and len(r["seconds_all"]) == 2
+        assert r["seconds"] == r["seconds_median"] == statistics.median(r["seconds_all"])
+        assert f"({r['components'].split('+')[0]}+" in r["what"]
     vf = result["validity_filter"]
     assert 0 < vf["valid_fraction"] <= 1 and vf["speedup"] > 1
     assert vf["vectorised"]["what"] and vf["per_matrix_loop"]["what"]

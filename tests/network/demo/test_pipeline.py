@@ -19,10 +19,18 @@ def test_relight_script_exists_beside_the_package():
     assert (pipeline.ROOT / "headless" / "relight.py").is_file()
 
 
-def test_mask_weighted_mean():
-    rows = [{"pixels": 1, "ours": {"mae": 1.0}}, {"pixels": 3, "ours": {"mae": 3.0}}, {"pixels": 5, "ours": {}}]
-    assert pipeline._mean(rows, "ours", "mae") == pytest.approx(2.5)
-    assert np.isnan(pipeline._mean(rows, "ours", "missing"))
+def test_demo_rows_are_summarised_per_scene_and_pixel_weighted():
+    # The demo's table comes from network.split_eval.summarize_rows, like headless/evaluate.py --split.
+    from network.split_eval import METHODS, METRICS, summarize_rows
+
+    def row(pixels, mae):
+        scores = {k: None for k, _, _ in METRICS}
+        return {"pixels": pixels, "mask_iou": 0.9, **{m: {**scores, "normal_mae": mae} for m in METHODS}}
+
+    out = summarize_rows([row(1, 1.0), row(3, 3.0)])
+    mae = out["methods"]["ours"]["normal_mae"]
+    assert mae["mean"] == pytest.approx(2.0) and mae["weighted_mean"] == pytest.approx(2.5)
+    assert out["methods"]["ours"]["roughness_rmse"]["mean"] is None
 
 
 def test_angle_map_degrees():

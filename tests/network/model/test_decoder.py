@@ -3,14 +3,8 @@
 import pytest
 import torch
 
-from network.config import get_config
 from network.model.decoder import PoolingAttention, safe_normalize
-from network.model.polar_model import PolarInverseModel
-
-
-def make_model(name="toy", seed=0, **overrides):
-    torch.manual_seed(seed)
-    return PolarInverseModel(get_config(name, **overrides)).eval()
+from tests.helpers import make_model
 
 
 class TestSafeNormalize:

@@ -15,26 +15,14 @@ from torch.nn.attention import SDPBackend, sdpa_kernel
 from torch.utils.flop_counter import FlopCounterMode
 
 from network.checkpoint import load_checkpoint
-from network.config import get_config
 from network.infer import DEFAULT_CHECKPOINT
 from network.model.dense import context_pixels, fill_from_decoded, grid_pixels
 from network.model.flops import estimate_flops
-from network.model.polar_model import PolarInverseModel
+from tests.helpers import make_model
+
+pytestmark = pytest.mark.usefixtures("torch_one_thread")  # tests/conftest.py
 
 KEYS = ("normal", "albedo", "roughness", "metallic")
-
-
-@pytest.fixture(autouse=True)
-def _one_thread():
-    threads = torch.get_num_threads()
-    torch.set_num_threads(1)  # a shared 2-core machine: one thread is faster and steadier for these sizes
-    yield
-    torch.set_num_threads(threads)
-
-
-def make_model(name="toy", seed=0, **overrides):
-    torch.manual_seed(seed)
-    return PolarInverseModel(get_config(name, **overrides)).eval()
 
 
 def smooth_maps(size, batch=1):
@@ -228,13 +216,22 @@ class TestShippedCheckpoint:
     @pytest.mark.skipif(not DEFAULT_CHECKPOINT.is_file(), reason="models/small/model.pt not trained in this tree")
     def test_shipped_checkpoint_fast_path_equals_reference(self):
         model, _ = load_checkpoint(DEFAULT_CHECKPOINT)
-        size = model.config.image_size
-        maps = torch.rand(1, 9, size, size, generator=torch.Generator().manual_seed(7))
-        mask = torch.zeros(1, 1, size, size)
-        mask[..., 150:220, 160:230] = 1  # 4900 pixels: a context subset and a few chunks, still fast
+        size = model.config.image_size  # 128 for the shipped model: the mask must lie inside it
+        g = torch.Generator().manual_seed(7)
+        maps = torch.rand(2, 9, size, size, generator=g)  # two different inputs
+        mask = torch.zeros(2, 1, size, size)
+        mask[..., 20:90, 30:100] = 1  # 4900 pixels: a context subset and a few chunks, still fast
+        assert int(mask[0].sum()) == 4900 > model.config.train_pixels
         with torch.no_grad():
             feats = model.encode(maps, mask)
             fast = model.decode_dense(feats, maps, mask)
             ref = model.decode_dense_reference(feats, maps, mask)
+        inside = mask[0, 0] > 0
+        for key in KEYS:
+            a, b = fast[key][0][:, inside], fast[key][1][:, inside]
+            # Real predictions, not the zeros outside the mask: nonzero and depending on the input.
+            assert float(a.abs().mean()) > 1e-3 and float(b.abs().mean()) > 1e-3, key
+            assert float((a - b).abs().max()) > 1e-3, key
+        assert_valid(fast, mask)
         for key in KEYS:
             torch.testing.assert_close(fast[key], ref[key], rtol=0, atol=1e-5)

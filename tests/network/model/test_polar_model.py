@@ -6,11 +6,10 @@ The whole file runs in well under a minute on CPU.
 import pytest
 import torch
 
-from network.config import get_config
 from network.model.decoder import safe_normalize
 from network.model.dense import context_pixels
-from network.model.polar_model import PolarInverseModel
 from network.model.sampling import sample_pixels
+from tests.helpers import toy_inputs, toy_model
 
 # Permutations of the nine maps [R_unpol, G_unpol, B_unpol, R_LP, G_LP, B_LP, R_CP, G_CP, B_CP]; perm[i] is the map
 # that lands at position i (x[:, perm]).
@@ -18,20 +17,6 @@ SWAP_UNPOL_LP = [3, 4, 5, 0, 1, 2, 6, 7, 8]  # rows of the 3 x 3 (polarization x
 SWAP_R_G = [1, 0, 2, 4, 3, 5, 7, 6, 8]  # columns of the grid
 SWAP_R_UNPOL_G_LP = [4, 1, 2, 3, 0, 5, 6, 7, 8]  # not a grid symmetry
 TRANSPOSE = [0, 3, 6, 1, 4, 7, 2, 5, 8]  # polarization <-> colour: maps spectral groups onto polarimetric ones
-
-
-def toy_model(seed=0, **overrides):
-    torch.manual_seed(seed)
-    return PolarInverseModel(get_config("toy", **overrides))
-
-
-def toy_inputs(batch=1, size=64, seed=1):
-    g = torch.Generator().manual_seed(seed)
-    maps = torch.rand(batch, 9, size, size, generator=g)
-    mask = torch.zeros(batch, 1, size, size)
-    mask[..., 8:56, 12:52] = 1.0
-    mask[..., 20:24, 20:40] = 0.0  # a hole
-    return maps, mask
 
 
 def masked_indices(mask, b=0):

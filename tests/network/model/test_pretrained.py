@@ -3,15 +3,9 @@
 import pytest
 import torch
 
-from network.config import get_config
-from network.model.polar_model import PolarInverseModel
 from network.model.pretrained import load_pretrained_vit
 from network.model.tokenizer import ViTTokenizer
-
-
-def toy_model(seed=0, **overrides):
-    torch.manual_seed(seed)
-    return PolarInverseModel(get_config("toy", **overrides))
+from tests.helpers import toy_model
 
 
 class TestPretrained:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -214,6 +215,125 @@ class TestDecodeCapture:
         assert not np.array_equal(got.maps, decode(raws, CameraModel()).maps)
 
 
+class TestDecodedCaptureMasks:
+    def test_measured_foreground_and_input_mask(self, tmp_path, rng):
+        model = CameraModel()
+        st = np.zeros((H, W, 3, 4))
+        st[8:24, 12:36, :, 0] = 0.05  # a bright rectangle on a black background
+        raws = simulate_capture(st, model, rng=rng)
+        got = cap.decode_capture(cap.save_capture(tmp_path / "c", raws, model))
+        assert isinstance(got, cap.DecodedCapture) and got.foreground_source == "auto"
+        assert got.measured.all()  # nothing saturates: every pixel was measured ...
+        assert not got.mask.all()  # ... but the noise floor fails decode's s0 > 0 on some
+        truth = np.zeros((H // 2, W // 2), bool)
+        truth[4:12, 6:18] = True
+        # A sharp-edged rectangle: the decoded edge is found to within one pixel.
+        grown = np.zeros_like(truth)
+        grown[3:13, 5:19] = True
+        assert got.foreground[truth].all() and not got.foreground[~grown].any()
+        np.testing.assert_array_equal(got.input_mask, got.foreground & got.measured)
+
+    def test_saturated_pixels_are_not_given_to_the_network(self, rng):
+        model = CameraModel()
+        st = np.zeros((H, W, 3, 4))
+        st[8:24, 12:36, :, 0] = 0.05
+        st[14:18, 22:26, :, 0] = 100.0  # saturated in every exposure
+        got = cap.decode_capture(cap.Capture(raws=simulate_capture(st, model, rng=rng), model=model))
+        assert got.foreground[8, 12] and not got.measured[8, 12]
+        assert not got.input_mask[8, 12]
+
+    def test_in_memory_capture_uses_the_automatic_mask(self, synthetic):
+        raws, model = synthetic
+        got = cap.decode_capture(cap.Capture(raws=raws, model=model))
+        assert got.foreground_source == "auto" and got.foreground.shape == (H // 2, W // 2)
+
+
+# --------------------------------------------------------------------------------------------
+# mask.png: the user's object mask
+
+
+def _write_mask(folder: Path, array: np.ndarray, mode: str | None = None) -> Path:
+    img = Image.fromarray(array) if mode is None else Image.fromarray(array).convert(mode)
+    img.save(folder / cap.MASK_FILE)
+    return folder / cap.MASK_FILE
+
+
+class TestMaskFile:
+    @pytest.fixture
+    def folder(self, tmp_path, synthetic):
+        return cap.save_capture(tmp_path / "c", *synthetic, file_format="png")
+
+    @staticmethod
+    def _shape_mask(h: int, w: int) -> np.ndarray:
+        m = np.zeros((h, w), bool)
+        m[2 : h - 3, 3 : w // 2] = True
+        m[h // 2, w - 4] = True  # an isolated pixel: the file is used exactly, no clean-up
+        return m
+
+    @pytest.mark.parametrize("depth", ["8-bit", "16-bit", "bilevel"])
+    def test_decoded_grid_mask_is_used_exactly(self, folder, depth):
+        m = self._shape_mask(H // 2, W // 2)
+        if depth == "8-bit":
+            path = _write_mask(folder, np.where(m, 255, 0).astype(np.uint8))
+        elif depth == "16-bit":
+            path = _write_mask(folder, np.where(m, 1, 0).astype(np.uint16))  # any nonzero value
+        else:
+            path = _write_mask(folder, np.where(m, 255, 0).astype(np.uint8), "1")
+        got = cap.decode_capture(folder)
+        np.testing.assert_array_equal(got.foreground, m)
+        assert got.foreground_source == str(path)
+        np.testing.assert_array_equal(got.input_mask, m & got.measured)
+
+    def test_raw_grid_mask_is_reduced_by_2x2_blocks(self, folder):
+        raw = np.zeros((H, W), np.uint8)
+        raw[4:12, 6:14] = 255  # whole blocks: half-grid [2:6, 3:7]
+        raw[20, 20] = raw[20, 21] = 255  # two of four: object
+        raw[24, 24] = 255  # one of four: not object
+        _write_mask(folder, raw)
+        expected = np.zeros((H // 2, W // 2), bool)
+        expected[2:6, 3:7] = True
+        expected[10, 10] = True
+        np.testing.assert_array_equal(cap.decode_capture(folder).foreground, expected)
+        # On the full grid the raw-size mask is the decoded size: used as it is.
+        np.testing.assert_array_equal(cap.decode_capture(folder, grid="full").foreground, raw > 0)
+
+    def test_example_capture_with_its_truth_as_mask(self, tmp_path):
+        truth = np.load(REPO / "examples" / "capture_truth.npz")["mask"].astype(bool)
+        folder = tmp_path / "capture"
+        shutil.copytree(REPO / "examples" / "capture", folder)
+        _write_mask(folder, np.where(truth, 255, 0).astype(np.uint8))
+        np.testing.assert_array_equal(cap.decode_capture(folder).foreground, truth)
+
+    @pytest.mark.parametrize(
+        ("write", "match"),
+        [
+            (lambda f: _write_mask(f, np.zeros((H // 2, W // 2, 3), np.uint8)), "got mode 'RGB'"),
+            (lambda f: _write_mask(f, np.zeros((H // 2, W // 2), np.uint8), "LA"), "got mode 'LA'"),
+            (lambda f: _write_mask(f, np.zeros((H // 2, W // 2), np.uint8), "P"), "got mode 'P'"),
+            (lambda f: _write_mask(f, np.full((H // 2, W // 2 + 1), 255, np.uint8)), "matches neither"),
+            (lambda f: _write_mask(f, np.zeros((H // 2, W // 2), np.uint8)), "no object pixel"),
+            (lambda f: (f / cap.MASK_FILE).write_bytes(b"not a png"), "not a readable PNG"),
+            (lambda f: _truncate(_write_mask(f, np.full((H, W), 255, np.uint8))), "cannot read mask image"),
+        ],
+        ids=["RGB", "LA", "palette", "wrong size", "empty", "not an image", "truncated"],
+    )
+    def test_bad_mask_files(self, folder, write, match):
+        write(folder)
+        with pytest.raises(ValueError, match=match) as info:
+            cap.decode_capture(folder)
+        message = str(info.value)
+        assert "\n" not in message and message.startswith(str(folder / cap.MASK_FILE))
+
+    def test_load_mask_missing_file(self, tmp_path):
+        with pytest.raises(FileNotFoundError, match="mask file does not exist"):
+            cap.load_mask(tmp_path / cap.MASK_FILE, (4, 4), (8, 8))
+
+
+def _truncate(path: Path) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2])
+
+
 # --------------------------------------------------------------------------------------------
 # Errors on load
 
@@ -342,6 +462,26 @@ LOAD_ERRORS = {
         ValueError,
         r"raw_0010\.0ms\.png: colour image \(mode 'RGB', 3 channels\)",
     ),
+    "8-bit PNG raw (a photo)": (
+        lambda f, r: _replace_raw_png(f, 0, Image.fromarray((r[0] // 16).astype(np.uint8))),
+        ValueError,
+        r"raw_0010\.0ms\.png: raw is 8-bit \(an 8-bit greyscale image \(mode 'L'\)\) but the capture is 12-bit",
+    ),
+    "8-bit TIFF raw": (
+        lambda f, r: _replace_raw_png(f, 0, Image.fromarray((r[0] // 16).astype(np.uint8)), ".tiff"),
+        ValueError,
+        r"raw_0010\.0ms\.tiff: raw is 8-bit .* but the capture is 12-bit",
+    ),
+    "uint8 npy raw": (
+        lambda f, r: _replace_raw(f, 1, (r[1] // 16).astype(np.uint8)),
+        ValueError,
+        r"raw_0020\.0ms\.npy: raw is 8-bit \(a uint8 array\) but the capture is 12-bit",
+    ),
+    "int8 npy raw": (
+        lambda f, r: _replace_raw(f, 1, np.zeros((H, W), np.int8)),
+        ValueError,
+        r"raw_0020\.0ms\.npy: raw is 8-bit \(a int8 array\)",
+    ),
     "float TIFF": (
         lambda f, r: _replace_raw_png(f, 0, Image.fromarray(r[0].astype(np.float32)), ".tiff"),
         ValueError,
@@ -420,6 +560,14 @@ class TestLoadErrors:
         (tmp_path / "f").write_text("x")
         with pytest.raises(NotADirectoryError, match="not a folder"):
             cap.load_capture(tmp_path / "f")
+
+    def test_8_bit_raw_accepted_for_an_8_bit_sensor(self, tmp_path, rng):
+        model = CameraModel(sensor=SensorParams(bits=8, black_level=4.0, electrons_per_unit=5e4))
+        raws = simulate_capture(_stokes_scene(rng), model, rng=rng)
+        folder = cap.save_capture(tmp_path / "c", raws, model, file_format="npy")
+        for k in range(4):
+            _replace_raw(folder, k, raws[k].astype(np.uint8))
+        np.testing.assert_array_equal(cap.load_capture(folder).raws, raws)
 
     def test_dark_frames_are_not_judged_for_order(self, saved):
         folder, raws = saved

@@ -37,7 +37,8 @@ def test_channel_names_are_pinned():
     )
     assert CHANNELS["stokes"][:5] == ("stokes.R.S0", "stokes.R.S1", "stokes.R.S2", "stokes.R.S3", "stokes.G.S0")
     assert len(CHANNELS["stokes"]) == 12
-    assert sum(len(v) for v in CHANNELS.values()) == 31
+    assert CHANNELS["object"] == ("object.Y",)
+    assert sum(len(v) for v in CHANNELS.values()) == 32
 
 
 @pytest.mark.parametrize(("stokes", "raw"), [(False, False), (True, True)])
@@ -267,3 +268,23 @@ def test_check_complete_says_what_is_missing(tmp_path, rng):
 
 def test_required_keys_documented():
     assert REQUIRED_KEYS == ("maps", "mask", "normal", "albedo", "roughness", "metallic", "depth")
+
+
+def test_object_channel_defines_the_ground_truth_region(tmp_path, rng):
+    sample, metadata = make_sample(rng)
+    obj = np.where(sample["mask"], 0.0, -1.0).astype(np.float32)
+    obj[0, 1] = 0.0  # an object pixel the decoder did not measure: outside the mask, inside the truth
+    sample["object"] = obj
+    with pytest.raises(ValueError, match=r"must be unit vectors on the objects"):
+        validate_sample(sample)  # its normal is still 0
+    sample["normal"][0, 1] = [0.0, 0.0, 1.0]
+    sample["depth"][0, 1] = 1.0
+    validate_sample(sample)
+    write_sample(tmp_path, 0, sample, metadata)
+    back, _ = read_sample(tmp_path, 0)
+    np.testing.assert_array_equal(back["object"], obj)
+    stray = dict(sample, object=np.full_like(obj, -1.0))
+    with pytest.raises(ValueError, match=r"mask'\] must lie on the objects"):
+        validate_sample(stray)
+    with pytest.raises(ValueError, match="object indices"):
+        validate_sample(dict(sample, object=obj + 0.5))

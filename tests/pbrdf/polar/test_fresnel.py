@@ -12,7 +12,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from pbrdf.polar import fresnel, mueller, stokes, validity
+from pbrdf.polar import fresnel, mueller, stokes
+from tests.helpers import (
+    HORIZONTAL,
+    PLUS_45,
+    UNPOLARIZED,
+    VERTICAL,
+    assert_mueller_physical,
+    assert_pure_mueller,
+    mi_matrix,
+)
 
 PI = np.pi
 
@@ -20,11 +29,6 @@ PI = np.pi
 # Mitsuba's scalar variants compute in float32: 2e-5 (measured worst case 3.7e-6, Fresnel r_p at eta 2.4).
 ATOL = 1e-12
 MI_ATOL = 2e-5
-
-HORIZONTAL = [1.0, 1.0, 0.0, 0.0]
-VERTICAL = [1.0, -1.0, 0.0, 0.0]
-PLUS_45 = [1.0, 0.0, 1.0, 0.0]
-UNPOLARIZED = [1.0, 0.0, 0.0, 0.0]
 
 # Real relative IORs, seen from both sides of the interface (1/1.5 is glass-to-air).
 DIELECTRIC_ETAS = [1.5, 1 / 1.5, 1.33, 2.4]
@@ -36,41 +40,7 @@ SWEEP_COS = np.cos(np.radians(np.linspace(0.0, 180.0, 181)))
 OUTSIDE_COS = SWEEP_COS[SWEEP_COS >= 0]
 
 
-# --- helpers -----------------------------------------------------------------------------------------
-
-
-def random_stokes(rng, n):
-    """Physical Stokes vectors, valid by construction: s0 in [0.1, 2], any DoP, AoLP and ellipticity."""
-    return stokes.stokes(
-        rng.uniform(0.1, 2.0, n), rng.uniform(0, 1, n), rng.uniform(0, PI, n), rng.uniform(-PI / 4, PI / 4, n)
-    )
-
-
-def assert_pure_mueller(m, atol):
-    """Non-depolarizing (Mueller-Jones) matrices satisfy tr(M^T M) = 4 m00^2.
-
-    J. J. Gil and E. Bernabeu, "A depolarization criterion in Mueller matrices", Optica Acta 32(3):259, 1985.
-    """
-    m = np.asarray(m)
-    np.testing.assert_allclose(np.einsum("...ij,...ij->...", m, m), 4 * m[..., 0, 0] ** 2, atol=atol)
-
-
-def assert_maps_physical_to_physical(m, rng):
-    """Stokes criterion: physical input states give physical output states."""
-    s_in = random_stokes(rng, 64)
-    s_out = mueller.apply(np.asarray(m)[..., None, :, :], s_in)
-    assert np.all(stokes.is_physical_stokes(s_out, rtol=1e-9, atol=1e-12))
-
-
-def assert_mueller_physical(m, rng):
-    """Cloude and Givens-Kostinski tests of pbrdf.polar.validity, plus the Stokes criterion done here."""
-
-    assert np.all(validity.is_mueller_physical(m))
-    assert_maps_physical_to_physical(m, rng)
-
-
-def mi_matrix(m):
-    return np.array(m, dtype=np.float64)
+# --- helpers (shared ones, and the named Stokes states, are in tests/helpers.py) ---------------------
 
 
 def mi_complex(mi, z):

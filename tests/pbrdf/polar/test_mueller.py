@@ -10,7 +10,21 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pbrdf.polar import mueller, stokes, validity
+from pbrdf.polar import mueller, stokes
+from tests.helpers import (
+    HORIZONTAL,
+    LEFT_CIRCULAR,
+    MINUS_45,
+    PLUS_45,
+    RIGHT_CIRCULAR,
+    UNPOLARIZED,
+    VERTICAL,
+    assert_angles_close_mod_pi,
+    assert_mueller_physical,
+    assert_pure_mueller,
+    mi_matrix,
+    random_stokes,
+)
 
 PI = np.pi
 
@@ -19,29 +33,8 @@ PI = np.pi
 ATOL = 1e-12
 MI_ATOL = 2e-5
 
-HORIZONTAL = [1.0, 1.0, 0.0, 0.0]
-VERTICAL = [1.0, -1.0, 0.0, 0.0]
-PLUS_45 = [1.0, 0.0, 1.0, 0.0]
-MINUS_45 = [1.0, 0.0, -1.0, 0.0]
-RIGHT_CIRCULAR = [1.0, 0.0, 0.0, 1.0]
-LEFT_CIRCULAR = [1.0, 0.0, 0.0, -1.0]
-UNPOLARIZED = [1.0, 0.0, 0.0, 0.0]
 
-
-# --- helpers -----------------------------------------------------------------------------------------
-
-
-def assert_angles_close_mod_pi(actual, expected, atol):
-    """Angles of linear polarization are defined modulo pi."""
-    d = np.mod(np.asarray(actual) - np.asarray(expected) + PI / 2, PI) - PI / 2
-    assert np.all(np.abs(d) <= atol), f"max angle error {np.max(np.abs(d))} > {atol}"
-
-
-def random_stokes(rng, n):
-    """Physical Stokes vectors, valid by construction: s0 in [0.1, 2], any DoP, AoLP and ellipticity."""
-    return stokes.stokes(
-        rng.uniform(0.1, 2.0, n), rng.uniform(0, 1, n), rng.uniform(0, PI, n), rng.uniform(-PI / 4, PI / 4, n)
-    )
+# --- helpers (shared ones, and the named Stokes states, are in tests/helpers.py) ---------------------
 
 
 def random_unit(rng, n):
@@ -56,29 +49,6 @@ def random_perpendicular(rng, w):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def assert_pure_mueller(m, atol):
-    """Non-depolarizing (Mueller-Jones) matrices satisfy tr(M^T M) = 4 m00^2.
-
-    J. J. Gil and E. Bernabeu, "A depolarization criterion in Mueller matrices", Optica Acta 32(3):259, 1985.
-    """
-    m = np.asarray(m)
-    np.testing.assert_allclose(np.einsum("...ij,...ij->...", m, m), 4 * m[..., 0, 0] ** 2, atol=atol)
-
-
-def assert_maps_physical_to_physical(m, rng):
-    """Stokes criterion: physical input states give physical output states."""
-    s_in = random_stokes(rng, 64)
-    s_out = mueller.apply(np.asarray(m)[..., None, :, :], s_in)
-    assert np.all(stokes.is_physical_stokes(s_out, rtol=1e-9, atol=1e-12))
-
-
-def assert_mueller_physical(m, rng):
-    """Cloude and Givens-Kostinski tests of pbrdf.polar.validity, plus the Stokes criterion done here."""
-
-    assert np.all(validity.is_mueller_physical(m))
-    assert_maps_physical_to_physical(m, rng)
-
-
 def jones_rotator(theta):
     """Jones matrix re-expressing a field in a frame rotated by theta (same sense as mueller.rotator)."""
     c, s = np.cos(theta), np.sin(theta)
@@ -88,10 +58,6 @@ def jones_rotator(theta):
 def jones_rotated(j, theta):
     """Jones matrix of element ``j`` physically rotated by theta: R(-theta) J R(theta)."""
     return jones_rotator(-theta) @ j @ jones_rotator(theta)
-
-
-def mi_matrix(m):
-    return np.array(m, dtype=np.float64)
 
 
 def mi_vector(mi, v):

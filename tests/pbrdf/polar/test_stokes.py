@@ -11,34 +11,21 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pbrdf.polar import stokes
+from tests.helpers import (
+    HORIZONTAL,
+    LEFT_CIRCULAR,
+    MINUS_45,
+    PLUS_45,
+    RIGHT_CIRCULAR,
+    VERTICAL,
+    assert_angles_close_mod_pi,
+    random_stokes,
+)
 
 PI = np.pi
 
 # Tolerance: closed-form float64 optics agree to round-off, 1e-12.
 ATOL = 1e-12
-
-HORIZONTAL = [1.0, 1.0, 0.0, 0.0]
-VERTICAL = [1.0, -1.0, 0.0, 0.0]
-PLUS_45 = [1.0, 0.0, 1.0, 0.0]
-MINUS_45 = [1.0, 0.0, -1.0, 0.0]
-RIGHT_CIRCULAR = [1.0, 0.0, 0.0, 1.0]
-LEFT_CIRCULAR = [1.0, 0.0, 0.0, -1.0]
-
-
-# --- helpers -----------------------------------------------------------------------------------------
-
-
-def assert_angles_close_mod_pi(actual, expected, atol):
-    """Angles of linear polarization are defined modulo pi."""
-    d = np.mod(np.asarray(actual) - np.asarray(expected) + PI / 2, PI) - PI / 2
-    assert np.all(np.abs(d) <= atol), f"max angle error {np.max(np.abs(d))} > {atol}"
-
-
-def random_stokes(rng, n):
-    """Physical Stokes vectors, valid by construction: s0 in [0.1, 2], any DoP, AoLP and ellipticity."""
-    return stokes.stokes(
-        rng.uniform(0.1, 2.0, n), rng.uniform(0, 1, n), rng.uniform(0, PI, n), rng.uniform(-PI / 4, PI / 4, n)
-    )
 
 
 # --- Stokes vectors ----------------------------------------------------------------------------------

@@ -2,7 +2,7 @@
 
 Expected values come from physics and closed forms, never from earlier runs of the code:
 
-- the IMX250MYR layout is written out literally below (checked against polanalyser 3.0.0);
+- the IMX250MYR layout is written out literally in tests/helpers.py (checked against polanalyser 3.0.0);
 - pixel intensities follow Malus' law behind a quarter-wave plate whose fast axis is horizontal,
   ``[S0, S1, S2, S3] -> [S0, S1, S3, -S2]`` (Goldstein, Polarized Light, 3rd ed., eqs. 6.46-6.47), so the
   analyzer at theta records ``1/2 (S0 + S1 cos 2 theta + S3 sin 2 theta)``;
@@ -20,31 +20,9 @@ import json
 import numpy as np
 import pytest
 
-from pbrdf.polar.stokes import stokes
 from pbrdf.sensor import camera
 from pbrdf.sensor.camera import CameraModel, SensorParams
-
-# The IMX250MYR 4x4 super-pixel, (row, col), row 0 at the top of the image.
-LAYOUT = (
-    ("R90", "R45", "G90", "G45"),
-    ("R135", "R0", "G135", "G0"),
-    ("G90", "G45", "B90", "B45"),
-    ("G135", "G0", "B135", "B0"),
-)
-
-
-def _parse(entry: str) -> tuple[int, int]:
-    """'G135' -> (colour index in R, G, B; angle in degrees)."""
-    return "RGB".index(entry[0]), int(entry[1:])
-
-
-IDEAL = {"extinction_ratio": np.inf, "qwp_retardance": np.pi / 2}
-
-
-def _elliptical_states() -> np.ndarray:
-    """Three distinct fully polarized elliptical states (R, G, B), s2 != 0 included, shape (3, 4)."""
-    return stokes(1.0, 1.0, np.deg2rad([20.0, 75.0, 140.0]), np.deg2rad([12.0, -25.0, 33.0]))
-
+from tests.helpers import IDEAL_OPTICS, IMX250MYR_LAYOUT, elliptical_states, parse_layout_entry
 
 # ----------------------------------------------------------------------------------------------------------
 # 1. Layout
@@ -55,9 +33,9 @@ def test_layout_table_matches_documented_imx250myr():
     assert camera.ANGLES_DEG == (0, 45, 90, 135)
     for i in range(4):
         for j in range(4):
-            colour, angle = _parse(LAYOUT[i][j])
-            assert camera.MOSAIC_COLOR[i, j] == colour, (i, j, LAYOUT[i][j])
-            assert camera.ANGLES_DEG[camera.MOSAIC_ANGLE[i, j]] == angle, (i, j, LAYOUT[i][j])
+            colour, angle = parse_layout_entry(IMX250MYR_LAYOUT[i][j])
+            assert camera.MOSAIC_COLOR[i, j] == colour, (i, j, IMX250MYR_LAYOUT[i][j])
+            assert camera.ANGLES_DEG[camera.MOSAIC_ANGLE[i, j]] == angle, (i, j, IMX250MYR_LAYOUT[i][j])
 
 
 @pytest.mark.parametrize("offset", [(0, 0), (0, 1), (1, 0), (3, 2)])
@@ -66,7 +44,7 @@ def test_mosaic_index_offset_shifts_the_table(offset):
     color, angle = camera.mosaic_indices(offset)
     for i in range(4):
         for j in range(4):
-            c, a = _parse(LAYOUT[(i + offset[0]) % 4][(j + offset[1]) % 4])
+            c, a = parse_layout_entry(IMX250MYR_LAYOUT[(i + offset[0]) % 4][(j + offset[1]) % 4])
             assert (color[i, j], camera.ANGLES_DEG[angle[i, j]]) == (c, a)
 
 
@@ -77,19 +55,20 @@ def test_mosaic_end_to_end_follows_malus_law_on_the_literal_table():
     h, w = 12, 16
     y, x = np.mgrid[0:h, 0:w]
     s0 = 1.0 + 0.05 * y + 0.013 * x
-    img = s0[..., None, None] * _elliptical_states()
-    raw = camera.mosaic(img, CameraModel(**IDEAL))
+    img = s0[..., None, None] * elliptical_states()
+    raw = camera.mosaic(img, CameraModel(**IDEAL_OPTICS))
     for yy in range(h):
         for xx in range(w):
-            c, theta = _parse(LAYOUT[yy % 4][xx % 4])
+            entry = IMX250MYR_LAYOUT[yy % 4][xx % 4]
+            c, theta = parse_layout_entry(entry)
             s = img[yy, xx, c]
             t = np.deg2rad(theta)
             # QWP (fast axis horizontal): the analyzer's "s2" is the incoming s3; the incoming s2 is lost.
             expected = 0.5 * (s[0] + s[1] * np.cos(2 * t) + s[3] * np.sin(2 * t))
-            assert raw[yy, xx] == pytest.approx(expected, rel=1e-12, abs=1e-12), (yy, xx, LAYOUT[yy % 4][xx % 4])
+            assert raw[yy, xx] == pytest.approx(expected, rel=1e-12, abs=1e-12), (yy, xx, entry)
     # The 12 (colour, angle) intensities at one point are pairwise distinct, so the check above discriminates.
     t = np.deg2rad(np.array(camera.ANGLES_DEG))
-    s = _elliptical_states()
+    s = elliptical_states()
     vals = 0.5 * (s[:, :1] + s[:, 1:2] * np.cos(2 * t) + s[:, 3:4] * np.sin(2 * t))
     assert np.min(np.diff(np.sort(vals.ravel()))) > 0.02
 

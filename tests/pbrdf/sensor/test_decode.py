@@ -2,14 +2,10 @@
 
 Expected values come from physics and closed forms, never from earlier runs of the code:
 
-- the IMX250MYR layout is written out literally below (checked against polanalyser 3.0.0) and compared
+- the IMX250MYR layout is written out literally in tests/helpers.py (checked against polanalyser 3.0.0) and compared
   with an independent implementation where it is installed;
-- pixel intensities follow Malus' law behind a quarter-wave plate whose fast axis is horizontal,
-  ``[S0, S1, S2, S3] -> [S0, S1, S3, -S2]`` (Goldstein, Polarized Light, 3rd ed., eqs. 6.46-6.47), so the
-  analyzer at theta records ``1/2 (S0 + S1 cos 2 theta + S3 sin 2 theta)``;
-- a micro-polarizer with extinction ratio ER and transmittance q is a diattenuator with transmittances q and
-  q / ER: ``I = a S0 + b (S1 cos 2 theta + S2' sin 2 theta)``, ``a = q (1 + 1/ER) / 2``,
-  ``b = q (1 - 1/ER) / 2``;
+- pixel intensities follow the closed forms written out in tests/pbrdf/sensor/test_camera.py: Malus' law behind
+  a quarter-wave plate whose fast axis is horizontal, and micro-polarizers as diattenuators (extinction ratio ER);
 - the HDR merge is the shot-noise maximum-likelihood estimate ``sum z / sum t`` over the exposures in which all
   four analyzer pixels of a 2x2 block are unsaturated;
 - the raw noise is Poisson-Gaussian, ``Var(DN) = K (mean - black) + K^2 sigma_r^2 + 1/12`` (Foi et al., IEEE TIP
@@ -26,25 +22,11 @@ from hypothesis import strategies as st
 from pbrdf.polar.stokes import stokes
 from pbrdf.sensor import camera, decode
 from pbrdf.sensor.camera import CameraModel, SensorParams
-
-# The IMX250MYR 4x4 super-pixel, (row, col), row 0 at the top of the image.
-LAYOUT = (
-    ("R90", "R45", "G90", "G45"),
-    ("R135", "R0", "G135", "G0"),
-    ("G90", "G45", "B90", "B45"),
-    ("G135", "G0", "B135", "B0"),
-)
-
-
-def _parse(entry: str) -> tuple[int, int]:
-    """'G135' -> (colour index in R, G, B; angle in degrees)."""
-    return "RGB".index(entry[0]), int(entry[1:])
-
+from tests.helpers import IDEAL_OPTICS, IMX250MYR_LAYOUT, elliptical_states, parse_layout_entry
 
 # A sensor whose raw numbers are the analyzer intensities (DN == intensity for exposure 1 s, no black level,
 # 16-bit white level far above the values used): the noise-free float path through decode.
 UNIT_SENSOR = SensorParams(gain=1.0, electrons_per_unit=1.0, black_level=0.0, bits=16)
-IDEAL = {"extinction_ratio": np.inf, "qwp_retardance": np.pi / 2}
 
 
 def _unit_model(**changes) -> CameraModel:
@@ -73,11 +55,6 @@ def _closed_form_decoder(er: float, q: float = 1.0) -> np.ndarray:
     return np.array([[1, 1, 1, 1], [2, 0, -2, 0], [0, 2, 0, -2]]) / np.array([[4 * a], [4 * b], [4 * b]])
 
 
-def _elliptical_states() -> np.ndarray:
-    """Three distinct fully polarized elliptical states (R, G, B), s2 != 0 included, shape (3, 4)."""
-    return stokes(1.0, 1.0, np.deg2rad([20.0, 75.0, 140.0]), np.deg2rad([12.0, -25.0, 33.0]))
-
-
 # ----------------------------------------------------------------------------------------------------------
 # 1. Independent reference: polanalyser 3.0.0 (bench extra)
 # ----------------------------------------------------------------------------------------------------------
@@ -89,7 +66,7 @@ def _raw_from_layout(value, h: int, w: int) -> np.ndarray:
     raw = np.zeros((h, w))
     for i in range(4):
         for j in range(4):
-            c, theta = _parse(LAYOUT[i][j])
+            c, theta = parse_layout_entry(IMX250MYR_LAYOUT[i][j])
             raw[i::4, j::4] = value(c, camera.ANGLES_DEG.index(theta), y[i::4, j::4], x[i::4, j::4])
     return np.rint(raw).astype(np.uint16)
 
@@ -159,7 +136,7 @@ def test_demosaic_matches_polanalyser_loosely_on_smooth_field():
 )
 def test_qwp_circular_and_diagonal_states(svec, expected):
     gains = np.array([0.7, 1.0, 0.4])[:, None]  # per-colour intensities
-    model = _unit_model(**IDEAL)
+    model = _unit_model(**IDEAL_OPTICS)
     dec = decode.decode(_float_raws(_constant_image(gains * np.array(svec)), model), model)
     np.testing.assert_allclose(dec.stokes, np.broadcast_to(gains * np.array(expected), dec.stokes.shape), atol=1e-6)
     assert dec.mask.all()
@@ -221,7 +198,7 @@ def test_convention_unpol_is_s0_plus_s1():
 
 @pytest.mark.xfail(strict=True, reason="the paper's printed unpol = S0 - S1 gives 2*S0 for display light, not 0")
 def test_paper_printed_unpol_gives_zero_for_display_light():
-    model = _unit_model(**IDEAL)
+    model = _unit_model(**IDEAL_OPTICS)
     dec = decode.decode(_float_raws(_constant_image(np.array([1.0, -1.0, 0.0, 0.0])[None].repeat(3, 0)), model), model)
     s0, s1 = dec.stokes[..., 0], dec.stokes[..., 1]
     np.testing.assert_allclose(s0 - s1, 0.0, atol=1e-3)  # the paper's form: fails (it is 2 s0)
@@ -383,7 +360,7 @@ def test_decoded_variance_matches_linear_propagation():
 def _calibration_scene(h: int, w: int) -> np.ndarray:
     y, x = np.mgrid[0:h, 0:w].astype(np.float64)
     s0 = 0.5 + 0.2 * np.sin(y / 5.0) + 0.15 * np.cos(x / 4.0)
-    return (s0[..., None] * np.array([1.0, 0.7, 0.4]))[..., None] * _elliptical_states()
+    return (s0[..., None] * np.array([1.0, 0.7, 0.4]))[..., None] * elliptical_states()
 
 
 def test_estimate_pattern_offset_recovers_every_offset():
@@ -418,7 +395,7 @@ def test_wrong_pattern_offset_gives_large_error():
 @pytest.mark.parametrize("grid", ["half", "full"])
 def test_row_zero_stays_top_and_col_zero_stays_left(grid):
     h, w = 48, 48
-    model = _unit_model(**IDEAL)
+    model = _unit_model(**IDEAL_OPTICS)
     f = 1 if grid == "full" else 2  # raw pixels per output pixel
     for axis in (0, 1):
         lum = np.full((h, w), 0.1)
@@ -426,7 +403,7 @@ def test_row_zero_stays_top_and_col_zero_stays_left(grid):
             lum[:8] = 1.0  # bright top rows
         else:
             lum[:, :8] = 1.0  # bright left columns
-        img = lum[..., None, None] * _elliptical_states()
+        img = lum[..., None, None] * elliptical_states()
         s0 = decode.decode(_float_raws(img, model), model, grid=grid).stokes[..., 0]
         s0 = s0 if axis == 0 else np.swapaxes(s0, 0, 1)  # the tested axis first
         np.testing.assert_allclose(s0[: 4 // f], 1.0, rtol=1e-5)  # raw 0..3: bright in every lattice
@@ -523,7 +500,7 @@ def test_all_saturated_pixels_are_masked_with_finite_zero_maps():
     h, w = 64, 64
     lum = np.full((h, w), 0.05)
     lum[24:40, 24:40] = 20.0  # saturated even at 10 ms
-    img = lum[..., None, None] * _elliptical_states()
+    img = lum[..., None, None] * elliptical_states()
     raws = camera.simulate_capture(img, model, noise=False)
     _, valid = decode.hdr_merge(raws, model.exposures, model.sensor)
     assert not valid[24:40, 24:40].any() and valid[:16].all()
@@ -541,7 +518,7 @@ def test_dark_pixels_are_masked_and_finite():
     h, w = 48, 48
     lum = np.full((h, w), 0.05)
     lum[:, 24:] = 0.0  # s0 = 0
-    img = lum[..., None, None] * _elliptical_states()
+    img = lum[..., None, None] * elliptical_states()
     dec = decode.decode(camera.simulate_capture(img, model, noise=False), model)
     assert np.isfinite(dec.maps).all() and np.isfinite(dec.stokes).all()
     assert not dec.mask[:, 14:].any() and dec.mask[:, :10].all()
@@ -607,8 +584,8 @@ def test_nine_maps_near_zero_s0(dtype, eps):
 @pytest.mark.filterwarnings("error")
 @pytest.mark.parametrize("value", [0.0, 1e-30, 1e-300])
 def test_decode_near_zero_signal_is_finite(value):
-    model = _unit_model(**IDEAL)
-    img = _constant_image(value * _elliptical_states(), 16, 16)
+    model = _unit_model(**IDEAL_OPTICS)
+    img = _constant_image(value * elliptical_states(), 16, 16)
     dec = decode.decode(_float_raws(img, model), model)
     assert np.isfinite(dec.maps).all() and np.isfinite(dec.stokes).all()
     assert np.all(np.abs(_maps_by_kind(dec.maps)["CP"]) <= 1.0)

@@ -1,0 +1,202 @@
+"""Dataset splits: one definition of train, val and the test splits, and the rule that guards them.
+
+Every split is a rendered dataset made by one command (``headless/render.py --split NAME``, or
+``make test-sets`` for all test splits) from a fixed run seed, so it is reproducible bit for
+bit. The dataset's manifest and every sample's sidecar carry ``"split": NAME``.
+
+Roles:
+
+* ``train`` - what training reads;
+* ``val`` - the only data any selection may read (early stopping, checkpoint choice,
+  hyper-parameters);
+* ``test`` - read by nothing but the final evaluation. Training and validation refuse a test
+  split (:func:`require_role`).
+
+Convention:
+    Run seeds of different splits differ, and the scene seed of sample ``i`` of a run is a hash
+    of ``(run_seed, i)`` (``blender_addon.core.scenegen.sample_seed``), so no scene appears in
+    two splits (checked for the listed counts by the tests).
+
+Example:
+    >>> SPLITS["test-procedural"].role, SPLITS["test-procedural"].count
+    ('test', 48)
+    >>> sorted(s.name for s in test_splits())
+    ['test-meshes', 'test-pbrdf', 'test-procedural']
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "ROLES",
+    "Split",
+    "SPLITS",
+    "get_split",
+    "test_splits",
+    "dataset_split",
+    "require_role",
+]
+
+#: The three roles a split can have.
+ROLES = ("train", "val", "test")
+
+
+@dataclass(frozen=True)
+class Split:
+    """One split: how to render it and what it may be used for.
+
+    Attributes:
+        name: unique name, also the default folder name.
+        role: ``train``, ``val`` or ``test``.
+        seed: run seed of ``headless/render.py``.
+        count: number of scenes.
+        resolution: rendered sample size in pixels.
+        spp: samples per pixel per colour pass.
+        shapes: ``procedural`` (the built-in primitives) or ``meshes`` (generated concave,
+            sharp-edged, thin and multi-part meshes, plus a mesh corpus when one is installed).
+        pbrdfs: materials from expanded pBRDF tables (``True``) or analytic ones.
+        keep_raw: store the raw HDR brackets (a capture folder per sample), so the split can be
+            scored through the real-capture path.
+        description: one line for tables and ``--help``.
+    """
+
+    name: str
+    role: str
+    seed: int
+    count: int
+    resolution: int = 128
+    spp: int = 16
+    shapes: str = "procedural"
+    pbrdfs: bool = False
+    keep_raw: bool = False
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if self.role not in ROLES:
+            raise ValueError(f"split {self.name!r}: role must be one of {ROLES}, got {self.role!r}")
+        if self.shapes not in ("procedural", "meshes"):
+            raise ValueError(f"split {self.name!r}: shapes must be 'procedural' or 'meshes', got {self.shapes!r}")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly form (stored in the manifest)."""
+        return asdict(self)
+
+
+#: Every split of the project. Train and val reproduce the shipped model's data
+#: (``make train-model``); the test seeds are far from both.
+SPLITS: dict[str, Split] = {
+    s.name: s
+    for s in (
+        Split("train", "train", seed=100, count=158, description="procedural shapes, analytic materials"),
+        Split("val", "val", seed=9000, count=12, description="procedural shapes, analytic materials (selection)"),
+        Split(
+            "test-procedural",
+            "test",
+            seed=20_000,
+            count=48,
+            keep_raw=True,
+            description="in-distribution: procedural shapes, analytic materials",
+        ),
+        Split(
+            "test-meshes",
+            "test",
+            seed=21_000,
+            count=48,
+            shapes="meshes",
+            keep_raw=True,
+            description="unseen meshes: concave, sharp-edged, thin, multi-part",
+        ),
+        Split(
+            "test-pbrdf",
+            "test",
+            seed=22_000,
+            count=48,
+            pbrdfs=True,
+            keep_raw=True,
+            description="procedural shapes, expanded measured pBRDFs",
+        ),
+    )
+}
+
+
+def get_split(name: str) -> Split:
+    """The split called ``name``.
+
+    Raises:
+        ValueError: unknown name (the message lists the valid ones).
+    """
+    try:
+        return SPLITS[name]
+    except KeyError:
+        raise ValueError(f"unknown split {name!r}; valid: {', '.join(SPLITS)}") from None
+
+
+def test_splits() -> list[Split]:
+    """The splits with role ``test``, in definition order."""
+    return [s for s in SPLITS.values() if s.role == "test"]
+
+
+test_splits.__test__ = False  # a library function, not a pytest test
+
+
+def _read_json(path: Path) -> dict | None:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def dataset_split(root: str | os.PathLike) -> str | None:
+    """The split name a dataset folder was rendered as, or None for an unlabelled dataset.
+
+    Reads ``manifest.json`` and, when it has no label (a run killed before its manifest was
+    written), the first sample sidecar.
+    """
+    root = Path(root)
+    manifest = _read_json(root / "manifest.json")
+    if manifest is not None and isinstance(manifest.get("split"), str):
+        return manifest["split"]
+    samples = root / "samples"
+    if samples.is_dir():
+        for sidecar in sorted(samples.glob("*.json"))[:1]:
+            data = _read_json(sidecar)
+            if data is not None and isinstance(data.get("split"), str):
+                return data["split"]
+    return None
+
+
+def require_role(root: str | os.PathLike, allowed: tuple[str, ...], purpose: str) -> str | None:
+    """Refuse a dataset whose split role is not in ``allowed``.
+
+    Unlabelled datasets (rendered without ``--split``) are accepted where ``test`` is not
+    required: they cannot be test splits of this project.
+
+    Args:
+        root: dataset folder.
+        allowed: roles the caller may read, e.g. ``("train",)`` for training data.
+        purpose: what the caller does, for the message (e.g. ``"training"``).
+
+    Returns:
+        The dataset's split name (None when unlabelled).
+
+    Raises:
+        ValueError: the dataset is a split of another role, or unlabelled where only ``test``
+            is allowed.
+    """
+    name = dataset_split(root)
+    if name is None:
+        if allowed == ("test",):
+            raise ValueError(f"{root}: not a test split (render one with `headless/render.py --split test-...`)")
+        return None
+    role = SPLITS[name].role if name in SPLITS else None
+    if role not in allowed:
+        raise ValueError(
+            f"{root}: is the {role or 'unknown'} split {name!r}; {purpose} may read only {'/'.join(allowed)} splits"
+        )
+    return name

@@ -1,0 +1,69 @@
+"""network/split_eval.py and `headless/evaluate.py --split`: the real-capture path on a test split."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from network import split_eval
+from network.checkpoint import load_checkpoint
+from network.infer import DEFAULT_CHECKPOINT
+from pbrdf.data import dataset as pdataset
+from pbrdf.io.strict_json import loads_strict
+
+pytestmark = pytest.mark.mitsuba
+ROOT = Path(__file__).resolve().parents[2]
+STATS = {"format": "pdir-train-stats/1", "albedo": [0.4, 0.35, 0.3], "roughness": 0.42, "metallic": 0.3}
+
+
+@pytest.fixture(scope="module")
+def test_split(tmp_path_factory):
+    """The first three scenes of test-procedural at 48 px (same scenes, smaller images)."""
+    root = tmp_path_factory.mktemp("splits") / "test-procedural"
+    cmd = [sys.executable, "headless/render.py", "--split", "test-procedural", "--count", "3", "--resolution",
+           "48", "--spp", "8", "--out", str(root), "--quiet"]  # fmt: skip
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    return root
+
+
+def test_every_row_is_scored_on_the_object_coverage(test_split):
+    model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
+    result = split_eval.evaluate_split(model, ckpt, test_split, STATS, lpips=False)
+    assert result["split"] == "test-procedural" and result["scenes"] == 3
+    assert set(result["methods"]) == {"ours", "baseline", "constant"}
+    for row in result["per_scene"]:
+        s, _ = pdataset.read_sample(test_split, row["index"], keys=("normal", "object"))
+        region = s["object"] >= 0
+        assert row["pixels"] == int(region.sum())
+        # The constant normal's error, computed independently: angle to +z on the coverage.
+        n = s["normal"][region]
+        want = np.degrees(np.arctan2(np.linalg.norm(n[:, :2], axis=1), n[:, 2])).mean()
+        assert row["constant"]["normal_mae"] == pytest.approx(want, abs=1e-3)
+        assert 0.5 < row["mask_iou"] <= 1.0
+        assert row["baseline"]["roughness_rmse"] is None  # photometric stereo predicts no roughness
+    ours = result["methods"]["ours"]["normal_mae"]
+    assert ours["ci"][0] <= ours["mean"] <= ours["ci"][1]
+
+
+def test_cli_writes_strict_json_and_refuses_other_splits(test_split, tmp_path):
+    stats = tmp_path / "stats.json"
+    stats.write_text('{"format": "pdir-train-stats/1", "albedo": [0.4, 0.35, 0.3], "roughness": 0.42, "metallic": 0.3}')
+    out = tmp_path / "eval"
+    cmd = [sys.executable, "headless/evaluate.py", "--split", "test", "--input", str(test_split.parent),
+           "--train-stats", str(stats), "--out", str(out), "--quiet"]  # fmt: skip
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert "Constant (normal to camera, train means)" in proc.stdout and "IoU" in proc.stdout
+    assert "not rendered (skipped): test-meshes, test-pbrdf" in proc.stdout
+    data = loads_strict((out / "test_splits.json").read_text())
+    assert data["splits"][0]["scenes"] == 3
+    # An unlabelled dataset is no test split: one error line, exit 2.
+    plain = tmp_path / "plain" / "test-procedural"
+    (plain / "samples").mkdir(parents=True)
+    cmd[5] = str(plain.parent)
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [proc.stderr.strip()]
+    assert "not a test split" in proc.stderr

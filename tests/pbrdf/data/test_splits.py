@@ -1,0 +1,64 @@
+"""pbrdf/data/splits.py: one definition of the splits, disjoint scenes, and the role guard."""
+
+import json
+
+import pytest
+
+from pbrdf.data import splits
+
+
+def test_roles_and_sizes():
+    roles = {s.name: s.role for s in splits.SPLITS.values()}
+    assert roles["train"] == "train" and roles["val"] == "val"
+    tests = splits.test_splits()
+    assert {s.name for s in tests} == {"test-procedural", "test-meshes", "test-pbrdf"}
+    assert all(s.count >= 48 and s.keep_raw for s in tests)  # scored through the real-capture path
+    assert len({s.seed for s in splits.SPLITS.values()}) == len(splits.SPLITS)
+
+
+def test_no_scene_in_two_splits():
+    # Scene seeds are hashes of (run seed, index): check the sets for the configured counts.
+    scenegen = pytest.importorskip("blender_addon.core.scenegen")
+    seen: dict[int, str] = {}
+    for s in splits.SPLITS.values():
+        for i in range(s.count):
+            seed = scenegen.sample_seed(s.seed, i)
+            assert seed not in seen, f"{s.name} scene {i} repeats a scene of {seen[seed]}"
+            seen[seed] = s.name
+
+
+def test_unknown_split_names_the_valid_ones():
+    with pytest.raises(ValueError, match="valid: train, val, test-procedural"):
+        splits.get_split("test")
+
+
+def _labelled(tmp_path, name, where="manifest"):
+    root = tmp_path / name
+    (root / "samples").mkdir(parents=True)
+    if where == "manifest":
+        (root / "manifest.json").write_text(json.dumps({"split": name}))
+    else:  # a run killed before its manifest: the sidecars carry the label
+        (root / "samples" / "000000.json").write_text(json.dumps({"split": name}))
+    return root
+
+
+@pytest.mark.parametrize("where", ["manifest", "sidecar"])
+def test_training_refuses_a_test_split(tmp_path, where):
+    root = _labelled(tmp_path, "test-meshes", where)
+    assert splits.dataset_split(root) == "test-meshes"
+    with pytest.raises(ValueError, match="test split 'test-meshes'; training may read only train"):
+        splits.require_role(root, ("train",), "training")
+    with pytest.raises(ValueError, match="validation may read only val"):
+        splits.require_role(root, ("val",), "validation")
+    assert splits.require_role(root, ("test",), "evaluation") == "test-meshes"
+
+
+def test_unlabelled_data_is_no_test_split(tmp_path):
+    root = tmp_path / "mine"
+    root.mkdir()
+    assert splits.require_role(root, ("train",), "training") is None
+    with pytest.raises(ValueError, match="not a test split"):
+        splits.require_role(root, ("test",), "evaluation")
+    val = _labelled(tmp_path, "val")
+    with pytest.raises(ValueError, match="val split 'val'"):
+        splits.require_role(val, ("train",), "training")
