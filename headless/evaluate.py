@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from pathlib import Path
 
@@ -73,6 +74,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "(default with --split: the shipped model)")  # fmt: skip
     parser.add_argument("--split", metavar="NAME", help="'test' (every test split under --input) or one split name")
     parser.add_argument("--train-stats", type=Path, help="training means for the constant row (--split)")
+    parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
+                        help="--split: worker processes (default: 2, or 1 on a one-core machine)")  # fmt: skip
     parser.add_argument("--write-train-stats", type=Path, metavar="FILE", help="compute training means from --input")
     parser.add_argument("--input", type=Path, metavar="DIR", help="rendered dataset with ground truth (required)")
     parser.add_argument("--white-data", type=Path, help="the same scenes rendered with the white pattern")
@@ -152,7 +155,11 @@ def _evaluate_splits(args: argparse.Namespace) -> int:
             )
         stats = load_statistics(args.train_stats or ckpt_path.parent / STATS_FILE)
         model, ckpt = load_checkpoint(ckpt_path)
-        results = [evaluate_split(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet) for f in folders]
+        results = [
+            evaluate_split(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=args.jobs,
+                           checkpoint_path=ckpt_path)
+            for f in folders
+        ]  # fmt: skip
         files = write_split_results(results, args.out or root / "eval")
     except (ValueError, OSError) as exc:
         print(f"error: {exc}", file=sys.stderr)

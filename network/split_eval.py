@@ -201,6 +201,8 @@ def evaluate_split(
     lpips: bool | None = None,
     require_test: bool = True,
     progress: bool = False,
+    jobs: int = 1,
+    checkpoint_path: str | Path | None = None,
 ) -> dict[str, Any]:
     """Score the model, the baseline and the constant predictor on one split through the capture path.
 
@@ -213,6 +215,9 @@ def evaluate_split(
         lpips: compute albedo LPIPS (default: when its weights are installed).
         require_test: refuse anything but a test split.
         progress: show a progress bar.
+        jobs: worker processes (each loads ``checkpoint_path`` and runs one torch thread); scenes
+            are independent, so the rows are the same for any ``jobs``.
+        checkpoint_path: the checkpoint file (needed with ``jobs > 1``).
 
     Returns:
         JSON-ready dict: ``split``, ``scenes``, ``methods`` -> metric -> :func:`~network.statistics.summarize`
@@ -237,10 +242,24 @@ def evaluate_split(
         bar = tqdm(total=len(indices), desc=f"evaluate {name or root.name}", unit="scene")
     rows: list[dict[str, Any]] = []
     t0 = time.perf_counter()
-    for i in indices:
-        rows.append(score_scene(predict_scene(model, variant, root, i, stats), lpips=lpips))
-        if bar is not None:
-            bar.update()
+    if jobs > 1:
+        if checkpoint_path is None:
+            raise ValueError("jobs > 1 needs checkpoint_path (every worker loads the model)")
+        import multiprocessing  # noqa: PLC0415
+        from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
+
+        init = (str(checkpoint_path), variant, str(root), dict(stats), bool(lpips))
+        ctx = multiprocessing.get_context("spawn")  # never fork a process that has run torch
+        with ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_worker_init, initargs=init) as pool:
+            for row in pool.map(_worker_row, indices):
+                rows.append(row)
+                if bar is not None:
+                    bar.update()
+    else:
+        for i in indices:
+            rows.append(score_scene(predict_scene(model, variant, root, i, stats), lpips=lpips))
+            if bar is not None:
+                bar.update()
     if bar is not None:
         bar.close()
     return {
@@ -254,6 +273,23 @@ def evaluate_split(
         "per_scene": rows,
         "seconds": time.perf_counter() - t0,
     }
+
+
+_WORKER: dict[str, Any] = {}
+
+
+def _worker_init(checkpoint_path: str, variant: str, root: str, stats: dict, lpips: bool) -> None:
+    """Load the model once per worker process, with one torch thread (the workers share the cores)."""
+    from .checkpoint import load_checkpoint  # noqa: PLC0415
+
+    torch.set_num_threads(1)
+    model, _ = load_checkpoint(checkpoint_path)
+    _WORKER.update(model=model, variant=variant, root=Path(root), stats=stats, lpips=lpips)
+
+
+def _worker_row(index: int) -> dict[str, Any]:
+    w = _WORKER
+    return score_scene(predict_scene(w["model"], w["variant"], w["root"], index, w["stats"]), lpips=w["lpips"])
 
 
 def _has(root: Path, index: int) -> bool:

@@ -67,3 +67,16 @@ def test_cli_writes_strict_json_and_refuses_other_splits(test_split, tmp_path):
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 2 and proc.stderr.strip().splitlines() == [proc.stderr.strip()]
     assert "not a test split" in proc.stderr
+
+
+def test_worker_processes_give_the_same_rows(test_split):
+    model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
+    one = split_eval.evaluate_split(model, ckpt, test_split, STATS, lpips=False, limit=2)
+    two = split_eval.evaluate_split(model, ckpt, test_split, STATS, lpips=False, limit=2, jobs=2,
+                                    checkpoint_path=DEFAULT_CHECKPOINT)  # fmt: skip
+    for a, b in zip(one["per_scene"], two["per_scene"], strict=True):
+        assert a["index"] == b["index"] and a["mask_iou"] == b["mask_iou"]
+        for m in split_eval.METHODS:  # one torch thread vs two: float rounding only
+            assert b[m]["normal_mae"] == pytest.approx(a[m]["normal_mae"], abs=1e-3)
+    with pytest.raises(ValueError, match="checkpoint_path"):
+        split_eval.evaluate_split(model, ckpt, test_split, STATS, lpips=False, jobs=2)
