@@ -43,8 +43,13 @@ test: setup  ## set-up, then every test (unit, property, doctests, real Mitsuba 
 test-fast: setup  ## skip tests marked slow
 	$(PY) -m pytest -q -p no:cacheprovider -m "not slow"
 
-bench: setup  ## benchmarks, JSON on stdout and in $(OUT)/bench
-	$(PY) headless/bench.py decode --out $(OUT)/bench/decode.json
+# BENCH_FLAGS=--quick shrinks every benchmark to a smoke test (a few minutes on 2 cores).
+BENCH_FLAGS ?=
+bench: setup  ## all four benchmarks (decode, render, pbrdf, network), JSON in $(OUT)/bench; BENCH_FLAGS=--quick
+	$(PY) headless/bench.py decode $(BENCH_FLAGS) --out $(OUT)/bench/decode.json
+	$(PY) headless/bench.py render $(BENCH_FLAGS) --out $(OUT)/bench/render.json
+	$(PY) headless/bench.py pbrdf $(BENCH_FLAGS) --out $(OUT)/bench/pbrdf.json
+	$(PY) headless/bench.py network $(BENCH_FLAGS) --out $(OUT)/bench/network.json
 
 lint: setup  ## ruff lint and format check
 	$(VENV)/bin/ruff check .

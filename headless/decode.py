@@ -6,7 +6,11 @@
 Writes OUT_DIR/maps.npy ((H', W', 9) float32), OUT_DIR/mask.npy ((H', W') bool) and, with
 --preview, OUT_DIR/preview.png, then prints the written paths. Every file is
 written to a temporary name and renamed into place; nothing is written unless loading and
-decoding succeed. Bad input prints one line "error: <message>" on stderr and exits with status 2.
+decoding succeed. Bad input prints one line "error: <message>" on stderr and exits with status 2
+(nothing else: warnings raised on the way are dropped); so does a capture that decodes to no
+usable pixel (all dark, all saturated, dark then saturated, black level at or above the data).
+A capture whose maps hold no object above the noise floor is decoded but prints one line
+"warning: <message>" on stderr.
 The positional form `decode.py CAPTURE_DIR` still works for one release (use --input).
 """
 
@@ -15,6 +19,7 @@ from __future__ import annotations
 import argparse
 import io
 import sys
+import warnings
 from pathlib import Path
 
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
@@ -23,7 +28,8 @@ if not __package__:  # run as a file (python headless/x.py, blender -b -P): the 
 import numpy as np  # noqa: E402
 
 from headless._cli import add_deprecated_positional, require  # noqa: E402
-from pbrdf.data.capture import CAPTURE_FORMAT, CAPTURE_JSON, decode_capture, load_capture  # noqa: E402
+from pbrdf.data.capture import CAPTURE_FORMAT, CAPTURE_JSON, load_capture  # noqa: E402
+from pbrdf.data.capture_decode import check_usable, decode_capture  # noqa: E402
 from pbrdf.io.atomic import atomic_write_bytes  # noqa: E402
 from pbrdf.sensor.decode import NINE_MAP_NAMES  # noqa: E402
 
@@ -117,10 +123,15 @@ def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = Fal
         The written paths.
 
     Raises:
-        ValueError: bad capture content.
+        ValueError: bad capture content, or nothing usable decoded (:func:`check_usable`).
         OSError: unreadable capture or unwritable output folder.
+
+    Warns:
+        CaptureWarning: no object stands out from the background.
     """
-    decoded = decode_capture(load_capture(capture_dir), grid=grid)
+    capture = load_capture(capture_dir)
+    decoded = decode_capture(capture, grid=grid)
+    check_usable(decoded, capture)
     # Render everything before writing anything.
     outputs = {
         "maps.npy": _npy_bytes(decoded.maps.astype(np.float32, copy=False)),
@@ -143,15 +154,23 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     require(parser, args, "--input")
-    try:
-        written = run(args.input, args.out, grid=args.grid, preview=args.preview)
-    except (ValueError, OSError) as e:
-        message = " ".join(str(e).split()) or type(e).__name__
-        print(f"error: {message}", file=sys.stderr)
-        return EXIT_BAD_INPUT
+    # Warnings are held back: on an error only the error line prints, on success each distinct
+    # warning prints as one line after the work is done.
+    with warnings.catch_warnings(record=True) as caught:
+        try:
+            written = run(args.input, args.out, grid=args.grid, preview=args.preview)
+        except (ValueError, OSError) as e:
+            print(f"error: {_one_line(e)}", file=sys.stderr)
+            return EXIT_BAD_INPUT
+    for message in dict.fromkeys(_one_line(w.message) for w in caught):
+        print(f"warning: {message}", file=sys.stderr)
     for path in written:
         print(path)
     return 0
+
+
+def _one_line(e: BaseException | Warning | str) -> str:
+    return " ".join(str(e).split()) or type(e).__name__
 
 
 if __name__ == "__main__":

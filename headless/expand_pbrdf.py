@@ -10,8 +10,8 @@ validity), DIR/materials.json (what `headless/render.py --pbrdfs DIR` reads), DI
 (explained variance, validity statistics, timings), DIR/model/ (PCA bases, generator
 checkpoint) and figures: spheres under unpolarized light with intensity, DoLP and DoCP for a
 sample of seed and generated materials (pbrdf.expansion.run). A killed run continues where it
-stopped when started again with the same arguments. --measured still works for one release
-(use --input).
+stopped when started again with the same arguments (the temporary files it left are removed).
+--measured still works for one release (use --input).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="folder of measured .pbsdf/.hpbrdf seed tables (default: the built-in set)")  # fmt: skip
     parser.add_argument("--seed", type=int, default=0, help="run seed (default 0)")
     parser.add_argument("--components", type=int, nargs=2, default=[10, 10], metavar=("K_I", "K_P"),
-                        help="PCA components for intensity and polarization (default 10 10)")  # fmt: skip
+                        help="PCA components for intensity and polarization, each >= 1 (default 10 10)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     add_deprecated(parser, "--measured", new="--input", type=Path)
     return parser

@@ -12,6 +12,12 @@ full input size, zero outside the mask; normals in the camera frame: x right, y 
 the camera) and a PNG preview of each. With --blend, also DIR/<name>.blend: the maps imported
 into Blender as a relightable Principled BSDF asset (headless/relight.py in its own process;
 needs the bpy wheel: pip install bpy).
+
+Bad input (an unreadable checkpoint or sample, a capture with nothing usable: all dark, all
+saturated, no object found) prints one line "error: <message>" on stderr, exits with status 2
+and writes nothing: every map is predicted and checked before the first file is written.
+Warnings raised on the way are dropped on an error and printed as "warning: ..." lines after
+a successful run.
 """
 
 from __future__ import annotations
@@ -19,6 +25,7 @@ from __future__ import annotations
 import argparse
 import subprocess
 import sys
+import warnings
 from pathlib import Path
 
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
@@ -40,22 +47,44 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _one_line(e: BaseException | Warning | str, limit: int = 500) -> str:
+    text = " ".join(str(e).split()) or type(e).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _load_model(path: Path):
+    """:func:`network.checkpoint.load_checkpoint`, with any failure of a non-checkpoint file as ValueError."""
+    from network.checkpoint import load_checkpoint  # noqa: PLC0415
+
+    try:
+        return load_checkpoint(path)
+    except (ValueError, OSError):
+        raise
+    except Exception as exc:  # torch.load on another file: UnpicklingError, EOFError, ...
+        first = str(exc).strip().splitlines()[0].split(". ")[0] if str(exc).strip() else ""
+        reason = f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+        raise ValueError(f"{path}: not a readable model checkpoint ({_one_line(reason, 200)})") from None
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error)."""
     args = build_parser().parse_args(argv)
-    from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.infer import DEFAULT_CHECKPOINT, load_input, predict, write_predictions  # noqa: PLC0415
 
     ckpt_path = args.checkpoint or DEFAULT_CHECKPOINT
-    try:
-        model, ckpt = load_checkpoint(ckpt_path)
-        maps, mask = load_input(args.input)
-        pred = predict(model, maps, mask, inputs=ckpt.get("inputs", "full"), stride=args.stride)
-        name = args.input.stem if args.input.is_file() else args.input.name
-        write_predictions(args.out, name, pred)
-    except (ValueError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    # Warnings are held back: on an error only the error line prints.
+    with warnings.catch_warnings(record=True) as caught:
+        try:
+            model, ckpt = _load_model(ckpt_path)
+            maps, mask = load_input(args.input, require_object=True)
+            pred = predict(model, maps, mask, inputs=ckpt.get("inputs", "full"), stride=args.stride)
+            name = args.input.stem if args.input.is_file() else args.input.name
+            write_predictions(args.out, name, pred)
+        except (ValueError, OSError) as exc:
+            print(f"error: {_one_line(exc)}", file=sys.stderr)
+            return 2
+    for message in dict.fromkeys(_one_line(w.message) for w in caught):
+        print(f"warning: {message}", file=sys.stderr)
     print(f"wrote {len(pred)} maps ({name}_*.exr/.png) to {args.out.resolve()}")
     if args.blend:
         script = Path(__file__).resolve().parent / "relight.py"

@@ -6,8 +6,9 @@ Writes OUT/checkpoint.pt (model, optimizer, step, per-rank RNG states; resumable
 (state dict, config and input variant: what infer.py loads), OUT/log.csv (one row per step:
 losses, learning rate, real-loss weight, gradient norm), OUT/val.csv (with --val) and
 TensorBoard events in OUT/tb (when tensorboard is installed). --resume continues a killed run
-exactly where its last checkpoint was (network.train). --data still works for one release (use
---input).
+exactly where its last checkpoint was (network.train); at the final step it rewrites a missing or
+stale model.pt from the checkpoint. Every run removes the temporary files (.NAME.tmp-PID-HEX) a
+killed run left beside these files. --data still works for one release (use --input).
 
 Several GPUs or machines: launch the same command with torchrun, e.g.
 

@@ -3,7 +3,9 @@
 Two files per run, both ``torch.save`` dicts of plain values and tensors (read with ``weights_only=True``):
 
 - ``model.pt``: ``format`` (:data:`CHECKPOINT_FORMAT`), ``config`` (:meth:`network.config.ModelConfig.to_dict`),
-  ``inputs`` (the input variant, :mod:`network.inputs`) and ``model`` (the state dict);
+  ``inputs`` (the input variant, :mod:`network.inputs`), ``model`` (the state dict), ``step`` and
+  ``params_sha256`` (:func:`params_sha256` of ``model``: which checkpoint it was cut from, see
+  :func:`model_file_is_current`);
 - ``checkpoint.pt``: the same plus what resuming needs: ``optimizer``, ``step``, ``losses``, ``skipped``, ``rng``
   (every rank's RNG state), ``rank_params_sha256`` (:func:`params_sha256` per rank), ``world_size``, ``data``
   (dataset sizes) and ``train`` (the run's settings).
@@ -12,32 +14,77 @@ Two files per run, both ``torch.save`` dicts of plain values and tensors (read w
 from __future__ import annotations
 
 import hashlib
+import pickle
 from pathlib import Path
 
 import torch
 
-from pbrdf.io.atomic import temporary_path
+from pbrdf.io.atomic import atomic_open
 
 from .config import ModelConfig
 from .inputs import checkpoint_inputs
 from .model.polar_model import PolarInverseModel
 
-__all__ = ["CHECKPOINT_FORMAT", "load_checkpoint", "params_sha256", "save_checkpoint"]
+__all__ = [
+    "CHECKPOINT_FORMAT",
+    "MODEL_KEYS",
+    "load_checkpoint",
+    "model_file_is_current",
+    "model_file_state",
+    "params_sha256",
+    "save_checkpoint",
+]
 
 #: Version of the checkpoint layout (files without ``format`` predate the current data order).
 CHECKPOINT_FORMAT = 2
 
+#: Keys of a checkpoint that ``model.pt`` copies (besides ``step`` and ``params_sha256``).
+MODEL_KEYS = ("format", "config", "inputs", "model")
+
 
 def save_checkpoint(path: Path, state: dict) -> None:
-    """Write ``state`` with ``torch.save`` through a temporary file, so ``path`` is never half-written.
+    """Write ``state`` with ``torch.save`` atomically (:func:`pbrdf.io.atomic.atomic_open`).
+
+    ``path`` is never half-written; on an error the temporary file is removed (a killed process leaves
+    it: :func:`pbrdf.io.atomic.remove_leftovers` takes it on the next run).
 
     Args:
         path: The destination file.
         state: The checkpoint dict.
     """
-    tmp = temporary_path(path)
-    torch.save(state, tmp)
-    tmp.replace(path)
+    with atomic_open(path) as f:
+        torch.save(state, f)
+
+
+def model_file_state(ckpt: dict, sha256: str | None = None) -> dict:
+    """What ``model.pt`` holds for a training checkpoint: its :data:`MODEL_KEYS`, ``step``, ``params_sha256``.
+
+    Args:
+        ckpt: A ``checkpoint.pt`` dict (``step`` and ``model`` required).
+        sha256: :func:`params_sha256` of ``ckpt["model"]`` if known (computed otherwise).
+
+    Returns:
+        The ``model.pt`` dict (tensors shared with ``ckpt``).
+    """
+    state = {k: ckpt[k] for k in MODEL_KEYS if k in ckpt}
+    state["step"] = int(ckpt["step"])
+    state["params_sha256"] = sha256 if sha256 is not None else params_sha256(ckpt["model"])
+    return state
+
+
+def model_file_is_current(path: Path, step: int, sha256: str) -> bool:
+    """Whether ``path`` (a ``model.pt``) was written from the checkpoint of ``step`` with parameters ``sha256``.
+
+    A missing or unreadable file, or one without ``step``/``params_sha256`` (written before they
+    existed, or by a run killed between its checkpoint and its model file), is not current.
+    """
+    if not Path(path).is_file():
+        return False
+    try:
+        stored = torch.load(path, weights_only=True, map_location="cpu", mmap=True)  # tensors stay on disk
+    except Exception:  # noqa: BLE001 - any unreadable file is simply stale
+        return False
+    return isinstance(stored, dict) and stored.get("step") == step and stored.get("params_sha256") == sha256
 
 
 def load_checkpoint(path: str | Path) -> tuple[PolarInverseModel, dict]:
@@ -60,6 +107,12 @@ def load_checkpoint(path: str | Path) -> tuple[PolarInverseModel, dict]:
         raise FileNotFoundError(f"{path}: checkpoint not found")
     try:
         ckpt = torch.load(path, weights_only=True, map_location="cpu")
+    except (pickle.UnpicklingError, EOFError, KeyError, RuntimeError, ValueError, OSError, UnicodeDecodeError) as exc:
+        first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ValueError(f"{path}: not a readable torch checkpoint ({type(exc).__name__}: {first[:200]})") from None
+    if not isinstance(ckpt, dict):
+        raise ValueError(f"{path}: not a model checkpoint (holds a {type(ckpt).__name__}, not a dict)")
+    try:
         model = PolarInverseModel(ModelConfig.from_dict(ckpt["config"]))
         model.load_state_dict(ckpt["model"])
         ckpt["inputs"] = checkpoint_inputs(ckpt)

@@ -4,6 +4,10 @@ Reads the renderer's samples (:mod:`pbrdf.data.dataset`) and, for real captures,
 Input normalisation lives here once (:func:`normalize_maps`), used by training and inference:
 the unpol and LP maps are radiometric and scale with exposure and display brightness, so they
 are divided by one robust scale per capture; CP is already a ratio in [-1, 1].
+
+:class:`SampleDataset` checks every item it loads (target ranges, unit normals inside the mask,
+a non-empty mask): a sample whose sidecar hash matches can still hold wrong values, and one bad
+item must stop training with a message naming the file, not train on wrong labels.
 """
 
 from __future__ import annotations
@@ -17,31 +21,108 @@ from torch.utils.data import Dataset
 
 from pbrdf.data import dataset as pdataset
 
-__all__ = ["normalize_maps", "sample_to_tensors", "SampleDataset", "resize_batch", "gather_pixels"]
+__all__ = [
+    "MAP_LIMIT",
+    "SCALE_FLOOR",
+    "normalize_maps",
+    "check_item",
+    "sample_to_tensors",
+    "SampleDataset",
+    "resize_batch",
+    "gather_pixels",
+]
 
 TARGET_KEYS = ("normal", "albedo", "roughness", "metallic")
+#: Largest magnitude of a normalised map value; a pixel brighter than this many times the
+#: ``quantile`` total (a hot pixel, a saturated glint over a dark object) is clamped to it. Well
+#: inside float16's 65504, so the output survives a cast to half precision.
+MAP_LIMIT = 1e4
+#: Smallest scale: an image whose ``quantile`` total is below it (all dark) is divided by it.
+SCALE_FLOOR = 1e-8
 
 
 def normalize_maps(maps: torch.Tensor, mask: torch.Tensor, *, quantile: float = 0.95) -> torch.Tensor:
     """Scale unpol and LP maps by the ``quantile`` of their masked total; CP is kept.
 
+    Finite input gives finite output in every float dtype: float16 and bfloat16 are computed in
+    float32 (float64 in float64); finite values beyond an eighth of the working dtype's largest
+    value (e.g. 3e38 in float32) are clamped to it, so the six channels sum without overflow; the
+    scale is at least :data:`SCALE_FLOOR` (an all-dark image gives 0, not 0/0); the result is
+    clamped to ``[-MAP_LIMIT, MAP_LIMIT]`` before the mask is applied. Non-finite input is not
+    cleaned: NaN and Inf propagate, so that :func:`network.train.train`'s guard sees and skips
+    the batch.
+
     Args:
         maps: ``(*, 9, H, W)`` nine maps in :data:`pbrdf.sensor.decode.NINE_MAP_NAMES` order.
-        mask: ``(*, 1, H, W)`` valid pixels.
+        mask: ``(*, 1, H, W)`` valid pixels (0/1).
         quantile: which quantile of ``unpol + LP`` (summed over colours) becomes 1.
 
     Returns:
-        ``(*, 9, H, W)`` normalised maps (0 outside the mask).
+        ``(*, 9, H, W)`` normalised maps in the dtype of ``maps``, in ``[-MAP_LIMIT, MAP_LIMIT]``
+        and 0 outside the mask (for finite input).
     """
-    m = mask.to(maps.dtype)
-    total = (maps[..., :6, :, :].sum(dim=-3, keepdim=True) * m).flatten(-3)  # (*, H*W)
+    dtype = maps.dtype
+    work = maps.to(torch.promote_types(dtype, torch.float32))
+    big = torch.finfo(work.dtype).max / 8  # six of them still sum without overflow
+    work = torch.where(work.isfinite(), work.clamp(-big, big), work)
+    m = mask.to(work.dtype)
+    total = (work[..., :6, :, :].sum(dim=-3, keepdim=True) * m).flatten(-3)  # (*, H*W)
     scales = []
     for row, mrow in zip(total.reshape(-1, total.shape[-1]), m.reshape(-1, total.shape[-1]), strict=True):
         vals = row[mrow > 0]
         scales.append(torch.quantile(vals, quantile) if vals.numel() else row.new_tensor(1.0))
-    scale = torch.stack(scales).reshape(*total.shape[:-1], 1, 1, 1).clamp_min(1e-8)
-    out = torch.cat([maps[..., :6, :, :] / scale, maps[..., 6:, :, :]], dim=-3)
-    return out * m
+    scale = torch.stack(scales).reshape(*total.shape[:-1], 1, 1, 1).clamp_min(SCALE_FLOOR)
+    out = torch.cat([work[..., :6, :, :] / scale, work[..., 6:, :, :]], dim=-3).clamp(-MAP_LIMIT, MAP_LIMIT)
+    return (out * m).to(dtype)
+
+
+def _first_pixel(bad: np.ndarray) -> str:
+    r, c = np.argwhere(bad)[0][:2]
+    return f"(row {int(r)}, col {int(c)})"
+
+
+def check_item(sample: dict[str, np.ndarray], where: str) -> None:
+    """Raise one ValueError naming ``where`` and the field unless a loaded item is usable for training.
+
+    Checks the keys present among ``mask``, ``normal``, ``albedo``, ``roughness`` and
+    ``metallic``: the targets finite; ``albedo``, ``roughness`` and ``metallic`` in [0, 1];
+    ``normal`` of unit length inside the mask (to :data:`pbrdf.data.dataset.NORMAL_TOLERANCE`); a
+    mask with at least one pixel. Non-finite ``maps`` are left to the training loop, which skips
+    such batches and stops after ``--max-skipped`` of them (:mod:`network.train`).
+
+    Args:
+        sample: channel-last arrays as :func:`pbrdf.data.dataset.read_sample` returns them.
+        where: the sample's file, first in the message.
+
+    Raises:
+        ValueError: ``"<where>: <field> ..."``, the first problem found.
+    """
+    for key in TARGET_KEYS:
+        if key not in sample:
+            continue
+        a = sample[key]
+        bad = ~np.isfinite(a)
+        if bad.any():
+            bad = bad.reshape(*a.shape[:2], -1).any(axis=-1)
+            raise ValueError(
+                f"{where}: {key} holds non-finite values ({int(bad.sum())} pixels, first at {_first_pixel(bad)})"
+            )
+    for key in ("albedo", "roughness", "metallic"):
+        if key in sample:
+            lo, hi = float(sample[key].min()), float(sample[key].max())
+            if lo < 0 or hi > 1:
+                raise ValueError(f"{where}: {key} values must be in [0, 1]; got [{lo:g}, {hi:g}]")
+    mask = sample.get("mask")
+    if mask is not None and not mask.any():
+        raise ValueError(f"{where}: mask is empty (no valid pixel to train on)")
+    if mask is not None and "normal" in sample:
+        length = np.linalg.norm(sample["normal"].astype(np.float64), axis=-1)
+        off = mask.astype(bool) & (np.abs(length - 1) > pdataset.NORMAL_TOLERANCE)
+        if off.any():
+            raise ValueError(
+                f"{where}: normal must be unit vectors inside the mask (|n| = 1 +- {pdataset.NORMAL_TOLERANCE:g}); "
+                f"{int(off.sum())} are not, e.g. |n| = {float(length[off][0]):.6g} at {_first_pixel(off)}"
+            )
 
 
 def gather_pixels(maps: torch.Tensor, pixels: torch.Tensor) -> torch.Tensor:
@@ -95,6 +176,9 @@ def resize_batch(batch: dict[str, torch.Tensor], size: int) -> dict[str, torch.T
 class SampleDataset(Dataset):
     """The completed samples of a rendered dataset folder, as normalised tensors.
 
+    Every item is checked when it is loaded (:func:`check_item`); a bad one raises ValueError
+    naming the sample's EXR and the field.
+
     Args:
         root: dataset folder written by ``headless/render.py``.
         size: resize every sample to ``size x size`` (None keeps the rendered size).
@@ -115,7 +199,9 @@ class SampleDataset(Dataset):
         return len(self.indices)
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
-        sample, _ = pdataset.read_sample(self.root, self.indices[i], keys=("maps", "mask", *TARGET_KEYS))
+        index = self.indices[i]
+        sample, _ = pdataset.read_sample(self.root, index, keys=("maps", "mask", *TARGET_KEYS))
+        check_item(sample, str(pdataset.sample_paths(self.root, index).exr))
         t = sample_to_tensors(sample)
         if self.size is not None and t["maps"].shape[-1] != self.size:
             t = resize_batch(t, self.size)

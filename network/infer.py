@@ -7,7 +7,11 @@ synthetic data did. Outputs are full-size ``(H, W, C)`` float32 maps, zero outsi
 
 from __future__ import annotations
 
+import contextlib
 import io
+import math
+import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -15,8 +19,9 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 
 from pbrdf.data import capture as pcapture
+from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import dataset as pdataset
-from pbrdf.io.atomic import atomic_write_bytes
+from pbrdf.io.atomic import fsync_path, temporary_path
 from pbrdf.io.exr import write_exr
 
 from .data import normalize_maps
@@ -31,20 +36,40 @@ DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "models" / "small" / 
 #: Output maps and their channel counts.
 OUTPUTS = {"normal": 3, "albedo": 3, "roughness": 1, "metallic": 1}
 
+# |CP| may exceed 1 by float rounding in someone else's resampling; beyond this it is not CP.
+_CP_SLACK = 1e-3
+# Radiance maps with a larger peak are scaled down (by a power of two) before normalisation.
+_RADIANCE_PEAK = 2.0**64
 
-def load_input(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+
+def load_input(path: str | Path, *, require_object: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Nine maps ``(H, W, 9)`` and mask ``(H, W)`` from a sample EXR/JSON or a capture folder.
 
     For a capture folder the mask is the object (its ``mask.png``, else the automatic foreground
     mask of :mod:`pbrdf.sensor.foreground`) restricted to the measured pixels:
-    :attr:`pbrdf.data.capture.DecodedCapture.input_mask`, not the decoder's validity mask.
+    :attr:`pbrdf.data.capture_decode.DecodedCapture.input_mask`, not the decoder's validity mask.
+
+    Args:
+        path: a sample ``.exr``/``.json`` or a capture folder.
+        require_object: refuse an input with nothing to reconstruct (an empty mask; for a capture,
+            :func:`pbrdf.data.capture_decode.check_usable` says why: all dark, all saturated, no object).
+
+    Raises:
+        FileNotFoundError: ``path`` is neither.
+        ValueError: bad content, or nothing to reconstruct with ``require_object`` (one line
+            naming the file).
     """
     path = Path(path)
     if path.is_dir() and (path / pcapture.CAPTURE_JSON).is_file():
-        dec = pcapture.decode_capture(path)
+        cap = pcapture.load_capture(path)
+        dec = pdecode_capture.decode_capture(cap)
+        if require_object:
+            pdecode_capture.check_usable(dec, cap, need_object=True)
         return dec.maps, dec.input_mask
     if path.suffix in (".exr", ".json") and path.exists():
         sample, _ = pdataset.read_sample(path, keys=("maps", "mask"))
+        if require_object and not sample["mask"].any():
+            raise ValueError(f"{path}: the sample's mask is empty: nothing to reconstruct")
         return sample["maps"], sample["mask"]
     raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
 
@@ -92,12 +117,38 @@ def predict(
     ``stride`` trades accuracy for speed: s > 1 decodes every s-th row and column of the network's
     input grid and interpolates the rest (:meth:`PolarInverseModel.decode_dense`), about s^2 times
     less decoder work (``headless/bench.py network`` reports time and error per stride).
+
+    Args:
+        model: the network.
+        maps: ``(H, W, 9)`` nine maps (:data:`pbrdf.sensor.decode.NINE_MAP_NAMES` order): finite,
+            the CP maps in ``[-1, 1]``; the radiance maps (unpol, LP) at any scale (they are
+            normalised; peaks above ``2**64`` are first scaled down by a power of two, exactly).
+        mask: ``(H, W)`` bool, the pixels to reconstruct; not empty, and the maps not all zero on it.
+        inputs: the checkpoint's input variant.
+        stride: 1, 2 or 4.
+
+    Returns:
+        ``{"normal": (H, W, 3), "albedo": (H, W, 3), "roughness": (H, W, 1), "metallic": (H, W, 1),
+        "mask": (H, W, 1)}`` float32, finite, zero outside the mask; normals unit length inside it.
+
+    Raises:
+        ValueError: maps or mask out of range (above), or a network output that is not finite (a
+            broken checkpoint), with a one-line message.
     """
     if maps.ndim != 3 or maps.shape[-1] != 9 or mask.shape != maps.shape[:2]:
         raise ValueError(f"expected maps (H, W, 9) and mask (H, W); got {maps.shape} and {mask.shape}")
     if not np.all(np.isfinite(maps)):
         raise ValueError("maps contain NaN or Inf")
+    cp = float(np.abs(maps[..., 6:]).max(initial=0.0))
+    if cp > 1.0 + _CP_SLACK:
+        raise ValueError(f"maps: the CP maps (R_CP, G_CP, B_CP) must lie in [-1, 1]; got |CP| up to {cp:.3g}")
     y0, x0, y1, x1 = mask_bbox(mask)
+    if not np.any(maps[mask]):
+        raise ValueError("maps are zero on every mask pixel: nothing to reconstruct")
+    peak = float(np.abs(maps[..., :6]).max())
+    if peak > _RADIANCE_PEAK:  # normalize_maps is scale-free, but float32 sums of 3e38 overflow
+        maps = maps.copy()
+        maps[..., :6] *= 2.0 ** -math.ceil(math.log2(peak))  # exact: a power of two (float64 maps: up to 1e308)
     size = model.config.image_size
     m = torch.from_numpy(np.ascontiguousarray(maps[y0:y1, x0:x1].transpose(2, 0, 1)))[None].float()
     k = torch.from_numpy(mask[y0:y1, x0:x1].astype(np.float32))[None, None]
@@ -105,6 +156,12 @@ def predict(
     k = F.interpolate(k, size=(size, size), mode="nearest")
     model.eval()
     pred = model(apply_inputs(normalize_maps(m, k), inputs), k, stride=stride)
+    for name in OUTPUTS:
+        if not bool(torch.isfinite(pred[name]).all()):
+            raise ValueError(
+                f"the network predicted NaN or Inf {name} for this input (broken checkpoint weights, or maps far "
+                "outside the training range)"
+            )
     # Extend the predictions past the (downsampled) mask with their nearest valid value, so that
     # upsampling never blends in the zeros outside it: thin parts of the full-size mask that the
     # network's grid lost still get a prediction (and normals stay unit length).
@@ -147,21 +204,61 @@ def write_predictions(out: str | Path, name: str, pred: dict[str, np.ndarray]) -
     ``_metallic``, ``_mask``). Normals are camera-space unit vectors (x right, y up, z toward the
     camera; channels X, Y, Z); the PNG preview maps them from [-1, 1] to [0, 1].
 
+    Everything is checked and encoded first, into a temporary folder inside ``out``; only then
+    are the files renamed into place. On any error nothing is written (``out`` is created only
+    when the files are ready, and the temporary folder is removed).
+
+    Args:
+        out: the output folder (created if missing).
+        name: the file name prefix.
+        pred: ``{map: (H, W, C) float32}`` as :func:`predict` returns, all finite.
+
     Returns:
         The written paths (EXR then PNG per map).
+
+    Raises:
+        ValueError: a map that is not ``(H, W, C)`` or holds NaN/Inf (nothing written).
+        OSError: the folder cannot be written (nothing left behind).
     """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    for key, img in pred.items():
+        if img.ndim != 3 or not np.all(np.isfinite(img)):
+            raise ValueError(f"predicted {key} map is not a finite (H, W, C) array; nothing written")
     mask = pred["mask"][..., 0] > 0 if "mask" in pred else None
-    paths = []
+    files: list[tuple[str, dict[str, np.ndarray] | bytes]] = []
     for key, img in pred.items():
         chans = "XYZ" if key == "normal" else ("RGB" if img.shape[-1] == 3 else "Y")
-        exr = out / f"{name}_{key}.exr"
-        write_exr(exr, {f"{key}.{c}": img[..., i] for i, c in enumerate(chans)})
+        files.append((f"{name}_{key}.exr", {f"{key}.{c}": img[..., i] for i, c in enumerate(chans)}))
         preview = img * 0.5 + 0.5 if key == "normal" else img
         if mask is not None:
             preview = preview * mask[..., None]
-        png = out / f"{name}_{key}.png"
-        atomic_write_bytes(png, _png(preview))
-        paths += [exr, png]
+        files.append((f"{name}_{key}.png", _png(preview)))
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"{out}: output path exists and is not a folder")
+    created = not out.exists()
+    out.mkdir(parents=True, exist_ok=True)
+    staging = temporary_path(out / name)
+    try:
+        staging.mkdir()
+        for file_name, content in files:
+            if isinstance(content, bytes):
+                with open(staging / file_name, "wb") as f:
+                    f.write(content)
+                    f.flush()
+                    os.fsync(f.fileno())
+            else:
+                write_exr(staging / file_name, content)
+        paths = []
+        for file_name, _ in files:
+            os.replace(staging / file_name, out / file_name)
+            paths.append(out / file_name)
+        fsync_path(out, directory=True)
+    except BaseException:
+        if created:  # leave no empty output folder behind either
+            shutil.rmtree(staging, ignore_errors=True)
+            with contextlib.suppress(OSError):
+                out.rmdir()
+        raise
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
     return paths

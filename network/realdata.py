@@ -1,7 +1,7 @@
 """Real captures (and rendered samples without their ground truth) for the re-rendering loss.
 
 :class:`RealDataset` reads a folder of capture folders (``pdir-capture/1``, decoded with
-:func:`pbrdf.data.capture.decode_capture` exactly like the synthetic data) and/or rendered datasets
+:func:`pbrdf.data.capture_decode.decode_capture` exactly like the synthetic data) and/or rendered datasets
 (``pdir-dataset/1``; only their nine maps, mask, depth and sidecar geometry are used). Every item
 is cropped to a square around the mask (:func:`network.infer.mask_bbox`, as at inference),
 resized to the model size ``S`` and normalised (:func:`network.data.normalize_maps`); the camera
@@ -51,6 +51,7 @@ from numpy.typing import NDArray
 from torch.utils.data import Dataset
 
 from pbrdf.data import capture as pcapture
+from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import dataset as pdataset
 from pbrdf.sensor.projection import crop_intrinsics
 from pbrdf.sensor.rig import Rig
@@ -116,7 +117,7 @@ def load_real_input(
     """
     if _is_capture(path):
         cap = pcapture.load_capture(path)
-        dec = pcapture.decode_capture(cap)
+        dec = pdecode_capture.decode_capture(cap)
         meta = cap.metadata
         try:
             rig = Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()

@@ -24,6 +24,13 @@ Guards. A batch with NaN/Inf inputs is skipped before the forward pass; a non-fi
 gradient norm skips the optimizer step. Each skip is logged as a warning naming the step, and
 more than ``max_skipped`` skips stop the run with :class:`FloatingPointError`.
 
+Files. ``checkpoint.pt`` and ``model.pt`` are written atomically (checkpoint first); ``model.pt``
+records the step and parameter hash of the checkpoint it was cut from, and a resume that has no
+steps left rewrites it from the checkpoint when it is missing or stale (a run killed between the two
+writes). ``log.csv``/``val.csv`` are truncated to the checkpoint atomically and always keep their
+header. Every run first removes the temporary files a killed run left in ``out``
+(:func:`pbrdf.io.atomic.remove_leftovers`, for the files named here only).
+
 Distributed. Under ``torchrun`` (``WORLD_SIZE > 1``, :mod:`network.distributed`) the model is
 wrapped in :class:`~torch.nn.parallel.DistributedDataParallel` (gradients averaged over ranks),
 logged losses are averaged over ranks, only rank 0 writes the checkpoint, ``model.pt``,
@@ -35,6 +42,7 @@ restores every rank (weights, optimizer, its own RNG state).
 from __future__ import annotations
 
 import csv
+import io
 import logging
 import math
 import time
@@ -50,8 +58,16 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset
 
 from pbrdf.data.splits import require_role
+from pbrdf.io.atomic import atomic_write_text, remove_leftovers
 
-from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, params_sha256, save_checkpoint
+from .checkpoint import (
+    CHECKPOINT_FORMAT,
+    load_checkpoint,
+    model_file_is_current,
+    model_file_state,
+    params_sha256,
+    save_checkpoint,
+)
 from .config import get_config
 from .data import TARGET_KEYS, SampleDataset, gather_pixels
 from .distributed import DistContext, init_distributed, resolve_device, rng_state, set_rng_state
@@ -79,6 +95,12 @@ LOG_COLUMNS = (
     "chromaticity",
     "skipped",
 )
+
+#: Columns of ``val.csv`` (one row per validation; ``step`` counts completed steps).
+VAL_COLUMNS = ("step", "normal_mae_deg", "samples")
+
+#: The files of ``out`` a run writes (atomically: a killed run may leave their temporaries).
+OUT_FILES = ("checkpoint.pt", "model.pt", "log.csv", "val.csv")
 
 
 @dataclass(frozen=True)
@@ -210,11 +232,11 @@ class _Logs:
         self.path = out / "log.csv"
         self.val_path = out / "val.csv"
         if resume and self.path.is_file():
-            _truncate_log(self.path, start)
+            _truncate_log(self.path, start, LOG_COLUMNS)
         else:
-            self.path.write_text(",".join(LOG_COLUMNS) + "\n")
+            atomic_write_text(self.path, ",".join(LOG_COLUMNS) + "\n")
         if resume and self.val_path.is_file():
-            _truncate_log(self.val_path, start + 1)  # val rows are numbered by completed steps
+            _truncate_log(self.val_path, start + 1, VAL_COLUMNS)  # val rows are numbered by completed steps
         elif self.val_path.is_file():
             self.val_path.unlink()
         self.file = open(self.path, "a", newline="")  # closed in close()
@@ -242,7 +264,7 @@ class _Logs:
         new = not self.val_path.is_file()
         with open(self.val_path, "a", newline="") as f:
             if new:
-                f.write("step,normal_mae_deg,samples\n")
+                f.write(",".join(VAL_COLUMNS) + "\n")
             csv.writer(f).writerow([step, mae, count])
         if self.tb is not None:
             self.tb.add_scalar("val/normal_mae_deg", mae, step)
@@ -254,13 +276,22 @@ class _Logs:
             self.tb.close()
 
 
-def _truncate_log(path: Path, start: int) -> None:
-    """Drop rows of steps >= ``start`` (written after the checkpoint by a killed run)."""
-    lines = path.read_text().splitlines()
-    keep = lines[:1] + [
-        ln for ln in lines[1:] if ln and ln.split(",", 1)[0].isdigit() and int(ln.split(",", 1)[0]) < start
-    ]
-    path.write_text("\n".join(keep) + "\n")
+def _truncate_log(path: Path, start: int, columns: tuple[str, ...]) -> None:
+    """Keep the rows of steps < ``start`` under a fresh header; replace ``path`` atomically.
+
+    Rows of later steps (written after the checkpoint by a killed run), a cut-off last row, the old
+    header and anything else that is not a row of ``len(columns)`` fields with an integer step are
+    dropped, so an emptied or half-written log resumes with its header and whole rows only.
+    """
+    rows = []
+    for fields in csv.reader(path.read_text(errors="replace").splitlines()):
+        if len(fields) == len(columns) and fields[0].isdigit() and int(fields[0]) < start:
+            rows.append(fields)
+    buf = io.StringIO()
+    writer = csv.writer(buf)
+    writer.writerow(columns)
+    writer.writerows(rows)
+    atomic_write_text(path, buf.getvalue())
 
 
 # ------------------------------------------------------------------------------------------------
@@ -354,7 +385,7 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
     model = PolarInverseModel(model_cfg).to(device)
     opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
     torch.manual_seed(cfg.seed + 1 + dd.rank)  # per-rank stream for anything random after init
-    start, losses, skipped_total = 0, [], 0
+    start, losses, skipped_total, ckpt = 0, [], 0, None
     if cfg.resume and ckpt_path.is_file():
         ckpt = torch.load(ckpt_path, weights_only=True, map_location="cpu")
         if ckpt["config"] != model_cfg.to_dict():
@@ -387,6 +418,12 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
         raise ValueError(f"{ckpt_path}: ranks resume from different steps {starts}; every node must see the checkpoint")
     if main:
         out.mkdir(parents=True, exist_ok=True)
+        removed = remove_leftovers(out, OUT_FILES)  # of a killed run (a live writer's stay)
+        if removed:
+            log.info("removed %d temporary file(s) of a killed run from %s", len(removed), out)
+        if start >= cfg.steps:  # nothing left to train: model.pt must still be the checkpoint's
+            _sync_model_file(out / "model.pt", ckpt)
+    ckpt = None  # the loaded copy (optimizer state included) is not needed any more
     dd.barrier()
     logs = _Logs(out, start, cfg.resume, main, cfg.tensorboard)
 
@@ -497,14 +534,15 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
         if len(set(shas)) != 1:
             raise RuntimeError(f"step {done}: ranks hold different parameters (sha256 {shas})")
         if main:
-            common = {"format": CHECKPOINT_FORMAT, "config": model_cfg.to_dict(), "inputs": cfg.inputs}
-            save_checkpoint(ckpt_path, {
-                **common, "model": state, "optimizer": opt.state_dict(), "step": done, "losses": losses,
-                "skipped": skipped_total, "rng": rngs, "rank_params_sha256": shas, "world_size": dd.world,
+            record = {
+                "format": CHECKPOINT_FORMAT, "config": model_cfg.to_dict(), "inputs": cfg.inputs, "model": state,
+                "optimizer": opt.state_dict(), "step": done, "losses": losses, "skipped": skipped_total, "rng": rngs,
+                "rank_params_sha256": shas, "world_size": dd.world,
                 "data": {"synthetic": len(ds), "real": len(real_ds) if real_ds is not None else None},
                 "train": _plain(cfg),
-            })  # fmt: skip
-            save_checkpoint(out / "model.pt", {**common, "model": state})
+            }  # fmt: skip
+            save_checkpoint(ckpt_path, record)  # first: a kill before model.pt is repaired by the resume
+            save_checkpoint(out / "model.pt", model_file_state(record, shas[0]))
         dd.barrier()
 
     try:
@@ -525,6 +563,17 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
             bar.close()
         logs.close()
     return losses
+
+
+def _sync_model_file(path: Path, ckpt: dict | None) -> None:
+    """(Re)write ``model.pt`` from ``ckpt`` unless it already holds that checkpoint's step and parameters."""
+    if ckpt is None:
+        return
+    sha = params_sha256(ckpt["model"])
+    if model_file_is_current(path, int(ckpt["step"]), sha):
+        return
+    log.warning("%s: missing or older than the checkpoint (step %d); rewritten from it", path, int(ckpt["step"]))
+    save_checkpoint(path, model_file_state(ckpt, sha))
 
 
 def _plain(cfg: TrainConfig) -> dict[str, Any]:

@@ -3,7 +3,9 @@
 One process renders a list of sample indices (a shard). Every sample is a pure function of the
 run seed and its index (:func:`.scenegen.sample_seed`), so shards, resumed runs and reruns all
 produce identical samples; writes are atomic (:mod:`pbrdf.data.dataset`), so a killed run resumes
-without losing or duplicating work.
+without losing or duplicating work. Every run removes what killed runs left: the temporary
+manifests of the dataset root and the temporary ``arrays/`` files of its shard (any run), and the
+partial samples of its shard (``resume``: :func:`pbrdf.data.dataset.cleanup_partial`).
 
 Instead of random scenes, ``GenerateConfig.scene`` renders one given scene spec (the Blender
 add-on's exported scene). ``generate(..., spec_hook=...)`` passes every scene through a function
@@ -25,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from pbrdf.data import dataset
-from pbrdf.io.atomic import atomic_write_bytes
+from pbrdf.io.atomic import atomic_write_bytes, remove_leftovers
 from pbrdf.sensor.rig import Rig
 
 from . import assets, render, scenegen
@@ -164,6 +166,12 @@ def write_arrays(root: str | Path, index: int, sample: dict, meta: dict) -> Path
     return path
 
 
+def _array_in_shard(name: str, shard: tuple[int, int]) -> bool:
+    """Whether ``name`` is the ``arrays/`` file (``NNNNNN.npz``) of a sample of ``shard``."""
+    stem, dot, ext = name.partition(".")
+    return dot == "." and ext == "npz" and stem.isdigit() and int(stem) % shard[1] == shard[0]
+
+
 def generate(
     cfg: GenerateConfig,
     *,
@@ -195,6 +203,8 @@ def generate(
     todo = dataset.plan_work(out, cfg.count, cfg.shard, cfg.resume)
     if cfg.resume:
         dataset.cleanup_partial(out, shard=cfg.shard)
+    dataset.remove_manifest_leftovers(out)
+    remove_leftovers(out / ARRAYS_DIR, lambda name: _array_in_shard(name, cfg.shard))
     report = GenerateReport(skipped=len(dataset.shard_indices(cfg.count, cfg.shard)) - len(todo))
     settings = render.RenderSettings(resolution=cfg.resolution, spp=cfg.spp, noise=cfg.noise)
     info = {

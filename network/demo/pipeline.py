@@ -9,7 +9,7 @@ Stages, each timed and shown with a progress bar:
    through the camera model (four raw HDR brackets with noise, written as capture folders)
    (:func:`blender_addon.core.generate.generate`).
 3. ``decode``: each raw capture folder goes through the real-capture path (HDR merge,
-   demosaic, Stokes, nine maps: :func:`pbrdf.data.capture.decode_capture`).
+   demosaic, Stokes, nine maps: :func:`pbrdf.data.capture_decode.decode_capture`).
 4. ``infer``: the shipped model predicts normal, albedo, roughness and metallic
    (:func:`network.infer.predict`).
 5. ``evaluate``: metrics against the ground truth and against the classical RGB

@@ -35,6 +35,12 @@ Choices:
     * ``alpha`` is clamped at 1e-3 (as Mitsuba's ``principled`` does): below roughness 0.0316 the
       lobe stops sharpening and the gradient with respect to roughness is zero. The peak value
       ``D(n) = 1 / (pi alpha^2)`` stays below 3.2e5, so float32 does not overflow.
+    * The building blocks :func:`ggx_ndf` and :func:`smith_g1_ggx` take ``alpha`` directly (the
+      microfacet models use a floor of 1e-4) and clamp it to :data:`ALPHA_RANGE` = [1e-4, 1e4]:
+      ``alpha = 0`` (a perfect mirror, whose D is a delta) and a huge ``alpha`` (whose square
+      overflows float32 beyond 1.8e19) both stay finite. ``G1`` uses the form
+      ``sqrt(cos^2 + alpha^2 (1 - cos^2))``, a sum of non-negative terms, instead of
+      ``alpha^2 + (1 - alpha^2) cos^2``, which cancels to 0 for large ``alpha`` (G1 was 2).
     * ``G / (4 cos_l cos_v)`` is evaluated as one visibility term
       ``1 / ((cos_l + sqrt(a^2 + (1-a^2) cos_l^2)) (cos_v + sqrt(...)))`` that never divides by a
       cosine: finite (and with finite gradients) at grazing incidence.
@@ -74,6 +80,8 @@ from scipy.optimize import least_squares
 from pbrdf._checks import as_float_array, check_last_dims
 
 __all__ = [
+    "ALPHA_MIN",
+    "ALPHA_RANGE",
     "FitResult",
     "disney_brdf",
     "disney_diffuse",
@@ -87,7 +95,13 @@ __all__ = [
 ]
 
 ALPHA_MIN = 1e-3
-"""Smallest GGX alpha (roughness 0.0316); keeps D finite for a perfect mirror."""
+"""Smallest GGX alpha of the Disney model (roughness 0.0316); keeps D finite for a perfect mirror."""
+
+ALPHA_RANGE = (1e-4, 1e4)
+"""``(floor, ceiling)`` of the alpha taken by :func:`ggx_ndf` and :func:`smith_g1_ggx`; outside
+values are clamped. The floor is the microfacet models' (Mitsuba's 1e-4, ``D(n) = 3.2e7``); at
+the ceiling ``D`` and ``G1`` are within 1e-8 of their ``alpha -> inf`` limits (0), and
+``alpha^2 cos^2`` squared stays far below float32's maximum."""
 
 _INV_PI = 1.0 / np.pi
 
@@ -158,9 +172,9 @@ def _pow5(x: Any) -> Any:
 
 
 def roughness_to_alpha(roughness: Any) -> Any:
-    """GGX alpha from perceptual roughness: ``alpha = max(roughness^2, 1e-3)``; shape ``(...)``."""
+    """GGX alpha from perceptual roughness: ``alpha = clip(roughness^2, 1e-3, 1e4)``; shape ``(...)``."""
     ops, (r,) = _backend(roughness)
-    return ops.out(ops.clip(r * r, ALPHA_MIN, None))
+    return ops.out(ops.clip(r * r, ALPHA_MIN, ALPHA_RANGE[1]))
 
 
 def ggx_ndf(n_dot_h: Any, alpha: Any) -> Any:
@@ -174,10 +188,16 @@ def ggx_ndf(n_dot_h: Any, alpha: Any) -> Any:
 
     Args:
         n_dot_h: cosine of the half vector's polar angle, clipped to [0, 1], shape ``(...)``.
-        alpha: GGX alpha > 0 (see :func:`roughness_to_alpha`), broadcastable.
+        alpha: GGX alpha (see :func:`roughness_to_alpha`), broadcastable; clamped to
+            :data:`ALPHA_RANGE` ([1e-4, 1e4]), so ``alpha = 0`` gives the floor's finite peak.
+
+    Returns:
+        ``D >= 0``, finite for finite inputs (at most ``1 / (pi 1e-8) = 3.2e7``), the broadcast
+        shape, same backend and dtype as the inputs.
     """
     ops, (c, a) = _backend(n_dot_h, alpha)
     c2 = ops.clip(c, 0.0, 1.0) ** 2
+    a = ops.clip(a, *ALPHA_RANGE)
     a2 = a * a
     d = (1.0 - c2) + a2 * c2
     return ops.out(a2 * _INV_PI / (d * d))
@@ -187,20 +207,27 @@ def smith_g1_ggx(n_dot_w: Any, alpha: Any) -> Any:
     """Exact Smith masking for GGX, ``G1 = 2 cos / (cos + sqrt(alpha^2 + (1 - alpha^2) cos^2))``.
 
     Equal to ``2 / (1 + sqrt(1 + alpha^2 tan^2 theta))`` (Walter et al. 2007, eq. 34) without the
-    division by the cosine; in [0, 1], 0 at grazing. Shape ``(...)``.
+    division by the cosine.
 
     Args:
         n_dot_w: cosine of the direction's polar angle, clipped to [0, 1], shape ``(...)``.
-        alpha: GGX alpha > 0, broadcastable.
+        alpha: GGX alpha, broadcastable; clamped to :data:`ALPHA_RANGE` ([1e-4, 1e4]).
+
+    Returns:
+        ``G1`` in [0, 1], the broadcast shape: exactly 0 at grazing (``cos = 0``) and exactly 1 at
+        normal incidence (``cos = 1``) for every ``alpha``, ``alpha = 0`` and ``1e150`` included.
+        Same backend and dtype as the inputs; finite torch gradients everywhere.
     """
     ops, (c, a) = _backend(n_dot_w, alpha)
     c = ops.clip(c, 0.0, 1.0)
+    a = ops.clip(a, *ALPHA_RANGE)
     return ops.out(2.0 * c / (c + _lambda_root(ops, c, a * a)))
 
 
 def _lambda_root(ops: _Ops, c: Any, a2: Any) -> Any:
-    """``sqrt(alpha^2 + (1 - alpha^2) cos^2)`` (>= alpha > 0)."""
-    return ops.sqrt(a2 + (1.0 - a2) * c * c)
+    """``sqrt(cos^2 + alpha^2 (1 - cos^2))`` (>= min(alpha, cos) > 0; both terms >= 0, no cancellation)."""
+    c2 = c * c
+    return ops.sqrt(c2 + a2 * (1.0 - c2))
 
 
 def schlick_fresnel(cos_theta_d: Any, f0: Any) -> Any:
@@ -299,7 +326,7 @@ def disney_specular(
     _check_albedo(rho)
     nl = ops.clip(nl, 0.0, 1.0)
     nv = ops.clip(nv, 0.0, 1.0)
-    alpha = ops.clip(r * r, ALPHA_MIN, None)
+    alpha = ops.clip(r * r, ALPHA_MIN, ALPHA_RANGE[1])
     a2 = alpha * alpha
     d = ggx_ndf(nh, alpha)
     # G1(l) G1(v) / (4 cos_l cos_v), the 2 cos factors of G1 cancelled against the denominator.
@@ -441,7 +468,7 @@ class FitResult:
 
     Attributes:
         albedo: base colour, linear RGB in [0, 1], ``(3,)`` float64.
-        roughness: perceptual roughness in [0, 1].
+        roughness: perceptual roughness in [sqrt(ALPHA_MIN), 1] = [0.0316, 1].
         metallic: metallic weight in [0, 1].
         rmse: root-mean-square error of the fitted cosine-weighted BRDF against the samples, over all
             used samples and channels (weighted if weights were given), in the units of ``values``;
@@ -467,6 +494,9 @@ _FIT_F_SCALE = 0.1
 # multimodal parameter); albedo is then solved in closed form for each start.
 _START_ROUGHNESS = (0.1, 0.3, 0.55, 0.85)
 _START_METALLIC = (0.0, 1.0)
+# Lower bound of the fitted roughness: below sqrt(ALPHA_MIN) alpha is clamped and the model no
+# longer depends on roughness, a flat region that trapped the optimiser at roughness 0.
+_ROUGHNESS_FLOOR = float(np.sqrt(ALPHA_MIN))
 
 
 def _model(geom: tuple[NDArray, ...], albedo: NDArray, roughness: float, metallic: float) -> NDArray:
@@ -474,6 +504,57 @@ def _model(geom: tuple[NDArray, ...], albedo: NDArray, roughness: float, metalli
     fd = disney_diffuse(cos_i, cos_o, i_dot_h, albedo, roughness, metallic)
     fs = disney_specular(cos_i, cos_o, n_dot_h, i_dot_h, albedo, roughness, metallic)
     return (fd + fs) * cos_weight[..., None]
+
+
+def _model_jacobian(geom: tuple[NDArray, ...], x: NDArray) -> NDArray:
+    """Analytic derivative of :func:`_model` with respect to ``(albedo RGB, roughness, metallic)``.
+
+    With ``S`` the diffuse shape factor, ``DV = D * vis`` the specular lobe without Fresnel,
+    ``w = (1 - cos_d)^5`` and ``F = F0 (1 - w) + w``, ``F0 = 0.04 (1 - m) + m rho`` (specular 0.5),
+    the model is ``cw [(1 - m) S rho / pi + DV F]``, so
+
+    * ``d/d rho_c = cw [(1 - m) S / pi + DV m (1 - w)]`` (channel ``c`` only),
+    * ``d/dm = cw [-S rho / pi + DV (1 - w)(rho - 0.04)]``,
+    * ``d/dr = cw [(1 - m) rho / pi dS/dr + F d(DV)/d alpha * d alpha/dr]`` with
+      ``d alpha/dr = 2 r`` where ``r^2`` is above the clamp (0 below), ``dS/dr = 2 cos_d^2
+      (f_l (1 + k f_v) + f_v (1 + k f_l))``, ``k = F_D90 - 1``, ``dD/d alpha = 2 alpha / (pi d^2)
+      (1 - 2 alpha^2 cos_h^2 / d)`` and ``d vis / d alpha = -vis sum_x (d Lambda_x / d alpha) /
+      (cos_x + Lambda_x)``, ``d Lambda / d alpha = alpha (1 - cos^2) / Lambda``.
+
+    Returns:
+        ``(N, 3, 5)``.
+    """
+    cos_i, cos_o, n_dot_h, i_dot_h, cw = geom
+    rho, r, m = x[:3], float(x[3]), float(x[4])
+    nl, nv = np.clip(cos_i, 0.0, 1.0), np.clip(cos_o, 0.0, 1.0)
+    nh2 = np.clip(n_dot_h, 0.0, 1.0) ** 2
+    lh = np.clip(i_dot_h, 0.0, 1.0)
+    # diffuse
+    fl, fv = _pow5(np.clip(1.0 - nl, 0.0, 1.0)), _pow5(np.clip(1.0 - nv, 0.0, 1.0))
+    k = 2.0 * r * lh * lh - 0.5
+    shape = (1.0 + k * fl) * (1.0 + k * fv)
+    dshape = 2.0 * lh * lh * (fl * (1.0 + k * fv) + fv * (1.0 + k * fl))
+    # specular
+    alpha = min(max(r * r, ALPHA_MIN), ALPHA_RANGE[1])
+    dalpha = 2.0 * r if ALPHA_MIN < r * r < ALPHA_RANGE[1] else 0.0
+    a2 = alpha * alpha
+    d = (1.0 - nh2) + a2 * nh2
+    dist = a2 * _INV_PI / (d * d)
+    ddist = 2.0 * alpha * _INV_PI / (d * d) * (1.0 - 2.0 * a2 * nh2 / d)
+    lam_l, lam_v = _lambda_root(_NUMPY_OPS, nl, a2), _lambda_root(_NUMPY_OPS, nv, a2)
+    vis = 1.0 / ((nl + lam_l) * (nv + lam_v))
+    dvis = -vis * alpha * ((1.0 - nl * nl) / (lam_l * (nl + lam_l)) + (1.0 - nv * nv) / (lam_v * (nv + lam_v)))
+    dv, ddv = dist * vis, ddist * vis + dist * dvis
+    w = _pow5(np.clip(1.0 - lh, 0.0, 1.0))
+    f0 = 0.04 * (1.0 - m) + m * rho  # (3,)
+    fres = f0 * (1.0 - w)[:, None] + w[:, None]  # (N, 3)
+    jac = np.zeros((len(cw), 3, 5))
+    diag = (1.0 - m) * shape * _INV_PI + dv * m * (1.0 - w)
+    for c in range(3):
+        jac[:, c, c] = cw * diag
+    jac[:, :, 3] = cw[:, None] * ((1.0 - m) * _INV_PI * dshape[:, None] * rho + fres * (ddv * dalpha)[:, None])
+    jac[:, :, 4] = cw[:, None] * (-shape[:, None] * _INV_PI * rho + (dv * (1.0 - w))[:, None] * (rho - 0.04))
+    return jac
 
 
 def _solve_albedo(
@@ -511,21 +592,30 @@ def fit_disney(
     Residuals are compared after the compression ``log(1 + v / s_c)`` with ``s_c`` the median of
     channel ``c`` (so specular peaks, orders of magnitude above the diffuse level, do not swamp the
     diffuse samples), times ``sqrt(weights)``, under scipy's ``soft_l1`` loss with scale 0.1 (robust
-    to outliers). Parameters are bounded to [0, 1]. Eight starts (metallic 0 and 1 times roughness
-    0.1, 0.3, 0.55, 0.85, plus ``init``), each with the albedo solved in closed form, are refined
-    by ``scipy.optimize.least_squares`` (trf); the lowest robust cost wins. Deterministic. Samples
-    with either direction at or below the horizon are ignored; negative values count as 0.
+    to outliers). Albedo and metallic are bounded to [0, 1], roughness to [0.0316, 1]: below
+    ``sqrt(ALPHA_MIN)`` alpha is clamped and the model does not depend on roughness, a flat region
+    where the optimiser used to stop. Eight starts (metallic 0 and 1 times roughness 0.1, 0.3,
+    0.55, 0.85, plus ``init``), each with the albedo solved in closed form, are refined by
+    ``scipy.optimize.least_squares`` (trf) with the analytic Jacobian of the model; the lowest
+    robust cost wins. Deterministic. Samples with either direction at or below the horizon are
+    ignored; negative values count as 0.
+
+    The fit only sees the samples: a lobe much sharper than their spacing (e.g. a roughness-0.03
+    spike on a near-Lambertian material) can fall between them. Sample the mirror directions
+    (as :func:`pbrdf.expansion.expand.sample_directions` does) and check the result on other
+    pairs (:func:`pbrdf.expansion.expand.fit_table_disney`).
 
     Args:
         wi: unit directions in the local frame (z = normal), ``(N, 3)``.
         wo: unit directions, ``(N, 3)``; the cosine factor is ``wo[:, 2]``.
         values: measured cosine-weighted BRDF (m00), RGB, ``(N, 3)``.
         weights: optional non-negative sample weights, ``(N,)`` or ``(N, 3)``.
-        init: optional extra start ``(albedo (3,), roughness, metallic)``.
+        init: optional extra start ``(albedo (3,), roughness, metallic)``, clipped to the bounds.
         cosine: whether ``values`` include the ``cos(theta_o)`` factor (default True).
 
     Returns:
-        A :class:`FitResult`; ``rmse`` and ``rel_rmse`` are computed in the units of ``values``.
+        A :class:`FitResult`; ``rmse`` and ``rel_rmse`` are computed in the units of ``values``;
+        ``roughness`` in [0.0316, 1].
 
     Raises:
         ValueError: on wrong shapes, non-finite inputs, negative weights or fewer than 5 usable samples.
@@ -564,21 +654,35 @@ def fit_disney(
     scale = np.maximum(np.median(v, axis=0), 1e-3 * peak)
     target = np.log1p(v / scale)
 
-    def residual(x: NDArray) -> NDArray:
-        model = _model(geom, x[:3], x[3], x[4])
-        return (sqrt_w * (np.log1p(model / scale) - target)).ravel()
+    last: dict[bytes, NDArray] = {}  # the model at the latest x: least_squares asks for jac(x) after fun(x)
 
+    def model_at(x: NDArray) -> NDArray:
+        key = x.tobytes()
+        if key not in last:
+            last.clear()
+            last[key] = _model(geom, x[:3], x[3], x[4])
+        return last[key]
+
+    def residual(x: NDArray) -> NDArray:
+        return (sqrt_w * (np.log1p(model_at(x) / scale) - target)).ravel()
+
+    def jacobian(x: NDArray) -> NDArray:
+        return ((sqrt_w / (scale + model_at(x)))[..., None] * _model_jacobian(geom, x)).reshape(-1, 5)
+
+    lower = np.array([0.0, 0.0, 0.0, _ROUGHNESS_FLOOR, 0.0])
     starts = []
     if init is not None:
         a0 = np.clip(np.broadcast_to(as_float_array(init[0]).astype(np.float64), (3,)), 0.0, 1.0)
-        starts.append(np.r_[a0, np.clip(init[1], 0.0, 1.0), np.clip(init[2], 0.0, 1.0)])
+        starts.append(np.r_[a0, np.clip(init[1], _ROUGHNESS_FLOOR, 1.0), np.clip(init[2], 0.0, 1.0)])
     for m0 in _START_METALLIC:
         for r0 in _START_ROUGHNESS:
             starts.append(np.r_[_solve_albedo(geom, v, w, scale, r0, m0), r0, m0])
 
     best = None
     for x0 in starts:
-        res = least_squares(residual, x0, bounds=(0.0, 1.0), loss=_FIT_LOSS, f_scale=_FIT_F_SCALE, method="trf")
+        res = least_squares(
+            residual, x0, jac=jacobian, bounds=(lower, 1.0), loss=_FIT_LOSS, f_scale=_FIT_F_SCALE, method="trf"
+        )
         if best is None or res.cost < best.cost:
             best = res
 

@@ -46,18 +46,22 @@ from pbrdf.brdf import disney
 from pbrdf.polar.fresnel import reflection_mueller, transmission_mueller
 from pbrdf.polar.mueller import rotate_mueller_basis, rotate_stokes_basis, stokes_basis
 
-__all__ = ["ggx_d", "smith_g1", "dielectric_pbrdf", "conductor_pbrdf"]
+__all__ = ["ALPHA_MIN", "ALPHA_MAX", "ggx_d", "smith_g1", "dielectric_pbrdf", "conductor_pbrdf"]
 
 #: Smallest GGX roughness used; smaller ``alpha`` is clamped to it, as Mitsuba does, so that the
 #: distribution stays a finite (if very peaked) function: ``D(n) = 1 / (pi alpha^2) = 3.2e7``.
 ALPHA_MIN = 1e-4
+#: Largest GGX roughness used; larger ``alpha`` (``inf`` included) is clamped to it, where ``D``
+#: and ``G1`` are already within 1e-8 of their ``alpha -> inf`` limit 0 (``G1(1) = 1`` stays).
+#: The ceiling of :data:`pbrdf.brdf.disney.ALPHA_RANGE`.
+ALPHA_MAX = disney.ALPHA_RANGE[1]
 
 
 def _alpha(alpha: ArrayLike) -> NDArray:
     a = as_float_array(alpha).astype(np.float64)
     if np.any(~(a >= 0)):
         raise ValueError("alpha must be >= 0 (GGX roughness, alpha = roughness**2)")
-    return np.maximum(a, ALPHA_MIN)
+    return np.clip(a, ALPHA_MIN, ALPHA_MAX)
 
 
 def ggx_d(cos_theta_h: ArrayLike, alpha: ArrayLike) -> NDArray:
@@ -72,8 +76,8 @@ def ggx_d(cos_theta_h: ArrayLike, alpha: ArrayLike) -> NDArray:
 
     Args:
         cos_theta_h: cosine between the half vector and the normal, shape ``(...)``.
-        alpha: GGX roughness (``alpha = roughness**2`` in this project), broadcastable; values
-            below :data:`ALPHA_MIN` (1e-4) are clamped to it.
+        alpha: GGX roughness (``alpha = roughness**2`` in this project), broadcastable, ``>= 0``;
+            clamped to [:data:`ALPHA_MIN`, :data:`ALPHA_MAX`] = [1e-4, 1e4].
 
     Returns:
         ``D`` in 1/sr, float64, the broadcast shape.
@@ -108,10 +112,15 @@ def smith_g1(cos_theta_v: ArrayLike, alpha: ArrayLike) -> NDArray:
 
     Args:
         cos_theta_v: cosine between ``v`` and the normal, shape ``(...)``.
-        alpha: GGX roughness, broadcastable; clamped to at least :data:`ALPHA_MIN`.
+        alpha: GGX roughness, broadcastable, ``>= 0``; clamped to [:data:`ALPHA_MIN`,
+            :data:`ALPHA_MAX`] = [1e-4, 1e4].
 
     Returns:
-        ``G1``, float64, the broadcast shape; 1 at normal incidence.
+        ``G1`` in [0, 1], float64, the broadcast shape; exactly 1 at normal incidence and 0 at
+        grazing, for every ``alpha``.
+
+    Raises:
+        ValueError: if ``alpha`` is negative or NaN.
 
     Example:
         >>> float(smith_g1(1.0, 0.3)), float(smith_g1(0.0, 0.3))
@@ -238,7 +247,7 @@ def dielectric_pbrdf(
         wo: unit direction towards the light, ``(..., 3)``; broadcasts with ``wi``.
         albedo: diffuse reflectance ``rho`` in [0, 1], broadcastable to ``(...)``.
         eta: real relative index of refraction of the dielectric (e.g. 1.5), broadcastable.
-        alpha: GGX roughness (``roughness**2``), clamped to at least :data:`ALPHA_MIN`.
+        alpha: GGX roughness (``roughness**2``), clamped to [:data:`ALPHA_MIN`, :data:`ALPHA_MAX`].
         specular: scale ``k_s`` of the specular lobe (Mitsuba's ``specular_reflectance``).
 
     Returns:
@@ -296,7 +305,7 @@ def conductor_pbrdf(
         wo: unit direction towards the light, ``(..., 3)``; broadcasts with ``wi``.
         eta: complex relative IOR ``n - ik`` (``n + ik`` is read as ``n - ik``; see
             :mod:`pbrdf.polar.fresnel`), e.g. gold near 600 nm ``0.18 - 3.2j``; broadcastable.
-        alpha: GGX roughness (``roughness**2``), clamped to at least :data:`ALPHA_MIN`.
+        alpha: GGX roughness (``roughness**2``), clamped to [:data:`ALPHA_MIN`, :data:`ALPHA_MAX`].
         specular: scale ``k_s`` (Mitsuba's ``specular_reflectance``).
 
     Returns:

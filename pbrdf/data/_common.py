@@ -65,15 +65,23 @@ def check_metadata(metadata: Any, reserved: Sequence[str], what: str) -> dict[st
 
 
 def read_json_object(path: Path, fmt: str) -> dict[str, Any]:
-    """A JSON object whose ``format`` is ``fmt``; one-line ValueError naming the file otherwise."""
+    """A JSON object whose ``format`` is ``fmt``; one-line ValueError naming the file otherwise.
+
+    Malformed text, nesting too deep for the parser (RecursionError) and integers of more than
+    4300 digits are all reported as invalid JSON.
+    """
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise ValueError(f"{path}: invalid JSON ({e})") from e
+    except RecursionError:
+        raise ValueError(f"{path}: invalid JSON (nested too deeply)") from None
+    except ValueError as e:  # UnicodeDecodeError, JSONDecodeError, too many digits
+        raise ValueError(f"{path}: invalid JSON ({' '.join(str(e).split())})") from None
     if not isinstance(data, dict):
         raise ValueError(f"{path}: expected a JSON object; got {type(data).__name__}")
     if data.get("format") != fmt:
-        raise ValueError(f"{path}: unsupported format {data.get('format')!r}; expected {fmt!r}")
+        found = repr(data.get("format"))
+        found = found if len(found) <= 40 else found[:37] + "..."
+        raise ValueError(f"{path}: unsupported format {found}; expected {fmt!r}")
     return data
 
 

@@ -29,13 +29,7 @@ right before saving. 8-bit data (an 8-bit PNG/TIFF, mode ``"L"``, or a uint8 ``.
 photo) is refused unless ``bits`` is 8. Every other top-level key is returned as
 :attr:`Capture.metadata`.
 
-An optional ``mask.png`` (:data:`MASK_FILE`) in the folder marks the object: an 8- or 16-bit
-greyscale PNG (a bilevel one also works), nonzero on the object, the size of the decoded grid
-(``(H/2, W/2)`` for the default ``"half"`` grid, ``(H, W)`` for ``"full"``) or of the raw frames
-``(H, W)``; a raw-size mask is reduced to the half grid by 2x2 blocks (a block is object when at
-least two of its four pixels are). It replaces the automatic object mask of
-:mod:`pbrdf.sensor.foreground` (:attr:`DecodedCapture.foreground`); without it the object mask
-is found from the capture alone.
+Decoding a folder, with its object mask (``mask.png`` or automatic): :mod:`pbrdf.data.capture_decode`.
 
 Errors: :class:`FileNotFoundError` (missing folder, ``capture.json`` or raw file) and other
 :class:`OSError` for I/O, :class:`ValueError` for bad content; every message names the file.
@@ -44,9 +38,9 @@ Errors: :class:`FileNotFoundError` (missing folder, ``capture.json`` or raw file
 from __future__ import annotations
 
 import json
-import math
 import os
 import shutil
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,31 +49,22 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pbrdf.io.atomic import fsync_path, temporary_path
-from pbrdf.sensor.camera import CameraModel
-from pbrdf.sensor.decode import Decoded, decode
-from pbrdf.sensor.foreground import capture_foreground
+from pbrdf.sensor.camera import CAMERA_RANGES, CameraModel
 
 __all__ = [
     "CAPTURE_FORMAT",
     "CAPTURE_JSON",
-    "MASK_FILE",
     "RAW_SUFFIXES",
     "Capture",
-    "DecodedCapture",
     "save_capture",
     "load_capture",
     "validate_capture",
-    "decode_capture",
-    "load_mask",
-    "object_mask",
 ]
 
 #: Value of the ``"format"`` key of ``capture.json``; bumped on incompatible changes.
 CAPTURE_FORMAT = "pdir-capture/1"
 #: Name of the sidecar inside a capture folder.
 CAPTURE_JSON = "capture.json"
-#: Optional object mask inside a capture folder (overrides the automatic foreground mask).
-MASK_FILE = "mask.png"
 #: File name suffixes of raw mosaics understood by :func:`load_capture`.
 RAW_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
 #: Keys of ``capture.json`` written by :func:`save_capture`; ``extra`` may not use them.
@@ -97,8 +82,6 @@ _FILE_FORMATS = {"png": "png", "tiff": "tiff", "npy": "npy"}
 # Pillow modes of single-channel integer images (16-bit PNG/TIFF open as "I;16"; old Pillow
 # versions and 32-bit TIFFs give "I").
 _GRAY_MODES = ("I;16", "I;16L", "I;16B", "I;16N", "I", "L")
-# Pillow modes accepted for mask.png: bilevel, 8-bit and 16-bit greyscale.
-_MASK_MODES = ("1", "L", "I;16", "I;16L", "I;16B", "I;16N", "I")
 
 
 @dataclass
@@ -349,10 +332,10 @@ def _read_raw(path: Path) -> NDArray:
             return np.load(path, allow_pickle=False)
         except (ValueError, EOFError) as e:
             raise ValueError(f"{path}: not a readable .npy array ({e})") from e
-    from PIL import Image, UnidentifiedImageError
+    from PIL import UnidentifiedImageError
 
     try:
-        with Image.open(path) as img:
+        with _open_image(path, "raw") as img:
             n_frames = getattr(img, "n_frames", 1)
             if n_frames != 1:
                 raise ValueError(f"{path}: image has {n_frames} frames; expected one raw mosaic per file")
@@ -376,6 +359,24 @@ def _read_raw(path: Path) -> NDArray:
         raise ValueError(f"{path}: cannot read image ({e})") from e
 
 
+def _open_image(path: Path, what: str):
+    """``PIL.Image.open(path)``, refusing images that declare too many pixels (one-line ValueError).
+
+    Pillow raises ``DecompressionBombError`` above ``2 * Image.MAX_IMAGE_PIXELS`` (about 179 M
+    pixels) and warns above half that; the warning is not printed (a genuine image of that size
+    loads, a header that only claims it fails on reading), the error names the file.
+    """
+    from PIL import Image
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            return Image.open(path)
+    except Image.DecompressionBombError as e:
+        reason = " ".join(str(e).split())
+        raise ValueError(f"{path}: {what} image too large to read ({reason})") from None
+
+
 def _check_bit_depth(raw: NDArray, path: Path, bits: int) -> None:
     """Refuse 8-bit data (an 8-bit photo saved as a raw) for a sensor of more than 8 bits."""
     if raw.dtype.kind in "iu" and raw.dtype.itemsize == 1 and bits > 8:
@@ -386,17 +387,26 @@ def _check_bit_depth(raw: NDArray, path: Path, bits: int) -> None:
         )
 
 
+def _short(value: Any, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters (a JSON integer may have thousands of digits)."""
+    text = repr(value) if not isinstance(value, int) or value.bit_length() < 128 else f"{str(value)[:20]}..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _number(value: Any, name: str, where: Path) -> float:
     if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{where}: {name} must be a number; got {value!r}")
-    return float(value)
+        raise ValueError(f"{where}: {name} must be a number; got {_short(value)}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise ValueError(f"{where}: {name} {_short(value)} is too large for a floating-point number") from None
 
 
 def _integer(value: Any, name: str, where: Path) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         if isinstance(value, float) and value.is_integer():
             return int(value)
-        raise ValueError(f"{where}: {name} must be an integer; got {value!r}")
+        raise ValueError(f"{where}: {name} must be an integer; got {_short(value)}")
     return value
 
 
@@ -409,8 +419,10 @@ def _read_json(path: Path) -> dict[str, Any]:
         raise ValueError(f"{path}: not UTF-8 text ({e})") from e
     try:
         meta = json.loads(text)
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: invalid JSON ({e})") from e
+    except RecursionError:
+        raise ValueError(f"{path}: invalid JSON (nested too deeply)") from None
+    except ValueError as e:  # JSONDecodeError, or an integer of more than 4300 digits
+        raise ValueError(f"{path}: invalid JSON ({e})") from None
     if not isinstance(meta, dict):
         raise ValueError(f"{path}: expected a JSON object at the top level; got {type(meta).__name__}")
     return meta
@@ -434,11 +446,11 @@ def _model_from_meta(meta: dict[str, Any], exposures: tuple[float, ...], where: 
         wbits = (white + 1).bit_length() - 1
         if white < 1 or 2**wbits - 1 != white:
             raise ValueError(
-                f"{where}: white_level {white} is not 2**bits - 1 (MSB-aligned data must be shifted "
+                f"{where}: white_level {_short(white)} is not 2**bits - 1 (MSB-aligned data must be shifted "
                 "right to LSB alignment first)"
             )
         if bits is not None and bits != wbits:
-            raise ValueError(f"{where}: white_level {white} does not match bits {bits}")
+            raise ValueError(f"{where}: white_level {_short(white)} does not match bits {_short(bits)}")
         bits = wbits
     if bits is not None:
         sensor["bits"] = bits
@@ -447,13 +459,13 @@ def _model_from_meta(meta: dict[str, Any], exposures: tuple[float, ...], where: 
     if "pattern_offset" in meta:
         po = meta["pattern_offset"]
         if not isinstance(po, list) or len(po) != 2:
-            raise ValueError(f"{where}: pattern_offset must be [row, col]; got {po!r}")
+            raise ValueError(f"{where}: pattern_offset must be [row, col]; got {_short(po)}")
         cam["pattern_offset"] = [_integer(v, "pattern_offset", where) for v in po]
     cam["exposures"] = list(exposures)
     try:
         model = CameraModel.from_dict(cam)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{where}: invalid camera model ({e})") from e
+    except (TypeError, ValueError, OverflowError) as e:
+        raise ValueError(f"{where}: invalid camera model ({' '.join(str(e).split())})") from None
     _check_levels(model.sensor.black_level, model.sensor.white_level, where)
     return model
 
@@ -517,12 +529,13 @@ def load_capture(folder: str | os.PathLike) -> Capture:
         raise ValueError(f"{jpath}: {len(exposures)} exposures_s but {len(names)} raw_files")
     if not exposures:
         raise ValueError(f"{jpath}: no exposures listed")
+    lo, hi = CAMERA_RANGES["exposures"]
     for t in exposures:
-        if not math.isfinite(t) or t <= 0:
-            raise ValueError(f"{jpath}: exposure time {t} s must be positive and finite")
+        if not lo <= t <= hi:
+            raise ValueError(f"{jpath}: exposures_s entry {t:g} s is outside the valid range [{lo:g}, {hi:g}] s")
     for n in names:
-        if not isinstance(n, str) or not n or n in (".", "..") or Path(n).name != n or "\\" in n:
-            raise ValueError(f"{jpath}: raw_files entries must be plain file names in the folder; got {n!r}")
+        if not isinstance(n, str) or not n or n in (".", "..") or Path(n).name != n or "\\" in n or len(n) > 255:
+            raise ValueError(f"{jpath}: raw_files entries must be plain file names in the folder; got {_short(n, 60)}")
     if len(set(names)) != len(names):
         raise ValueError(f"{jpath}: raw_files lists a file more than once: {names}")
 
@@ -544,145 +557,3 @@ def load_capture(folder: str | os.PathLike) -> Capture:
     _check_order(raws, model, names, jpath)
     metadata = {k: v for k, v in meta.items() if k not in _RESERVED_KEYS}
     return Capture(raws=raws, model=model, folder=root, metadata=metadata, raw_files=tuple(names))
-
-
-@dataclass
-class DecodedCapture(Decoded):
-    """:class:`pbrdf.sensor.decode.Decoded` of a capture, with its object mask.
-
-    ``maps``, ``mask`` and ``stokes`` are exactly those of :func:`pbrdf.sensor.decode.decode`
-    (``mask``: measured and ``s0`` above ``min_signal``; ``maps`` are 0 outside it).
-
-    Attributes:
-        measured: ``(H', W')`` bool, the pixels the decoder measured: some exposure unsaturated
-            over the whole demosaic support and finite maps (no signal threshold: the dark
-            background is "measured" too).
-        foreground: ``(H', W')`` bool, the object: the folder's ``mask.png`` if there is one,
-            else the automatic mask of :func:`pbrdf.sensor.foreground.capture_foreground`.
-        foreground_source: the path of the ``mask.png`` used, or ``"auto"``.
-    """
-
-    measured: NDArray[np.bool_]
-    foreground: NDArray[np.bool_]
-    foreground_source: str
-
-    @property
-    def input_mask(self) -> NDArray[np.bool_]:
-        """``(H', W')`` bool, the pixels to give the network: ``foreground & measured``."""
-        return self.foreground & self.measured
-
-
-def load_mask(path: str | os.PathLike, shape: tuple[int, int], raw_shape: tuple[int, int]) -> NDArray[np.bool_]:
-    """Read an object mask (``mask.png``, see the module docs) onto the decoded grid.
-
-    Args:
-        path: the mask image: 8- or 16-bit greyscale (or bilevel) PNG, nonzero = object.
-        shape: ``(H', W')`` of the decoded grid.
-        raw_shape: ``(H, W)`` of the raw frames; a mask of this size is reduced to the half grid
-            by 2x2 blocks (object where at least two of the four pixels are).
-
-    Returns:
-        ``(H', W')`` bool.
-
-    Raises:
-        FileNotFoundError: no such file.
-        ValueError: not a readable single-frame greyscale image, wrong size or no object pixel
-            (one line naming the file).
-    """
-    from PIL import Image, UnidentifiedImageError
-
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: mask file does not exist")
-    try:
-        with Image.open(path) as img:
-            if getattr(img, "n_frames", 1) != 1:
-                raise ValueError(f"{path}: mask has {img.n_frames} frames; expected one greyscale image")
-            if img.mode not in _MASK_MODES:
-                raise ValueError(
-                    f"{path}: mask must be an 8- or 16-bit greyscale image (nonzero = object); got mode {img.mode!r}"
-                )
-            img.load()
-            mask = np.array(img) != 0
-    except UnidentifiedImageError as e:
-        raise ValueError(f"{path}: mask is not a readable PNG image") from e
-    except (OSError, SyntaxError) as e:
-        if isinstance(e, FileNotFoundError | PermissionError):
-            raise
-        raise ValueError(f"{path}: cannot read mask image ({e})") from e
-    shape, raw_shape = tuple(shape), tuple(raw_shape)
-    if mask.shape != shape:
-        h, w = raw_shape
-        if mask.shape != raw_shape or shape != (h // 2, w // 2):
-            raise ValueError(
-                f"{path}: mask size {mask.shape[1]}x{mask.shape[0]} matches neither the decoded grid "
-                f"{shape[1]}x{shape[0]} nor the raw frames {w}x{h}"
-            )
-        count = mask[0::2, 0::2].astype(np.uint8) + mask[0::2, 1::2] + mask[1::2, 0::2] + mask[1::2, 1::2]
-        mask = count >= 2
-    if not mask.any():
-        raise ValueError(f"{path}: mask has no object pixel (nonzero marks the object)")
-    return mask
-
-
-def object_mask(capture: Capture, decoded: Decoded, *, grid: str = "half") -> tuple[NDArray[np.bool_], str]:
-    """The object mask of a decoded capture: its folder's ``mask.png``, else the automatic one.
-
-    Args:
-        capture: the capture (its ``folder`` is searched for :data:`MASK_FILE`; None: automatic).
-        decoded: its decoded maps on ``grid``.
-        grid: the decode grid, ``"half"`` or ``"full"``.
-
-    Returns:
-        ``(mask (H', W') bool, source)``, ``source`` the mask file's path or ``"auto"``.
-
-    Raises:
-        ValueError: a bad ``mask.png`` (one line naming the file).
-    """
-    if capture.folder is not None and (Path(capture.folder) / MASK_FILE).exists():
-        path = Path(capture.folder) / MASK_FILE
-        return load_mask(path, decoded.mask.shape, capture.raws.shape[1:]), str(path)
-    return capture_foreground(decoded, capture.model, grid=grid), "auto"
-
-
-def decode_capture(
-    capture: Capture | str | os.PathLike,
-    *,
-    grid: str = "half",
-    eps: float = 1e-6,
-    min_signal: float = 0.0,
-) -> DecodedCapture:
-    """Load (if given a folder) and decode a capture into the nine maps and its object mask.
-
-    Args:
-        capture: a :class:`Capture` or the path of a capture folder.
-        grid: ``"half"`` (``(H/2, W/2)`` output) or ``"full"`` (``(H, W)``); see
-            :func:`pbrdf.sensor.decode.decode`.
-        eps: CP regulariser (:func:`pbrdf.sensor.decode.nine_maps`).
-        min_signal: pixels whose total ``s0`` is not above this are left out of ``mask`` (and
-            their maps are 0), as in :func:`pbrdf.sensor.decode.decode`.
-
-    Returns:
-        :class:`DecodedCapture` with ``maps`` ``(H', W', 9)`` float32, ``mask`` ``(H', W')`` bool
-        and ``stokes`` ``(H', W', 3, 3)`` float32 exactly as :func:`pbrdf.sensor.decode.decode`
-        gives them, plus ``measured``, ``foreground`` and ``input_mask`` (the network's mask).
-
-    Raises:
-        ValueError: bad capture content or a bad ``mask.png``.
-    """
-    cap = capture if isinstance(capture, Capture) else load_capture(capture)
-    if isinstance(capture, Capture):
-        validate_capture(cap)
-    # Decode without a signal threshold (the measured pixels), then apply it exactly as decode().
-    dec = decode(cap.raws, cap.model, grid=grid, eps=eps, min_signal=-np.inf)
-    measured = dec.mask
-    st = np.moveaxis(dec.stokes, (2, 3), (0, 1))  # decode()'s own (colour, component, H', W') layout
-    mask = measured & (st[:, 0].sum(axis=0) > min_signal)
-    maps = dec.maps
-    if not mask.all():
-        maps[~mask] = 0.0
-    out = Decoded(maps=maps, mask=mask, stokes=dec.stokes)
-    foreground, source = object_mask(cap, out, grid=grid)
-    return DecodedCapture(
-        maps=maps, mask=mask, stokes=dec.stokes, measured=measured, foreground=foreground, foreground_source=source
-    )

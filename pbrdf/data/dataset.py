@@ -17,7 +17,7 @@ Writers of one dataset may run as shards ``(K, N)`` (sample ``i`` belongs to sha
 sharing the folder. A killed run resumes exactly: :func:`plan_work` with ``resume=True`` lists the
 samples of the shard that are not complete (:func:`pbrdf.data.sample.check_complete`);
 :func:`write_sample` overwrites the leftovers of a broken sample, and :func:`cleanup_partial`
-removes them.
+removes them; :func:`remove_manifest_leftovers` removes the temporary manifests of killed writers.
 """
 
 from __future__ import annotations
@@ -35,13 +35,14 @@ from pbrdf.data import sample as _sample
 from pbrdf.data._common import check_index, check_metadata, dumps_json, read_json_object, remove_path
 from pbrdf.data.sample import *  # noqa: F403 (re-exported: the public names of pbrdf.data.sample)
 from pbrdf.data.sample import SAMPLES_DIR, check_complete, parse_sample_name, sample_paths
-from pbrdf.io.atomic import atomic_write_text, temporary_target
+from pbrdf.io.atomic import atomic_write_text, remove_leftovers, temporary_target
 
 __all__ = [
     "MANIFEST_FORMAT",
     "MANIFEST_JSON",
     "completed_indices",
     "cleanup_partial",
+    "remove_manifest_leftovers",
     "write_manifest",
     "read_manifest",
     "shard_indices",
@@ -157,6 +158,24 @@ def cleanup_partial(
     if removed:
         logger.info("removed %d leftover(s) of incomplete samples in %s", len(removed), root / SAMPLES_DIR)
     return sorted(removed)
+
+
+def remove_manifest_leftovers(root: str | os.PathLike) -> list[Path]:
+    """Remove the temporary manifests (``.manifest.json.tmp-*``) that killed writers left in ``root``.
+
+    Every shard writes the manifest, so those of writers still running on this machine stay
+    (:func:`pbrdf.io.atomic.remove_leftovers`); nothing else in ``root`` is touched.
+
+    Args:
+        root: dataset folder (a missing one holds nothing).
+
+    Returns:
+        The removed paths, sorted.
+    """
+    removed = remove_leftovers(root, {MANIFEST_JSON})
+    if removed:
+        logger.info("removed %d temporary manifest(s) of killed runs in %s", len(removed), root)
+    return removed
 
 
 def write_manifest(

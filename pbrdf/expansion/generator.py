@@ -141,12 +141,10 @@ def sample_weights(model: WeightCVAE, conditions: NDArray, *, seed: int = 0, tem
 
 def save_generator(path: str | Path, model: WeightCVAE) -> None:
     """Checkpoint: ``{"config": dict, "state_dict": tensors}`` (loadable with weights_only=True)."""
-    from pbrdf.io.atomic import temporary_path  # noqa: PLC0415
+    from pbrdf.io.atomic import atomic_open  # noqa: PLC0415
 
-    path = Path(path)
-    tmp = temporary_path(path)
-    torch.save({"config": asdict(model.cfg), "state_dict": model.state_dict()}, tmp)
-    tmp.replace(path)
+    with atomic_open(path) as f:  # fsync, rename; the temporary file is removed on any error
+        torch.save({"config": asdict(model.cfg), "state_dict": model.state_dict()}, f)
 
 
 def load_generator(path: str | Path) -> WeightCVAE:

@@ -5,7 +5,10 @@ seed tables (built-in analytic set, or measured files) -> Disney fit of each -> 
 Disney parameters, sampled weights, reconstruction, validity filter (Givens-Kostinski +
 Cloude, per-table acceptance, Cloude projection of the few invalid matrices), Disney re-fit,
 Mitsuba tensor file + JSON sidecar. Every table is a function of ``(seed, index)``; a sidecar is
-written last and atomically, so a killed run resumes where it stopped.
+written last and atomically, so a killed run resumes where it stopped. Every file is written
+atomically (:mod:`pbrdf.io.atomic`), and every run first removes the temporary files a killed
+one left in the folders the expansion owns (``seeds/``, ``tables/``, ``model/``; in ``out`` itself
+only those of the files written there).
 """
 
 from __future__ import annotations
@@ -21,7 +24,7 @@ import numpy as np
 from pbrdf.brdf import seeds
 from pbrdf.brdf.table import PBRDFTable, evaluate, load_table, resample, save_table, to_mitsuba_bands
 from pbrdf.expansion import expand
-from pbrdf.io.atomic import atomic_write_text
+from pbrdf.io.atomic import atomic_open, atomic_write_text, remove_leftovers
 from pbrdf.io.strict_json import dumps_strict
 
 __all__ = ["ExpansionConfig", "ExpansionReport", "run_expansion", "load_measured", "sphere_polarimetry"]
@@ -29,9 +32,35 @@ __all__ = ["ExpansionConfig", "ExpansionReport", "run_expansion", "load_measured
 log = logging.getLogger(__name__)
 
 
+#: Files written into the output folder itself (its sub-folders belong to the expansion entirely).
+OUT_FILES = ("materials.json", "manifest.json", "figure_generated.png", "figure_seeds.png")
+#: Sub-folders of the output folder: seed cache, generated tables, PCA and generator.
+OUT_DIRS = ("seeds", "tables", "model")
+
+
 @dataclass(frozen=True)
 class ExpansionConfig:
-    """Flags of ``headless/expand_pbrdf.py``."""
+    """Flags of ``headless/expand_pbrdf.py``.
+
+    Attributes:
+        out: output folder.
+        count: tables to generate, >= 1 (``--count``).
+        seed: run seed.
+        measured: folder of measured seed tables (``--input``); None: the built-in seed set.
+        grid: table grid ``(phi_d, theta_d, theta_h)``, each >= 2.
+        k_intensity, k_polarization: PCA components, >= 1 (``--components K_I K_P``); the PCA
+            keeps at most one per seed table.
+        generator_steps: generator training steps, >= 1.
+        min_valid_fraction: per-table acceptance threshold of the validity filter, in [0, 1].
+        max_attempts: candidates drawn per table before it counts as failed, >= 1.
+        fit_samples: samples of each Disney fit, >= 5. A table whose fit fails the held-out check
+            (``fit_ok`` False, :func:`pbrdf.expansion.expand.fit_table_disney`) is drawn again:
+            its Disney label would be wrong ground truth.
+        figures: materials shown per figure, >= 0 (0: no figures).
+
+    Raises:
+        ValueError: a value out of its range; the message names the command-line flag.
+    """
 
     out: Path
     count: int = 2000
@@ -45,6 +74,31 @@ class ExpansionConfig:
     max_attempts: int = 4
     fit_samples: int = 600
     figures: int = 8
+
+    def __post_init__(self) -> None:
+        def whole(value: object) -> bool:
+            return isinstance(value, int | np.integer) and not isinstance(value, bool)
+
+        if (
+            not (whole(self.k_intensity) and whole(self.k_polarization))
+            or min(self.k_intensity, self.k_polarization) < 1
+        ):
+            raise ValueError(
+                f"--components must be two integers >= 1 (K_I K_P), got {self.k_intensity} {self.k_polarization}"
+            )
+        for flag, value, low in (
+            ("--count", self.count, 1),
+            ("generator_steps", self.generator_steps, 1),
+            ("max_attempts", self.max_attempts, 1),
+            ("fit_samples", self.fit_samples, 5),
+            ("figures", self.figures, 0),
+        ):
+            if not whole(value) or value < low:
+                raise ValueError(f"{flag} must be an integer >= {low}, got {value!r}")
+        if len(self.grid) != 3 or not all(whole(n) and n >= 2 for n in self.grid):
+            raise ValueError(f"grid must be three integers >= 2, got {self.grid!r}")
+        if not 0.0 <= self.min_valid_fraction <= 1.0:
+            raise ValueError(f"min_valid_fraction must be in [0, 1], got {self.min_valid_fraction!r}")
 
 
 @dataclass
@@ -162,10 +216,11 @@ def _figure(path: Path, tables: list[PBRDFTable], params: list[dict]) -> None:
         label = f"{t.name}\nalb ({a[0]:.2f},{a[1]:.2f},{a[2]:.2f})\nr {p['roughness']:.2f} m {p['metallic']:.2f}"
         axes[r, 0].text(-0.1, 0.5, label, transform=axes[r, 0].transAxes, ha="right", va="center", fontsize=7)
     fig.subplots_adjust(left=0.25, right=0.98, wspace=0.05)
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=90)
-    plt.close(fig)
-    tmp.replace(path)
+    try:
+        with atomic_open(path) as f:
+            fig.savefig(f, dpi=90, format="png")
+    finally:
+        plt.close(fig)
 
 
 def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionReport:
@@ -174,6 +229,9 @@ def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionRe
 
     out = Path(cfg.out)
     tables_dir, model_dir = out / "tables", out / "model"
+    removed = remove_leftovers(out, OUT_FILES) + [p for d in OUT_DIRS for p in remove_leftovers(out / d)]
+    if removed:
+        log.info("removed %d temporary file(s) of a killed run from %s", len(removed), out)
     tables_dir.mkdir(parents=True, exist_ok=True)
     model_dir.mkdir(parents=True, exist_ok=True)
     report = ExpansionReport()
@@ -192,9 +250,8 @@ def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionRe
         pca = expand.fit_pca(
             source, n_bins=n_bins, k_intensity=cfg.k_intensity, k_polarization=cfg.k_polarization, grid_shape=cfg.grid
         )
-        tmp = model_dir / ".pca.tmp.npz"
-        np.savez(tmp, **pca.to_arrays())
-        tmp.replace(pca_path)
+        with atomic_open(pca_path) as f:
+            np.savez(f, **pca.to_arrays())
     report.explained = {"intensity": float(pca.explained_i.sum()), "polarization": float(pca.explained_p.sum())}
     weights = expand.project(pca, source, n_bins=n_bins)
     if gen_path.is_file():
@@ -232,6 +289,8 @@ def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionRe
                 continue
             table = PBRDFTable(*grid_axes, m[0].reshape(shape).astype(np.float32), name=name)
             fit = expand.fit_table_disney(table, n=cfg.fit_samples, seed=cfg.seed)
+            if not fit.fit_ok:  # its Disney label would be wrong ground truth: draw another table
+                continue
             save_table(tables_dir / f"{name}.pbsdf", table, for_mitsuba=True)
             meta = {
                 "name": name,
@@ -240,6 +299,8 @@ def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionRe
                 "roughness": float(fit.roughness),
                 "metallic": float(fit.metallic),
                 "fit_rel_rmse": float(fit.rel_rmse),
+                "fit_error": float(fit.fit_error),
+                "fit_ok": bool(fit.fit_ok),
                 "requested": {"albedo": cond[:3].tolist(), "roughness": float(cond[3]), "metallic": float(cond[4])},
                 "validity": {"gk_fraction": verdict.gk_fraction, "cloude_fraction": verdict.cloude_fraction},
                 "attempt": attempt,
@@ -280,6 +341,8 @@ def _write_index(out: Path, cfg: ExpansionConfig, report: ExpansionReport, fits,
                 "roughness": f.roughness,
                 "metallic": f.metallic,
                 "fit_rel_rmse": f.rel_rmse,
+                "fit_error": f.fit_error,
+                "fit_ok": f.fit_ok,
             }
             for t, f in zip(seed_set, fits, strict=True)
         ],  # fmt: skip

@@ -12,14 +12,23 @@ import contextlib
 import os
 import re
 import secrets
-from collections.abc import Iterator
+import shutil
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import BinaryIO
 
-__all__ = ["temporary_path", "temporary_target", "fsync_path", "atomic_open", "atomic_write_bytes", "atomic_write_text"]
+__all__ = [
+    "temporary_path",
+    "temporary_target",
+    "remove_leftovers",
+    "fsync_path",
+    "atomic_open",
+    "atomic_write_bytes",
+    "atomic_write_text",
+]
 
 # ".<target>.tmp-<pid>-<8 hex>" (files being written) or ".<target>.old-<pid>-<8 hex>" (set aside).
-_TEMP_RE = re.compile(r"^\.(?P<target>.+)\.(?:tmp|old)-\d+-[0-9a-f]{8}$")
+_TEMP_RE = re.compile(r"^\.(?P<target>.+)\.(?P<kind>tmp|old)-(?P<pid>\d+)-[0-9a-f]{8}$")
 
 
 def temporary_path(target: str | os.PathLike, kind: str = "tmp") -> Path:
@@ -47,6 +56,81 @@ def temporary_target(name: str) -> str | None:
     """
     m = _TEMP_RE.match(name)
     return m.group("target") if m else None
+
+
+def _writer_alive(pid: int) -> bool:
+    """Whether ``pid`` is a running process of this machine (this process included; zombies are not).
+
+    Without POSIX signals (Windows) nothing can be asked without side effects: every writer counts as gone.
+    """
+    if pid == os.getpid():
+        return True
+    if os.name != "posix" or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    except (OverflowError, OSError):  # a pid no process can have
+        return False
+    try:  # a killed child nobody waited for yet is a zombie: its writes are over
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return True  # no /proc (macOS): a live process
+    return state not in ("Z", "X")
+
+
+def remove_leftovers(
+    folder: str | os.PathLike, targets: Iterable[str] | Callable[[str], bool] | None = None
+) -> list[Path]:
+    """Remove the temporary files (and folders) a killed writer left in ``folder`` (not recursive).
+
+    Only entries named exactly like :func:`temporary_path`'s ``"tmp"`` kind are touched
+    (``.<target>.tmp-<pid>-<8 hex>``); previous versions set aside (``"old"``), every other name
+    and the temporaries of a writer still running on this machine (its pid is alive, this process
+    included) stay. A writer on another machine sharing the folder cannot be told from a dead one:
+    do not clean a folder another machine is writing to.
+
+    Args:
+        folder: the folder (a missing one holds nothing).
+        targets: only leftovers of these target names (or for which this predicate is true);
+            None: every target.
+
+    Returns:
+        The removed paths, sorted.
+
+    Example:
+        >>> import tempfile
+        >>> d = Path(tempfile.mkdtemp())
+        >>> _ = (d / ".model.pt.tmp-999999999-0a1b2c3d").write_bytes(b"half")
+        >>> _ = (d / "model.pt").write_bytes(b"done")
+        >>> [p.name for p in remove_leftovers(d, {"model.pt"})], sorted(p.name for p in d.iterdir())
+        (['.model.pt.tmp-999999999-0a1b2c3d'], ['model.pt'])
+        >>> shutil.rmtree(d)
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    if targets is None:
+        wanted: Callable[[str], bool] = lambda name: True  # noqa: E731
+    elif callable(targets):
+        wanted = targets
+    else:
+        names = frozenset(targets)
+        wanted = names.__contains__
+    removed = []
+    for entry in sorted(folder.iterdir()):
+        m = _TEMP_RE.match(entry.name)
+        if m is None or m["kind"] != "tmp" or not wanted(m["target"]) or _writer_alive(int(m["pid"])):
+            continue
+        if entry.is_dir() and not entry.is_symlink():
+            shutil.rmtree(entry, ignore_errors=True)
+        else:
+            entry.unlink(missing_ok=True)
+        removed.append(entry)
+    return removed
 
 
 def fsync_path(path: str | os.PathLike, *, directory: bool = False) -> None:

@@ -13,6 +13,13 @@ Convention:
 
     ``cos_theta_i < 0`` means the ray arrives from inside (below the normal); ``eta`` is then
     inverted, exactly like Mitsuba.
+
+Range:
+    ``eta`` must be finite with ``Re(eta) > 0`` and ``|eta|`` in [:data:`ETA_MIN`, :data:`ETA_MAX`]
+    = [1e-6, 1e6] (every real material is far inside; beyond it ``eta**2`` under- or overflows
+    and the amplitudes turn into 0/0); ``cos_theta_i`` must be finite and is clipped to [-1, 1].
+    Anything else raises ValueError. Inside the range every output is finite and the
+    reflectances lie in [0, 1].
 """
 
 from __future__ import annotations
@@ -24,6 +31,8 @@ from pbrdf._checks import as_float_array
 from pbrdf.polar.mueller import _grid
 
 __all__ = [
+    "ETA_MIN",
+    "ETA_MAX",
     "fresnel_amplitudes",
     "fresnel_reflectance",
     "reflection_mueller",
@@ -31,11 +40,32 @@ __all__ = [
 ]
 
 
+#: Smallest accepted modulus of the relative IOR.
+ETA_MIN = 1e-6
+#: Largest accepted modulus of the relative IOR.
+ETA_MAX = 1e6
+
+
 def _eta(eta: ArrayLike) -> NDArray[np.complexfloating]:
     e = np.asarray(eta, dtype=np.complex128)
+    if not np.all(np.isfinite(e)) or np.any(~((np.abs(e) >= ETA_MIN) & (np.abs(e) <= ETA_MAX))):
+        raise ValueError(f"eta must be finite with |eta| in [{ETA_MIN:g}, {ETA_MAX:g}]; got {_extremes(np.abs(e))}")
     if np.any(e.real <= 0):
         raise ValueError("eta must have a positive real part (eta = n - ik with n > 0)")
     return np.where(e.imag > 0, e.conj(), e)
+
+
+def _extremes(a: NDArray) -> str:
+    if a.size == 1:
+        return f"|eta| = {float(a.flat[0]):g}"
+    return f"|eta| in [{float(np.min(a)):g}, {float(np.max(a)):g}]"
+
+
+def _cos(cos_theta_i: ArrayLike) -> NDArray[np.float64]:
+    c = as_float_array(cos_theta_i).astype(np.float64)
+    if not np.all(np.isfinite(c)):
+        raise ValueError("cos_theta_i must be finite")
+    return np.clip(c, -1.0, 1.0)
 
 
 def fresnel_amplitudes(cos_theta_i: ArrayLike, eta: ArrayLike) -> tuple[NDArray, NDArray, NDArray]:
@@ -47,15 +77,20 @@ def fresnel_amplitudes(cos_theta_i: ArrayLike, eta: ArrayLike) -> tuple[NDArray,
         \\cos\\theta_t = \\sqrt{1 - \\sin^2\\theta_i / \\eta^2}
 
     Args:
-        cos_theta_i: cosine of the incidence angle, in [-1, 1], shape ``(...)``.
-        eta: relative complex IOR (transmitted over incident side), broadcastable.
+        cos_theta_i: cosine of the incidence angle, finite, clipped to [-1, 1], shape ``(...)``.
+        eta: relative complex IOR (transmitted over incident side), broadcastable; finite,
+            ``Re(eta) > 0``, ``|eta|`` in [1e-6, 1e6].
 
     Returns:
-        ``(r_s, r_p, cos_theta_t)``, complex128 arrays of the broadcast shape. ``cos_theta_t`` is
-        the complex square root with ``Im <= 0`` (negative imaginary under total internal
-        reflection). For conductors only ``cos_theta_i >= 0`` is physically meaningful.
+        ``(r_s, r_p, cos_theta_t)``, complex128 arrays of the broadcast shape, finite, with
+        ``|r_s|, |r_p| <= 1``. ``cos_theta_t`` is the complex square root with ``Im <= 0``
+        (negative imaginary under total internal reflection). For conductors only
+        ``cos_theta_i >= 0`` is physically meaningful.
+
+    Raises:
+        ValueError: if ``cos_theta_i`` is not finite or ``eta`` is outside its range.
     """
-    cos_i = np.clip(as_float_array(cos_theta_i).astype(np.float64), -1.0, 1.0)
+    cos_i = _cos(cos_theta_i)
     e = _eta(eta)
     e = np.where(cos_i >= 0, e, 1.0 / e)
     c = np.abs(cos_i)
@@ -74,9 +109,25 @@ def fresnel_amplitudes(cos_theta_i: ArrayLike, eta: ArrayLike) -> tuple[NDArray,
 
 
 def fresnel_reflectance(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
-    """Unpolarized Fresnel reflectance ``(|r_s|^2 + |r_p|^2) / 2``, in [0, 1]; shape ``(...)``."""
+    """Unpolarized Fresnel reflectance ``(|r_s|^2 + |r_p|^2) / 2``.
+
+    Args:
+        cos_theta_i: cosine of the incidence angle, finite, clipped to [-1, 1], shape ``(...)``.
+        eta: relative complex IOR, broadcastable; finite, ``Re(eta) > 0``, ``|eta|`` in [1e-6, 1e6].
+
+    Returns:
+        float64, the broadcast shape, in [0, 1] (clamped against rounding): 1 at grazing
+        incidence, ``|(eta - 1) / (eta + 1)|^2`` at normal incidence.
+
+    Raises:
+        ValueError: if ``cos_theta_i`` is not finite or ``eta`` is outside its range.
+
+    Example:
+        >>> round(float(fresnel_reflectance(1.0, 1.5)), 6)
+        0.04
+    """
     r_s, r_p, _ = fresnel_amplitudes(cos_theta_i, eta)
-    return 0.5 * (np.abs(r_s) ** 2 + np.abs(r_p) ** 2)
+    return np.clip(0.5 * (np.abs(r_s) ** 2 + np.abs(r_p) ** 2), 0.0, 1.0)
 
 
 def reflection_mueller(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
@@ -86,7 +137,8 @@ def reflection_mueller(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
         \\tfrac12 [[R_s+R_p, R_s-R_p, 0, 0], [R_s-R_p, R_s+R_p, 0, 0],
         [0, 0, 2\\Re(r_s r_p^*), 2\\Im(r_s r_p^*)], [0, 0, -2\\Im(r_s r_p^*), 2\\Re(r_s r_p^*)]]
 
-    Equal to Mitsuba 3's ``mueller::specular_reflection`` (tested).
+    Equal to Mitsuba 3's ``mueller::specular_reflection`` (tested). Arguments and their ranges
+    as in :func:`fresnel_amplitudes` (ValueError outside them); the matrix is finite there.
     """
     r_s, r_p, _ = fresnel_amplitudes(cos_theta_i, eta)
     rs2, rp2 = np.abs(r_s) ** 2, np.abs(r_p) ** 2
@@ -109,12 +161,13 @@ def transmission_mueller(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
         [0,0,2\\sqrt{T_sT_p},0], [0,0,0,2\\sqrt{T_sT_p}]]
 
     For real ``eta`` only (dielectrics); zero under total internal reflection. Equal to Mitsuba
-    3's ``mueller::specular_transmission`` (tested).
+    3's ``mueller::specular_transmission`` (tested). Ranges as in :func:`fresnel_amplitudes`
+    (ValueError outside them); the matrix is finite there.
     """
     e_in = np.asarray(eta, dtype=np.complex128)
     if np.any(np.abs(e_in.imag) > 0):
         raise ValueError("transmission_mueller needs a real eta (dielectric)")
-    cos_i = np.clip(as_float_array(cos_theta_i).astype(np.float64), -1.0, 1.0)
+    cos_i = _cos(cos_theta_i)
     _, _, cos_t = fresnel_amplitudes(cos_i, e_in)
     e = np.where(cos_i >= 0, e_in.real, 1.0 / e_in.real)
     tir = np.abs(cos_t.imag) > 0

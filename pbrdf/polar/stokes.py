@@ -7,7 +7,12 @@ Convention:
     right-circular in Mitsuba 3's and polanalyser's convention. The display's light is
     ``intensity * [1, -1, 0, 0]`` (vertical linear polarization).
 
-All ratios over ``s0`` are zero-safe: they return 0 where ``s0 <= 0`` instead of NaN.
+Range: every function accepts any finite float32/float64 input and returns finite values. The
+norms ``|(s1, s2, s3)|`` and ``|(s1, s2)|`` are computed with ``hypot``, which scales instead of
+squaring, so a float32 vector of magnitude 1e30 (or 1e-30) gives the same ratios as one of
+magnitude 1. All ratios over ``s0`` are zero-safe: they return 0 where ``s0 <= 0`` instead of
+NaN. They lie in [0, 1] for physical vectors (up to rounding); an unphysical one can give more
+than 1, and a ratio beyond the dtype's largest value (e.g. ``1e300 / 1e-300``) is clamped to it.
 """
 
 from __future__ import annotations
@@ -15,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf._checks import as_float_array, check_last_dims, safe_div
+from pbrdf._checks import as_float_array, check_last_dims
 
 __all__ = [
     "stokes",
@@ -71,27 +76,64 @@ def _checked(s: ArrayLike) -> NDArray:
     return s
 
 
+def _ratio(num: NDArray, den: NDArray) -> NDArray:
+    """``num / den`` where ``den > 0`` and 0 elsewhere.
+
+    An overflowing quotient is clamped to the dtype's largest value (no warnings, no Inf).
+    """
+    num, den = np.broadcast_arrays(num, den)
+    out = np.zeros(num.shape, dtype=np.result_type(num, den))
+    with np.errstate(over="ignore"):
+        np.divide(num, den, out=out, where=den > 0)
+    return np.minimum(out, np.finfo(out.dtype).max, out=out)
+
+
+def _polarized_norm(s: NDArray) -> NDArray:
+    """``|(s1, s2, s3)|`` without squaring in the input's dtype (no overflow or underflow)."""
+    return np.hypot(np.hypot(s[..., 1], s[..., 2]), s[..., 3])
+
+
 def intensity(s: ArrayLike) -> NDArray:
     """Total intensity ``s0``; shape ``(...)``."""
     return _checked(s)[..., 0]
 
 
 def dop(s: ArrayLike) -> NDArray:
-    """Degree of polarization ``|(s1,s2,s3)| / s0`` (0 where ``s0 <= 0``); shape ``(...)``."""
+    """Degree of polarization ``|(s1,s2,s3)| / s0``.
+
+    Args:
+        s: Stokes vectors, shape ``(..., 4)``, any finite magnitude.
+
+    Returns:
+        Shape ``(...)``, the input's float dtype; 0 where ``s0 <= 0``; in [0, 1] for physical
+        vectors, finite always (see the module docs).
+
+    Example:
+        The display's light at a magnitude whose square overflows float32:
+
+        >>> float(dop(np.array([1e30, -1e30, 0.0, 0.0], dtype=np.float32)))
+        1.0
+    """
     s = _checked(s)
-    return safe_div(np.linalg.norm(s[..., 1:], axis=-1), s[..., 0])
+    return _ratio(_polarized_norm(s), s[..., 0])
 
 
 def dolp(s: ArrayLike) -> NDArray:
-    """Degree of linear polarization ``|(s1,s2)| / s0`` (0 where ``s0 <= 0``); shape ``(...)``."""
+    """Degree of linear polarization ``|(s1,s2)| / s0`` (0 where ``s0 <= 0``); shape ``(...)``.
+
+    Same range as :func:`dop`.
+    """
     s = _checked(s)
-    return safe_div(np.hypot(s[..., 1], s[..., 2]), s[..., 0])
+    return _ratio(np.hypot(s[..., 1], s[..., 2]), s[..., 0])
 
 
 def docp(s: ArrayLike) -> NDArray:
-    """Degree of circular polarization ``|s3| / s0`` (0 where ``s0 <= 0``); shape ``(...)``."""
+    """Degree of circular polarization ``|s3| / s0`` (0 where ``s0 <= 0``); shape ``(...)``.
+
+    Same range as :func:`dop`.
+    """
     s = _checked(s)
-    return safe_div(np.abs(s[..., 3]), s[..., 0])
+    return _ratio(np.abs(s[..., 3]), s[..., 0])
 
 
 def aolp(s: ArrayLike) -> NDArray:
@@ -115,7 +157,8 @@ def is_physical_stokes(s: ArrayLike, *, rtol: float = 1e-6, atol: float = 0.0) -
     """True where ``s0 >= 0`` and ``s0**2 >= s1**2 + s2**2 + s3**2`` (up to tolerance).
 
     The tolerance is relative to ``s0``: ``|(s1,s2,s3)| <= s0 * (1 + rtol) + atol``, so float32
-    round-off on a fully polarized state is accepted. NaN entries are never physical.
+    round-off on a fully polarized state is accepted, at any finite magnitude (the norm does not
+    square in the input's dtype). NaN entries are never physical.
 
     Args:
         s: Stokes vectors, shape ``(..., 4)``.
@@ -127,6 +170,6 @@ def is_physical_stokes(s: ArrayLike, *, rtol: float = 1e-6, atol: float = 0.0) -
     """
     s = _checked(s)
     s0 = s[..., 0]
-    pol = np.linalg.norm(s[..., 1:], axis=-1)
+    pol = _polarized_norm(s)
     with np.errstate(invalid="ignore"):
         return (s0 >= -atol) & (pol <= s0 * (1 + rtol) + atol)

@@ -30,6 +30,7 @@ Each 2x2 block shares one colour (RGGB Bayer over blocks) and holds the four ana
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -41,6 +42,10 @@ __all__ = [
     "ANGLES_DEG",
     "MOSAIC_COLOR",
     "MOSAIC_ANGLE",
+    "SENSOR_RANGES",
+    "BITS_RANGE",
+    "CAMERA_RANGES",
+    "MAX_EXPOSURES",
     "SensorParams",
     "CameraModel",
     "measurement_matrix",
@@ -59,20 +64,77 @@ MOSAIC_COLOR = np.array([[0, 0, 1, 1], [0, 0, 1, 1], [1, 1, 2, 2], [1, 1, 2, 2]]
 MOSAIC_ANGLE = np.array([[2, 1, 2, 1], [3, 0, 3, 0], [2, 1, 2, 1], [3, 0, 3, 0]], dtype=np.intp)
 
 
+#: Valid ranges ``(low, high)``, both inclusive, of the numeric :class:`SensorParams` fields.
+#: Every corner decodes to finite maps (``tests/pbrdf/sensor/test_decode.py``).
+SENSOR_RANGES = {
+    "gain": (1e-4, 1e4),  # DN per electron
+    "read_noise": (0.0, 1e6),  # electrons
+    "full_well": (1.0, 1e9),  # electrons
+    "black_level": (0.0, 65535.0),  # DN (and below saturation * white level)
+    "electrons_per_unit": (1e-3, 1e12),  # electrons per second per unit of radiance
+    "saturation": (0.5, 1.0),  # fraction of the white level
+}
+#: Valid range of ``SensorParams.bits``.
+BITS_RANGE = (1, 16)
+#: Valid ranges ``(low, high)``, both inclusive, of the :class:`CameraModel` fields (radians,
+#: seconds, plain ratios). ``extinction_ratio`` may also be ``inf`` (an ideal polarizer);
+#: ``qwp_retardance`` must further keep ``|sin| >= 0.1`` (s3 measurable).
+CAMERA_RANGES = {
+    "qwp_angle": (-2 * np.pi, 2 * np.pi),
+    "qwp_retardance": (0.0, 2 * np.pi),
+    "extinction_ratio": (2.0, np.inf),
+    "analyzer_transmittance": (1e-3, 1.0),
+    "exposures": (1e-7, 1e4),
+}
+#: Most exposures in one bracket.
+MAX_EXPOSURES = 64
+
+
+def _short(value: object, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters for error messages."""
+    text = repr(value) if not isinstance(value, int) or value.bit_length() < 128 else f"{str(value)[:20]}..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _real(value: object, name: str, lo: float, hi: float) -> float:
+    """``value`` as a float in ``[lo, hi]``; ValueError naming ``name`` and the range otherwise.
+
+    ``inf`` passes only where ``hi`` is ``inf``; NaN, booleans, strings and ints too large for
+    a float are refused.
+    """
+    if isinstance(value, bool) or not isinstance(value, int | float | np.integer | np.floating):
+        raise ValueError(f"{name} must be a number in [{lo:g}, {hi:g}]; got {_short(value)}")
+    try:
+        x = float(value)
+    except OverflowError:
+        x = math.inf if value > 0 else -math.inf
+    if not lo <= x <= hi or (math.isinf(x) and not math.isinf(hi)):
+        raise ValueError(f"{name} must be in [{lo:g}, {hi:g}]; got {x:g}")
+    return x
+
+
 @dataclass(frozen=True)
 class SensorParams:
     """Linear sensor model (EMVA 1288 style). Defaults: IMX250 family at 12 bit.
 
+    Every field is checked on construction against :data:`SENSOR_RANGES` and
+    :data:`BITS_RANGE` (ValueError naming the field and its valid range), and the black level
+    must lie below the saturation threshold ``saturation * white_level`` (else no pixel can
+    ever be measured).
+
     Attributes:
-        gain: system gain K in DN per electron (about 0.38 for the IMX250 at 12 bit).
-        read_noise: temporal dark noise in electrons (about 2.95 e-).
-        full_well: saturation capacity in electrons (about 10.7 ke-).
-        black_level: offset added to every pixel, in DN.
-        bits: ADC bit depth; the white level is ``2**bits - 1``.
+        gain: system gain K in DN per electron (about 0.38 for the IMX250 at 12 bit);
+            ``[1e-4, 1e4]``.
+        read_noise: temporal dark noise in electrons (about 2.95 e-); ``[0, 1e6]``.
+        full_well: saturation capacity in electrons (about 10.7 ke-); ``[1, 1e9]``.
+        black_level: offset added to every pixel, in DN; ``[0, saturation * white_level)``.
+        bits: ADC bit depth, an integer in ``[1, 16]``; the white level is ``2**bits - 1``.
         electrons_per_unit: photo-electrons per second produced by an analyzer intensity of 1 in
             the renderer's linear radiance units (the radiometric calibration of the rig). The
-            default makes ``s0 = 1`` fill about 75 % of the well in the shortest bracket.
-        saturation: fraction of the white level from which a pixel counts as saturated.
+            default makes ``s0 = 1`` fill about 75 % of the well in the shortest bracket;
+            ``[1e-3, 1e12]``.
+        saturation: fraction of the white level from which a pixel counts as saturated;
+            ``[0.5, 1]``.
     """
 
     gain: float = 0.38
@@ -84,15 +146,21 @@ class SensorParams:
     saturation: float = 0.95
 
     def __post_init__(self) -> None:
-        for name in ("gain", "full_well", "electrons_per_unit"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"SensorParams.{name} must be > 0, got {getattr(self, name)}")
-        if self.read_noise < 0 or self.black_level < 0:
-            raise ValueError("SensorParams.read_noise and black_level must be >= 0")
-        if not 1 <= self.bits <= 16:
-            raise ValueError(f"SensorParams.bits must be in [1, 16], got {self.bits}")
-        if not 0 < self.saturation <= 1:
-            raise ValueError(f"SensorParams.saturation must be in (0, 1], got {self.saturation}")
+        for name, (lo, hi) in SENSOR_RANGES.items():
+            object.__setattr__(self, name, _real(getattr(self, name), f"SensorParams.{name}", lo, hi))
+        bits = self.bits
+        if isinstance(bits, float) and bits.is_integer():
+            bits = int(bits)
+        lo, hi = BITS_RANGE
+        if isinstance(bits, bool) or not isinstance(bits, int | np.integer) or not lo <= bits <= hi:
+            raise ValueError(f"SensorParams.bits must be an integer in [{lo}, {hi}]; got {_short(bits)}")
+        object.__setattr__(self, "bits", int(bits))
+        threshold = self.saturation * self.white_level
+        if not self.black_level < threshold:
+            raise ValueError(
+                f"SensorParams.black_level {self.black_level:g} must be below the saturation threshold "
+                f"{threshold:g} DN (saturation x white level {self.white_level} = 2**bits - 1)"
+            )
 
     @property
     def white_level(self) -> int:
@@ -105,27 +173,41 @@ class SensorParams:
         return self.gain * self.electrons_per_unit
 
 
-def _rgb(x: ArrayLike, name: str) -> tuple[float, float, float]:
-    a = np.broadcast_to(np.asarray(x, dtype=np.float64), (3,))
-    if not np.all(np.isfinite(a) | np.isinf(a)):
-        raise ValueError(f"{name} must be numbers")
-    return tuple(float(v) for v in a)  # type: ignore[return-value]
+def _rgb(x: object, name: str, lo: float, hi: float) -> tuple[float, float, float]:
+    """One number or three (R, G, B), each in ``[lo, hi]``, as a tuple of three floats."""
+    values = list(x) if isinstance(x, list | tuple | np.ndarray) else [x]
+    if isinstance(x, np.ndarray) and x.ndim == 0:
+        values = [x.item()]
+    if len(values) == 1:
+        values = values * 3
+    if len(values) != 3:
+        raise ValueError(f"{name} must be one number or three (R, G, B); got {len(values)} values")
+    return tuple(_real(v, f"{name}[{c}]", lo, hi) for c, v in zip("RGB", values, strict=True))  # type: ignore[return-value]
 
 
 @dataclass(frozen=True)
 class CameraModel:
     """Everything the forward model and the decoder need to know about the camera side of the rig.
 
+    Every field is checked on construction against :data:`CAMERA_RANGES` (ValueError naming the
+    field and its valid range): out-of-range calibration would decode to all-zero, NaN or
+    meaningless maps.
+
     Attributes:
-        qwp_angle: fast-axis angle of the quarter-wave plate in radians (0 = horizontal).
+        qwp_angle: fast-axis angle of the quarter-wave plate in radians (0 = horizontal);
+            ``[-2 pi, 2 pi]``.
         qwp_retardance: retardance per colour channel (R, G, B) in radians; pi/2 is ideal. With
             ``pi/2 + e`` the decoded s3 becomes ``s3 + s2 * cot(pi/2 + e)`` (s2 leaks in).
+            ``[0, 2 pi]`` with ``|sin| >= 0.1``.
         extinction_ratio: micro-polarizer extinction ratio per colour channel (``inf`` = ideal).
             Order 10^2 for this sensor family (Hagen et al., Opt. Eng. 58(8), 2019); calibrate.
-        analyzer_transmittance: transmittance of a micro-polarizer along its axis.
-        exposures: HDR bracket exposure times in seconds.
+            ``[2, inf]``: at 1 the analyzers do not polarize and LP and CP cannot be measured.
+        analyzer_transmittance: transmittance of a micro-polarizer along its axis; ``[1e-3, 1]``.
+        exposures: HDR bracket exposure times in seconds, 1 to :data:`MAX_EXPOSURES` of them,
+            each in ``[1e-7, 1e4]``.
         sensor: the linear sensor model.
-        pattern_offset: (row, col) of raw pixel (0, 0) inside the 4x4 IMX250MYR table.
+        pattern_offset: (row, col) of raw pixel (0, 0) inside the 4x4 IMX250MYR table; two
+            integers, taken modulo 4.
     """
 
     qwp_angle: float = 0.0
@@ -137,18 +219,43 @@ class CameraModel:
     pattern_offset: tuple[int, int] = (0, 0)
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "qwp_retardance", _rgb(self.qwp_retardance, "qwp_retardance"))
-        object.__setattr__(self, "extinction_ratio", _rgb(self.extinction_ratio, "extinction_ratio"))
-        object.__setattr__(self, "exposures", tuple(float(t) for t in self.exposures))
-        object.__setattr__(self, "pattern_offset", tuple(int(v) % 4 for v in self.pattern_offset))
-        if min(self.extinction_ratio) < 1:
-            raise ValueError(f"extinction_ratio must be >= 1, got {self.extinction_ratio}")
-        if not self.exposures or min(self.exposures) <= 0:
-            raise ValueError(f"exposures must be positive seconds, got {self.exposures}")
-        if not np.all(np.abs(np.sin(np.asarray(self.qwp_retardance))) > 0.1):
-            raise ValueError("qwp_retardance too far from pi/2: s3 is not measurable")
-        if not self.analyzer_transmittance > 0:
-            raise ValueError("analyzer_transmittance must be > 0")
+        rng = CAMERA_RANGES
+        object.__setattr__(self, "qwp_angle", _real(self.qwp_angle, "qwp_angle (radians)", *rng["qwp_angle"]))
+        ret = _rgb(self.qwp_retardance, "qwp_retardance (radians)", *rng["qwp_retardance"])
+        object.__setattr__(self, "qwp_retardance", ret)
+        er = _rgb(self.extinction_ratio, "extinction_ratio", *rng["extinction_ratio"])
+        object.__setattr__(self, "extinction_ratio", er)
+        object.__setattr__(
+            self,
+            "analyzer_transmittance",
+            _real(self.analyzer_transmittance, "analyzer_transmittance", *rng["analyzer_transmittance"]),
+        )
+        exposures = self.exposures
+        if isinstance(exposures, np.ndarray):
+            exposures = exposures.tolist()
+        if not isinstance(exposures, list | tuple) or not 1 <= len(exposures) <= MAX_EXPOSURES:
+            raise ValueError(f"exposures must be a list of 1 to {MAX_EXPOSURES} times (s); got {_short(exposures)}")
+        lo, hi = rng["exposures"]
+        object.__setattr__(self, "exposures", tuple(_real(t, "exposures (seconds)", lo, hi) for t in exposures))
+        po = self.pattern_offset
+        if isinstance(po, np.ndarray):
+            po = po.tolist()
+        if not isinstance(po, list | tuple) or len(po) != 2:
+            raise ValueError(f"pattern_offset must be two integers (row, col); got {_short(po)}")
+        offsets = []
+        for v in po:
+            if isinstance(v, float) and v.is_integer():
+                v = int(v)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer):
+                raise ValueError(f"pattern_offset must be two integers (row, col); got {_short(po)}")
+            offsets.append(int(v) % 4)
+        object.__setattr__(self, "pattern_offset", tuple(offsets))
+        if not isinstance(self.sensor, SensorParams):
+            raise ValueError(f"sensor must be a SensorParams; got {type(self.sensor).__name__}")
+        if min(abs(math.sin(d)) for d in self.qwp_retardance) < 0.1:
+            raise ValueError(
+                f"qwp_retardance {self.qwp_retardance} too far from pi/2: s3 is not measurable (needs |sin| >= 0.1)"
+            )
 
     def replace(self, **changes) -> CameraModel:
         """Return a copy with some fields changed (dataclasses.replace)."""
@@ -169,16 +276,20 @@ class CameraModel:
         if unknown:
             raise ValueError(f"unknown camera model keys {sorted(unknown)}; valid: {sorted(known)}")
         if "sensor" in d:
-            s = dict(d["sensor"])
-            sknown = {f.name for f in dataclasses.fields(SensorParams)}
-            if set(s) - sknown:
-                raise ValueError(f"unknown sensor keys {sorted(set(s) - sknown)}; valid: {sorted(sknown)}")
-            d["sensor"] = SensorParams(**s)
+            if not isinstance(d["sensor"], dict | SensorParams):
+                raise ValueError(f"sensor must be an object of sensor fields; got {type(d['sensor']).__name__}")
+            if isinstance(d["sensor"], dict):
+                s = dict(d["sensor"])
+                sknown = {f.name for f in dataclasses.fields(SensorParams)}
+                if set(s) - sknown:
+                    raise ValueError(f"unknown sensor keys {sorted(set(s) - sknown)}; valid: {sorted(sknown)}")
+                d["sensor"] = SensorParams(**s)
         if "extinction_ratio" in d:
-            d["extinction_ratio"] = [float(v) for v in np.broadcast_to(d["extinction_ratio"], (3,))]
-        for key in ("qwp_retardance", "exposures", "pattern_offset"):
-            if key in d:
-                d[key] = tuple(np.atleast_1d(d[key]).tolist())
+            er = d["extinction_ratio"]
+            er = er if isinstance(er, list | tuple) else [er]
+            d["extinction_ratio"] = [math.inf if isinstance(v, str) and v.strip().lower() == "inf" else v for v in er]
+        if "exposures" in d and not isinstance(d["exposures"], list | tuple | np.ndarray):
+            d["exposures"] = [d["exposures"]]  # one exposure given as a bare number
         return cls(**d)
 
 

@@ -4,8 +4,11 @@ The same tests as the CLI tests beside pbrdf.data.capture's, with the --input fl
 positional form, which still works for one release with one deprecation line.
 """
 
+import json
+import struct
 import subprocess
 import sys
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -104,3 +107,137 @@ def test_help_explains_format():
     assert res.returncode == 0
     for word in ("capture.json", "exposures_s", "raw_files", "black_level", "white_level", "maps.npy", "--input"):
         assert word in res.stdout
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Fuzzed captures: exactly one error line, exit 2, nothing written (they used to end in a traceback, in an error
+# naming no field after RuntimeWarnings, or in exit 0 with all-zero maps).
+
+
+def _json_token(folder: Path, where: tuple[str, ...], token: str) -> None:
+    """Set the capture.json key at ``where`` to the literal JSON ``token`` (Infinity, 1e-320, 400 digits, ...)."""
+    meta = json.loads((folder / "capture.json").read_text())
+    target = meta
+    for key in where[:-1]:
+        target = target[key]
+    target[where[-1]] = "__TOKEN__"
+    (folder / "capture.json").write_text(json.dumps(meta).replace('"__TOKEN__"', token))
+
+
+def _png_header(path: Path, width: int, height: int) -> None:
+    """A 16-bit grey PNG that declares ``width x height`` pixels and holds almost no data."""
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
+
+    ihdr = struct.pack(">IIBBBBB", width, height, 16, 0, 0, 0, 0)
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+    )
+
+
+def _fill(value):
+    def fill(raws: np.ndarray) -> np.ndarray:
+        return np.full_like(raws, value)
+
+    return fill
+
+
+def _dark_then_saturated(raws: np.ndarray) -> np.ndarray:
+    return np.concatenate([np.full_like(raws[:2], 16), np.full_like(raws[2:], 4095)])
+
+
+def _token(*where, token: str):
+    return lambda folder: _json_token(folder, where, token)
+
+
+GAIN = ("camera_model", "sensor", "gain")
+BAD_MODEL = "/capture.json: invalid camera model"
+BAD_CAPTURES = {
+    # id: (raws -> raws, folder mutation, the message after "error: <folder>")
+    "all dark": (_fill(16), None, ": nothing usable: every raw value is at or below black_level 16 DN"),
+    "all saturated": (_fill(4095), None, ": nothing usable: every pixel is saturated"),
+    "dark then saturated": (_dark_then_saturated, None, ": nothing usable: no pixel has signal above black_level"),
+    "black level at the data": (
+        _fill(900),
+        _token("black_level", token="900.0"),
+        ": nothing usable: every raw value is at or below black_level 900 DN",
+    ),
+    "gain 1e-320": (None, _token(*GAIN, token="1e-320"), f"{BAD_MODEL} (SensorParams.gain must be in [0.0001, 10000]"),
+    "gain 1e308": (None, _token(*GAIN, token="1e308"), f"{BAD_MODEL} (SensorParams.gain must be in"),
+    "gain inf": (None, _token(*GAIN, token="Infinity"), f"{BAD_MODEL} (SensorParams.gain must be in"),
+    "exposure 1e-300": (
+        None,
+        _token("exposures_s", 0, token="1e-300"),
+        "/capture.json: exposures_s entry 1e-300 s is outside the valid range [1e-07, 10000] s",
+    ),
+    "exposure 1e300": (
+        None,
+        _token("exposures_s", 3, token="1e300"),
+        "/capture.json: exposures_s entry 1e+300 s is outside the valid range",
+    ),
+    "extinction ratio 1": (
+        None,
+        _token("camera_model", "extinction_ratio", token="[1, 1, 1]"),
+        f"{BAD_MODEL} (extinction_ratio[R] must be in [2, inf]; got 1)",
+    ),
+    "transmittance 1e300": (
+        None,
+        _token("camera_model", "analyzer_transmittance", token="1e300"),
+        f"{BAD_MODEL} (analyzer_transmittance must be in [0.001, 1]",
+    ),
+    "QWP angle inf": (
+        None,
+        _token("camera_model", "qwp_angle", token="Infinity"),
+        f"{BAD_MODEL} (qwp_angle (radians) must be in",
+    ),
+    "integer too large for a float": (
+        None,
+        _token("black_level", token="1" + "0" * 400),
+        "/capture.json: black_level 10000000000000000000... is too large",
+    ),
+    "nested 100000 levels": (
+        None,
+        lambda f: (f / "capture.json").write_text("[" * 100_000 + "]" * 100_000),
+        "/capture.json: invalid JSON (nested too deeply)",
+    ),
+    "raw declaring 200 M pixels": (
+        None,
+        lambda f: _png_header(f / "raw_0010.0ms.png", 20000, 10000),
+        "/raw_0010.0ms.png: raw image too large to read",
+    ),
+    "raw declaring 100 M pixels": (
+        None,
+        lambda f: _png_header(f / "raw_0010.0ms.png", 10000, 10000),
+        "/raw_0010.0ms.png: cannot read image",
+    ),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_CAPTURES), ids=list(BAD_CAPTURES))
+def test_bad_capture_is_one_error_line(tmp_path, synthetic, case):
+    fill, mutate, message = BAD_CAPTURES[case]
+    raws, model = synthetic
+    folder = cap.save_capture(tmp_path / "c", fill(raws) if fill else raws, model, file_format="png")
+    if mutate:
+        mutate(folder)
+    out = tmp_path / "out"
+    res = _run("headless/decode.py", "--input", str(folder), "--out", str(out), "--preview")
+    assert res.returncode == 2, res.stderr
+    assert res.stderr.splitlines() == [res.stderr.rstrip("\n")], res.stderr  # exactly one line: no warnings before
+    assert res.stderr.startswith(f"error: {folder}{message}"), res.stderr
+    assert not out.exists()
+
+
+def test_capture_without_object_warns_once(tmp_path, rng):
+    # Read noise only (lens cap on): decodable, but no object above the noise floor: written, with one warning line.
+    model = CameraModel()
+    folder = cap.save_capture(tmp_path / "c", simulate_capture(np.zeros((H, W, 3, 4)), model, rng=rng), model)
+    out = tmp_path / "out"
+    res = _run("headless/decode.py", "--input", str(folder), "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    assert res.stderr.splitlines() == [
+        f"warning: {folder}: no object stands out from the background above the noise floor (the automatic "
+        "foreground mask is empty); mark the object with mask.png"
+    ]
+    assert sorted(p.name for p in out.iterdir()) == ["maps.npy", "mask.npy"]

@@ -23,3 +23,10 @@ def test_old_measured_flag_reaches_the_same_check(tmp_path, capsys):
 def test_count_must_be_positive(tmp_path, capsys):
     assert expand_pbrdf.main(["--out", str(tmp_path / "o"), "--count", "0"]) == 2
     assert "--count must be >= 1" in capsys.readouterr().err
+
+
+def test_components_must_be_positive(tmp_path, capsys):
+    code = expand_pbrdf.main(["--out", str(tmp_path / "o"), "--components", "0", "0", "--count", "1", "--quiet"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and lines == ["error: --components must be two integers >= 1 (K_I K_P), got 0 0"]
+    assert not (tmp_path / "o").exists()  # nothing written

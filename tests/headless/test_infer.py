@@ -1,18 +1,116 @@
-"""headless/infer.py: one-line errors (the end-to-end run on a capture is tested with network.infer)."""
+"""headless/infer.py: one-line errors, nothing written on failure (the end-to-end run on a capture is tested
+with network.infer)."""
 
+import pickle
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
+import pytest
+
+from pbrdf.data import capture, dataset
+from pbrdf.sensor import camera
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def _infer(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(
+        [sys.executable, "headless/infer.py", *args, "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=300
+    )
+
+
+def _assert_one_error_line(proc: subprocess.CompletedProcess, start: str) -> None:
+    assert proc.returncode == 2, proc.stderr
+    assert proc.stderr.splitlines() == [proc.stderr.rstrip("\n")], proc.stderr  # exactly one line
+    assert proc.stderr.startswith(f"error: {start}"), proc.stderr
+
+
 def test_missing_input_is_one_error_line(tmp_path):
-    proc = subprocess.run(
-        [sys.executable, "headless/infer.py", "--input", str(tmp_path / "nope"), "--out", str(tmp_path / "o"),
-         "--quiet"], cwd=ROOT, capture_output=True, text=True, timeout=300,
-    )  # fmt: skip
-    assert proc.returncode == 2
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error:"), proc.stderr
+    proc = _infer("--input", str(tmp_path / "nope"), "--out", str(tmp_path / "o"))
+    _assert_one_error_line(proc, str(tmp_path / "nope"))
     assert not (tmp_path / "o").exists()
+
+
+@pytest.fixture(scope="module")
+def toy(tmp_path_factory):
+    """``(checkpoint, sample EXR)``: a toy model and a valid 24 x 32 sample."""
+    import torch
+
+    from tests.helpers import make_model
+
+    root = tmp_path_factory.mktemp("infer")
+    model = make_model()
+    ckpt = root / "model.pt"
+    torch.save({"config": model.config.to_dict(), "model": model.state_dict()}, ckpt)
+    bad = {k: v.clone().fill_(float("nan")) if v.is_floating_point() else v for k, v in model.state_dict().items()}
+    torch.save({"config": model.config.to_dict(), "model": bad}, root / "nan.pt")
+    return ckpt, _sample(root / "good", np.random.default_rng(0))
+
+
+def _sample(root: Path, rng: np.random.Generator, maps_value: float | None = None) -> Path:
+    h, w = 24, 32
+    mask = np.zeros((h, w), bool)
+    mask[4:20, 6:26] = True
+    normal = np.zeros((h, w, 3), np.float32)
+    normal[mask, 2] = 1.0
+    maps = rng.uniform(0.05, 1.0, (h, w, 9)).astype(np.float32)
+    maps[..., 6:] -= 0.5
+    if maps_value is not None:
+        maps[:] = maps_value
+    sample = {
+        "maps": maps,
+        "mask": mask,
+        "normal": normal,
+        "albedo": np.full((h, w, 3), 0.5, np.float32),
+        "roughness": np.full((h, w), 0.5, np.float32),
+        "metallic": np.zeros((h, w), np.float32),
+        "depth": np.where(mask, 1.0, 0.0).astype(np.float32),
+    }
+    dataset.write_sample(root, 0, sample, {"seed": 0})
+    return dataset.sample_paths(root, 0).exr
+
+
+@pytest.mark.parametrize(
+    "content",
+    [b"", bytes(np.random.default_rng(1).integers(0, 256, 4096, dtype=np.uint8)), pickle.dumps({"model": 1})],
+    ids=["empty (EOFError)", "random bytes (UnpicklingError)", "plain pickle (a warning, then UnpicklingError)"],
+)
+def test_non_torch_checkpoint_is_one_error_line(tmp_path, toy, content):
+    bad = tmp_path / "model.pt"
+    bad.write_bytes(content)
+    proc = _infer("--checkpoint", str(bad), "--input", str(toy[1]), "--out", str(tmp_path / "o"))
+    _assert_one_error_line(proc, f"{bad}: not a ")
+    assert not (tmp_path / "o").exists()
+
+
+def test_maps_near_float32_max_write_nothing(tmp_path, toy):
+    # Maps of 3e38 used to write _normal.exr/.png and then fail on NaN albedo, leaving a partial result; now the
+    # maps are checked first (CP must lie in [-1, 1]) and nothing is written.
+    sample = _sample(tmp_path / "big", np.random.default_rng(0), maps_value=3e38)
+    proc = _infer("--checkpoint", str(toy[0]), "--input", str(sample), "--out", str(tmp_path / "o"))
+    _assert_one_error_line(proc, "maps: the CP maps (R_CP, G_CP, B_CP) must lie in [-1, 1]; got |CP| up to 3e+38")
+    assert not (tmp_path / "o").exists()
+
+
+def test_nan_predictions_write_nothing(tmp_path, toy):
+    ckpt, sample = toy
+    proc = _infer("--checkpoint", str(ckpt.with_name("nan.pt")), "--input", str(sample), "--out", str(tmp_path / "o"))
+    _assert_one_error_line(proc, "the network predicted NaN or Inf ")
+    assert not (tmp_path / "o").exists()
+
+
+def test_dark_capture_is_one_error_line(tmp_path, toy):
+    model = camera.CameraModel()
+    folder = capture.save_capture(tmp_path / "dark", np.full((4, 32, 32), 16, np.uint16), model)
+    proc = _infer("--checkpoint", str(toy[0]), "--input", str(folder), "--out", str(tmp_path / "o"))
+    _assert_one_error_line(proc, f"{folder}: nothing usable: every raw value is at or below black_level 16 DN")
+    assert not (tmp_path / "o").exists()
+
+
+def test_good_sample_writes_every_map(tmp_path, toy):
+    ckpt, sample = toy
+    proc = _infer("--checkpoint", str(ckpt), "--input", str(sample), "--out", str(tmp_path / "o"))
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    assert len(list((tmp_path / "o").glob("000000_*.exr"))) == 5

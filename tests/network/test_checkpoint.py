@@ -34,3 +34,31 @@ def test_errors_name_the_file(tmp_path):
     torch.save({"weights": torch.zeros(1)}, path)
     with pytest.raises(ValueError, match=r"other\.pt: not a model checkpoint"):
         load_checkpoint(path)
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"hello world\n", "not a readable torch checkpoint"),
+        (b"", "not a readable torch checkpoint"),
+        (b"\x80\x04\x95", "not a readable torch checkpoint"),
+    ],
+)
+def test_non_checkpoint_files_give_one_line(tmp_path, content, message):
+    from network.checkpoint import load_checkpoint
+
+    path = tmp_path / "model.pt"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=message) as info:
+        load_checkpoint(path)
+    assert "\n" not in str(info.value) and str(path) in str(info.value)
+
+
+def test_a_saved_tensor_is_not_a_checkpoint(tmp_path):
+    import torch
+
+    from network.checkpoint import load_checkpoint
+
+    torch.save(torch.zeros(3), tmp_path / "t.pt")
+    with pytest.raises(ValueError, match="holds a Tensor, not a dict"):
+        load_checkpoint(tmp_path / "t.pt")

@@ -1,5 +1,6 @@
 """Tests of network/data.py: input normalisation, pixel gathers, the dataset reader."""
 
+import numpy as np
 import pytest
 import torch
 
@@ -49,3 +50,131 @@ def test_dataset_reads_samples(tiny_dataset):
     assert item["maps"].shape == (9, 64, 64) and item["mask"].shape == (1, 64, 64)
     n = item["normal"][:, item["mask"][0] > 0]
     torch.testing.assert_close(n.norm(dim=0), torch.ones(n.shape[1]), atol=1e-4, rtol=0)
+
+
+# --- extreme inputs of the normalisation ---------------------------------------------------------
+
+DTYPES = [torch.float32, torch.bfloat16, torch.float16]
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+@pytest.mark.parametrize("value", [1e-6, 1.0, 6e4, 3e38])
+def test_normalize_maps_uniform_maps_give_one_sixth(dtype, value):
+    # Hand value: six equal unpol/LP channels v at every pixel give a total 6 v, which becomes 1,
+    # so every channel is 1/6, for any v above the scale floor (1e-8). 3e38 used to overflow the
+    # float32 sum (inf / inf = NaN); in float16 it is the dtype's largest value 65504.
+    # bfloat16 and float16 used to raise (torch.quantile needs float32).
+    maps = torch.full((1, 9, 4, 5), min(value, torch.finfo(dtype).max), dtype=dtype)
+    maps[:, 6:] = 0.5
+    mask = torch.ones(1, 1, 4, 5, dtype=dtype)
+    out = data.normalize_maps(maps, mask)
+    assert out.dtype == dtype and torch.isfinite(out).all()
+    tol = 1e-6 if dtype == torch.float32 else 1e-2
+    torch.testing.assert_close(out[:, :6].float(), torch.full((1, 6, 4, 5), 1 / 6), atol=tol, rtol=0)
+    torch.testing.assert_close(out[:, 6:].float(), torch.full((1, 3, 4, 5), 0.5))
+
+
+@pytest.mark.parametrize("dtype", DTYPES)
+def test_normalize_maps_extreme_cases_stay_finite(dtype):
+    g = torch.Generator().manual_seed(0)
+    top = torch.finfo(dtype).max
+    base = torch.rand(6, 9, 8, 8, generator=g).to(dtype)
+    mask = torch.ones(6, 1, 8, 8, dtype=dtype)
+    base[0] = 0.0  # all dark: the quantile is 0, the scale its floor, the output 0
+    base[1, :6] = top  # saturated everywhere
+    base[2, :, 0, 0] = top  # one saturated pixel among dark ones: clamped to MAP_LIMIT
+    base[2, :, 1:, :] = 0.0
+    base[3, :6, 0, 0] = -top  # negative extremes too
+    mask[4] = 0.0  # empty mask: all 0
+    mask[5] = 0.0
+    mask[5, :, 3, 3] = 1.0  # a single pixel: its unpol + LP total becomes 1
+    out = data.normalize_maps(base, mask)
+    assert out.dtype == dtype and torch.isfinite(out).all()
+    assert out.abs().max() <= data.MAP_LIMIT
+    assert torch.all(out[0] == 0) and torch.all(out[4] == 0)
+    torch.testing.assert_close(out[1, :6].float(), torch.full((6, 8, 8), 1 / 6), atol=1e-2, rtol=0)
+    assert float(out[2, 0, 0, 0]) == pytest.approx(data.MAP_LIMIT, rel=1e-2)  # bfloat16: 9984
+    assert float(out[5, :6, 3, 3].float().sum()) == pytest.approx(1.0, abs=2e-2)
+    assert torch.all(out[5][:, mask[5, 0] == 0] == 0)
+
+
+def test_normalize_maps_lets_nan_through_for_the_training_guard():
+    # NaN input is not hidden (network.train skips batches with non-finite inputs); the other
+    # images of the batch are unaffected.
+    maps = torch.rand(2, 9, 4, 4)
+    maps[1, 0, 2, 2] = float("nan")
+    out = data.normalize_maps(maps, torch.ones(2, 1, 4, 4))
+    assert torch.isfinite(out[0]).all() and torch.isnan(out[1]).any()
+
+
+# --- validation of the loaded items ------------------------------------------------------------
+
+
+def _forge(root, index, key, fn):
+    """Rewrite a sample's ``key`` channels with ``fn(array)`` and re-sign the sidecar (sha256, size),
+    as a buggy writer would: the hash matches, the contents are wrong."""
+    import hashlib
+    import json
+
+    from pbrdf.data import dataset as pdataset
+    from pbrdf.io.exr import read_exr, write_exr
+
+    paths = pdataset.sample_paths(root, index)
+    channels = read_exr(paths.exr)
+    names = pdataset.CHANNELS[key]
+    arr = fn(np.stack([channels[n] for n in names], axis=-1))
+    for k, n in enumerate(names):
+        channels[n] = np.ascontiguousarray(arr[..., k])
+    write_exr(paths.exr, channels, allow_nonfinite=True)
+    meta = json.loads(paths.sidecar.read_text())
+    meta["sha256"] = hashlib.sha256(paths.exr.read_bytes()).hexdigest()
+    meta["exr_bytes"] = paths.exr.stat().st_size
+    paths.sidecar.write_text(json.dumps(meta))
+    return paths.exr
+
+
+@pytest.fixture
+def small_dataset(tmp_path):
+    from pbrdf.data import dataset as pdataset
+    from tests.helpers import make_sample
+
+    rng = np.random.default_rng(5)
+    for i in range(2):
+        sample, meta = make_sample(rng)
+        pdataset.write_sample(tmp_path, i, sample, meta)
+    return tmp_path
+
+
+def test_dataset_reads_valid_small_samples(small_dataset):
+    ds = data.SampleDataset(small_dataset)
+    assert len(ds) == 2 and ds[1]["maps"].shape == (9, 4, 6)
+
+
+def _zero_normals_in_mask(a):
+    a = a.copy()
+    a[0, 0] = 0.0  # make_sample puts pixel (0, 0) inside the mask
+    return a
+
+
+def _empty_mask(a):
+    return np.zeros_like(a)
+
+
+@pytest.mark.parametrize(
+    ("key", "fn", "message"),
+    [
+        ("roughness", lambda a: np.full_like(a, 7.0), r"roughness values must be in \[0, 1\]; got \[7, 7\]"),
+        ("albedo", lambda a: a - 2.0, r"albedo values must be in \[0, 1\]"),
+        ("metallic", lambda a: np.full_like(a, np.nan), r"metallic holds non-finite values"),
+        ("normal", _zero_normals_in_mask, r"normal must be unit vectors inside the mask .* at \(row 0, col 0\)"),
+        ("mask", _empty_mask, r"mask is empty"),
+    ],
+)
+def test_dataset_refuses_bad_items_with_matching_hash(small_dataset, key, fn, message):
+    exr = _forge(small_dataset, 1, key, fn)
+    ds = data.SampleDataset(small_dataset)
+    assert len(ds) == 2  # the forged sample still counts as complete: its hash matches
+    ds[0]  # the good one loads
+    with pytest.raises(ValueError, match=message) as err:
+        ds[1]
+    assert str(err.value).startswith(f"{exr}: ") and "\n" not in str(err.value)

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from network.config import get_config
-from network.infer import load_input, predict
+from network.infer import load_input, predict, write_predictions
 from network.model.polar_model import PolarInverseModel
 from pbrdf.data import capture
 from pbrdf.io import exr
@@ -70,3 +70,138 @@ def test_infer_on_sample_and_capture(tiny_dataset, tmp_path):
          str(tmp_path / "o2")], cwd=root, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert bad.returncode == 2 and bad.stderr.startswith("error:")
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Hardening: ranges, non-finite outputs, nothing written on failure, nothing to reconstruct
+
+
+def _maps_and_mask(h: int = 40, w: int = 36) -> tuple[np.ndarray, np.ndarray]:
+    yy, xx = np.mgrid[0:h, 0:w]
+    maps = np.stack([0.3 + 0.2 * np.sin(0.07 * yy + k) * np.cos(0.05 * xx - k) for k in range(9)], -1)
+    maps[..., 6:] -= 0.3  # CP in [-0.2, 0.2]
+    mask = (yy - h / 2) ** 2 + (xx - w / 2) ** 2 < (h / 3) ** 2
+    return maps.astype(np.float32), mask
+
+
+def _nan_model():
+    model = make_model()
+    with torch.no_grad():
+        for p in model.parameters():
+            p.fill_(float("nan"))
+    return model
+
+
+class TestPredictRanges:
+    @pytest.mark.parametrize(("dtype", "peak"), [(np.float32, 3e38), (np.float64, 1e300)])
+    def test_huge_radiance_predicts_as_at_unit_scale(self, dtype, peak):
+        # 3e38 radiance maps overflowed the float32 sums of the normalisation (NaN albedo, a traceback after
+        # _normal.exr was written); they are scaled down by a power of two first, which changes nothing else.
+        model = make_model()
+        maps, mask = _maps_and_mask()
+        huge = maps.astype(dtype)
+        huge[..., :6] = (huge[..., :6] * (peak / np.abs(maps[..., :6]).max())).astype(dtype)
+        assert np.isfinite(huge).all() and np.abs(huge).max() > peak / 3
+        ref, got = predict(model, maps, mask), predict(model, huge, mask)
+        for key in KEYS:
+            assert np.isfinite(got[key]).all()
+            np.testing.assert_allclose(got[key], ref[key], rtol=1e-5, atol=1e-5, err_msg=key)
+
+    @pytest.mark.parametrize(
+        ("edit", "match"),
+        [
+            (lambda m, k: m.__setitem__((..., 6), 3e38), r"CP maps .* must lie in \[-1, 1\]; got \|CP\| up to 3e\+38"),
+            (lambda m, k: m.__setitem__((..., 8), -1.5), r"got \|CP\| up to 1.5"),
+            (lambda m, k: m.__setitem__(k, 0.0), "maps are zero on every mask pixel"),
+            (lambda m, k: m.__setitem__((0, 0, 0), np.inf), "NaN or Inf"),
+            (lambda m, k: k.__setitem__(..., False), "the mask is empty"),
+        ],
+        ids=["CP 3e38", "CP -1.5", "zero maps", "Inf", "empty mask"],
+    )
+    def test_bad_maps_are_refused(self, edit, match):
+        maps, mask = _maps_and_mask()
+        edit(maps, mask)
+        with pytest.raises(ValueError, match=match):
+            predict(make_model(), maps, mask)
+
+    def test_cp_rounding_slack_is_accepted(self):
+        maps, mask = _maps_and_mask()
+        maps[0, 0, 6] = 1.0005
+        assert np.isfinite(predict(make_model(), maps, mask)["albedo"]).all()
+
+    def test_non_finite_network_output_is_an_error(self):
+        maps, mask = _maps_and_mask()
+        with pytest.raises(ValueError, match="the network predicted NaN or Inf (normal|albedo)"):
+            predict(_nan_model(), maps, mask)
+
+
+class TestWritePredictions:
+    def _pred(self):
+        maps, mask = _maps_and_mask(16, 16)
+        return predict(make_model(), maps, mask)
+
+    def test_writes_every_map(self, tmp_path):
+        paths = write_predictions(tmp_path / "o" / "deep", "x", self._pred())
+        names = sorted(p.name for p in paths)
+        assert names == sorted(f"x_{k}.{ext}" for k in (*KEYS, "mask") for ext in ("exr", "png"))
+        assert sorted(p.name for p in (tmp_path / "o" / "deep").iterdir()) == names  # no temporary folder left
+
+    def test_nan_map_writes_nothing(self, tmp_path):
+        pred = self._pred()
+        pred["albedo"][3, 3, 0] = np.nan  # the third map: _normal.exr/.png used to be written already
+        with pytest.raises(ValueError, match="predicted albedo map is not a finite"):
+            write_predictions(tmp_path / "o", "x", pred)
+        assert not (tmp_path / "o").exists()
+
+    @pytest.mark.parametrize("existing", [False, True])
+    def test_write_failure_leaves_nothing(self, tmp_path, monkeypatch, existing):
+        from network import infer
+
+        out = tmp_path / "o"
+        if existing:
+            out.mkdir()
+            (out / "keep.txt").write_text("x")
+        calls = []
+
+        def failing(path, channels, **kw):
+            calls.append(path)
+            if len(calls) == 3:
+                raise OSError("disk full (simulated)")
+            return exr.write_exr(path, channels, **kw)
+
+        monkeypatch.setattr(infer, "write_exr", failing)
+        with pytest.raises(OSError, match="disk full"):
+            write_predictions(out, "x", self._pred())
+        if existing:
+            assert [p.name for p in out.iterdir()] == ["keep.txt"]
+        else:
+            assert not out.exists()
+
+
+class TestLoadInputRequireObject:
+    def test_dark_capture(self, tmp_path):
+        m = camera.CameraModel()
+        folder = capture.save_capture(tmp_path / "dark", np.full((4, 32, 32), 16, np.uint16), m)
+        maps, mask = load_input(folder)  # the library call still returns (split_eval scores such scenes)
+        assert not mask.any()
+        with pytest.raises(ValueError, match=f"{folder}: nothing usable: every raw value is at or below black_level"):
+            load_input(folder, require_object=True)
+
+    def test_noise_only_capture(self, tmp_path):
+        m = camera.CameraModel()
+        raws = camera.simulate_capture(np.zeros((32, 32, 3, 4)), m, rng=np.random.default_rng(0))
+        folder = capture.save_capture(tmp_path / "noise", raws, m)
+        with pytest.raises(ValueError, match=f"{folder}: nothing to reconstruct: no object stands out"):
+            load_input(folder, require_object=True)
+
+    def test_sample_with_empty_mask(self, tmp_path, rng):
+        from pbrdf.data import dataset
+        from tests.helpers import make_sample
+
+        sample, meta = make_sample(rng)
+        for key in ("mask", "normal", "depth"):
+            sample[key][:] = 0  # the ground truth is 0 outside the (now empty) mask
+        dataset.write_sample(tmp_path, 0, sample, meta)
+        path = dataset.sample_paths(tmp_path, 0).exr
+        with pytest.raises(ValueError, match="the sample's mask is empty: nothing to reconstruct"):
+            load_input(path, require_object=True)

@@ -20,7 +20,7 @@ import pytest
 import torch
 
 from network.checkpoint import load_checkpoint
-from network.train import TrainConfig, train
+from network.train import LOG_COLUMNS, TrainConfig, train
 from pbrdf.data import dataset as pdataset
 from pbrdf.io import exr
 
@@ -326,3 +326,113 @@ def test_training_and_selection_refuse_other_splits(tiny_dataset, tmp_path, role
     with pytest.raises(ValueError, match=f"split '{role}'; .* may read only"):
         train(cfg, progress=False)
     assert not (tmp_path / "o" / "model.pt").exists()
+
+
+# ------------------------------------------------------------------------------------------------
+# files of a killed run: model.pt, temporaries, logs
+
+DEAD_PID = 999_999_999  # above any pid_max: the pid of a killed run that no process can have
+
+
+def _plant_leftovers(out):
+    names = [f".{n}.tmp-{DEAD_PID}-0a1b2c3d" for n in ("checkpoint.pt", "model.pt", "log.csv", "val.csv")]
+    for name in names:
+        (out / name).write_bytes(b"half-written")
+    (out / "notes.txt").write_text("mine")  # user files stay
+    (out / f".notes.txt.tmp-{DEAD_PID}-0a1b2c3d").write_text("not a file of the run")
+    return names
+
+
+@pytest.mark.mitsuba
+def test_resume_at_the_final_step_repairs_a_stale_model_file(tiny_dataset, tmp_path, capsys):
+    """Killed between checkpoint.pt (step 4) and model.pt (still step 2) at the final save; --resume repairs it."""
+    from headless.train import main
+
+    out = tmp_path / "o"
+    args = ["--input", tiny_dataset, "--out", out, "--checkpoint-every", "2", "--quiet", "--device", "cpu",
+            "--no-tensorboard", "--overrides", "image_size=32", "train_pixels=16"]  # fmt: skip
+    assert main([*map(str, args), "--steps", "2"]) == 0
+    step2 = (out / "model.pt").read_bytes()
+    assert main([*map(str, args), "--steps", "4", "--resume"]) == 0
+    # The kill: model.pt back at step 2 (and without the step/hash keys of older files), temporaries left over.
+    stale = torch.load(out / "model.pt", weights_only=True)
+    (out / "model.pt").write_bytes(step2)
+    leftovers = _plant_leftovers(out)
+    capsys.readouterr()
+    assert main([*map(str, args), "--steps", "4", "--resume"]) == 0
+    assert f"model: {out / 'model.pt'}" in capsys.readouterr().out
+    ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
+    model = torch.load(out / "model.pt", weights_only=True)
+    assert ckpt["step"] == 4
+    for k, v in ckpt["model"].items():  # the step-4 weights, not those of step 2
+        assert torch.equal(model["model"][k], v), k
+    assert model["step"] == 4 and model["params_sha256"] == ckpt["rank_params_sha256"][0] == stale["params_sha256"]
+    assert load_checkpoint(out / "model.pt")[1]["inputs"] == "full"
+    # Leftovers of the run's own files are gone; nothing else was touched.
+    assert not any((out / n).exists() for n in leftovers)
+    assert (out / "notes.txt").read_text() == "mine" and (out / f".notes.txt.tmp-{DEAD_PID}-0a1b2c3d").exists()
+    # A missing model.pt is written too; a current one is left alone (same bytes, same mtime).
+    (out / "model.pt").unlink()
+    assert main([*map(str, args), "--steps", "4", "--resume"]) == 0
+    assert torch.load(out / "model.pt", weights_only=True)["params_sha256"] == ckpt["rank_params_sha256"][0]
+    before = (out / "model.pt").stat().st_mtime_ns
+    assert main([*map(str, args), "--steps", "4", "--resume"]) == 0
+    assert (out / "model.pt").stat().st_mtime_ns == before
+
+
+@pytest.mark.mitsuba
+def test_a_fresh_run_removes_leftovers_of_a_killed_first_save(tiny_dataset, tmp_path):
+    out = tmp_path / "o"
+    out.mkdir()
+    leftovers = _plant_leftovers(out)
+    train(_cfg(tiny_dataset, out, steps=1, overrides={"image_size": 32, "train_pixels": 16}), progress=False)
+    assert not any((out / n).exists() for n in leftovers)
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        ["checkpoint.pt", "log.csv", "model.pt", "notes.txt", f".notes.txt.tmp-{DEAD_PID}-0a1b2c3d"]
+    )
+
+
+@pytest.mark.parametrize(
+    ("text", "rows"),
+    [
+        ("", []),  # emptied
+        ("0,1.", []),  # a cut-off row without header
+        ("step,a,b\n0,1,x\n1,2,y\n2,3,z\n3,4,w\n", [["0", "1", "x"], ["1", "2", "y"]]),  # rows after the checkpoint
+        ("step,a,b\n0,1,x\n1,2", [["0", "1", "x"]]),  # a cut-off last row
+        ("0,1,x\n1,2,y\n", [["0", "1", "x"], ["1", "2", "y"]]),  # rows without header
+        ("old,header\n1,2,y\njunk\n", [["1", "2", "y"]]),
+    ],
+)
+def test_truncated_log_always_has_its_header(tmp_path, text, rows):
+    from network.train import _truncate_log
+
+    path = tmp_path / "log.csv"
+    path.write_text(text)
+    _truncate_log(path, 2, ("step", "a", "b"))
+    with open(path, newline="") as f:
+        assert list(csv.reader(f)) == [["step", "a", "b"], *rows]
+    assert os.listdir(tmp_path) == ["log.csv"]  # replaced through a temporary file, none left
+
+
+def test_truncated_log_is_replaced_atomically(tmp_path):
+    """The log is replaced by a rename (a reader, or a kill, never sees it emptied or half-rewritten in place)."""
+    from network.train import _truncate_log
+
+    path = tmp_path / "log.csv"
+    path.write_text("step,a,b\n0,1,x\n5,6,y\n")
+    with open(path) as old:
+        _truncate_log(path, 1, ("step", "a", "b"))
+        assert old.read() == "step,a,b\n0,1,x\n5,6,y\n"  # the old file was never touched
+    assert path.read_text().splitlines() == ["step,a,b", "0,1,x"]
+
+
+@pytest.mark.mitsuba
+def test_resume_of_an_emptied_log_writes_its_header(tiny_dataset, tmp_path):
+    out = tmp_path / "o"
+    kw = {"checkpoint_every": 1, "overrides": {"image_size": 32, "train_pixels": 16}}
+    train(_cfg(tiny_dataset, out, steps=1, **kw), progress=False)
+    (out / "log.csv").write_text("")  # killed while an in-place rewrite had emptied it
+    train(_cfg(tiny_dataset, out, steps=2, resume=True, **kw), progress=False)
+    with open(out / "log.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == list(LOG_COLUMNS) and [r[0] for r in rows[1:]] == ["1"]

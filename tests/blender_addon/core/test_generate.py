@@ -109,3 +109,28 @@ def test_assets_folder_and_rig_file(tmp_path):
     assert meta["objects"][0]["mesh"].endswith("ball.glb")
     assert meta["rig"]["camera"]["focal_length"] == 0.012
     assert np.isfinite(meta["intrinsics"]).all() and os.path.exists(tmp_path / "ds" / "manifest.json")
+
+
+def test_runs_remove_temporaries_of_killed_runs_and_nothing_else(tmp_path):
+    """render.py --resume (and any run) clears a killed run's temporary manifest and arrays (of its shard)."""
+    out = tmp_path / "d"
+    generate(GenerateConfig(out=out, count=2, seed=4, npz=True, **SMALL), progress=False)
+    dead = "tmp-999999999-0a1b2c3d"  # a pid above any pid_max: a killed writer
+    leftovers = [f".manifest.json.{dead}", f"arrays/.000000.npz.{dead}", f"samples/.000000.exr.{dead}"]
+    kept = ["notes.txt", f".notes.txt.{dead}", f"arrays/.000001.npz.{dead}", "arrays/readme.txt"]  # 1: shard 1's
+    for name in leftovers + kept:
+        (out / name).write_bytes(b"half")
+    before = {p.name: p.read_bytes() for p in (out / "samples").iterdir() if ".tmp-" not in p.name}
+    report = generate(GenerateConfig(out=out, count=2, seed=4, npz=True, resume=True, shard=(0, 2), **SMALL),
+                      progress=False)  # fmt: skip
+    assert report.skipped == 1 and not report.written
+    assert not [n for n in leftovers if (out / n).exists()]
+    assert all((out / n).read_bytes() == b"half" for n in kept)
+    assert {p.name: p.read_bytes() for p in (out / "samples").iterdir()} == before
+    assert dataset.read_manifest(out)["completed"] == [0, 1]
+    # Shard 1 takes its own, and a fresh run of another shard (no --resume) the manifest's too.
+    (out / f".manifest.json.{dead}").write_bytes(b"half")
+    generate(GenerateConfig(out=out, count=3, seed=4, npz=True, shard=(2, 3), **SMALL), progress=False)
+    assert not (out / f".manifest.json.{dead}").exists() and (out / f"arrays/.000001.npz.{dead}").exists()
+    generate(GenerateConfig(out=out, count=2, seed=4, npz=True, resume=True, shard=(1, 2), **SMALL), progress=False)
+    assert not (out / f"arrays/.000001.npz.{dead}").exists() and (out / "arrays/readme.txt").exists()

@@ -14,6 +14,7 @@ import pytest
 
 from pbrdf.brdf.disney import (
     ALPHA_MIN,
+    ALPHA_RANGE,
     FitResult,
     disney_brdf,
     disney_diffuse,
@@ -138,6 +139,51 @@ class TestGGX:
         np.testing.assert_array_equal(smith_g1_ggx(0.0, [0.001, 0.5, 1.0]), 0.0)
         g = smith_g1_ggx(np.linspace(0, 1, 101)[:, None], np.array([0.001, 0.3, 1.0]))
         assert np.all((g >= 0) & (g <= 1)) and np.all(np.diff(g, axis=0) >= 0)
+
+
+class TestGGXRange:
+    """alpha is clamped to ALPHA_RANGE = [1e-4, 1e4] in D and G1; cosines to [0, 1]."""
+
+    @pytest.mark.filterwarnings("error")
+    def test_alpha_zero_is_the_floor(self):
+        # Used to be 0/0 = NaN: D(n) = 1 / (pi alpha^2) at the floor alpha = 1e-4.
+        lo, hi = ALPHA_RANGE
+        assert (lo, hi) == (1e-4, 1e4)
+        assert float(ggx_ndf(1.0, 0.0)) == pytest.approx(1 / (PI * lo**2), rel=1e-14)
+        np.testing.assert_array_equal(ggx_ndf([1.0, 0.5, 0.0], 0.0), ggx_ndf([1.0, 0.5, 0.0], lo))
+        # G1 is exactly 0 at grazing and exactly 1 at normal incidence, also at alpha = 0.
+        assert float(smith_g1_ggx(0.0, 0.0)) == 0.0
+        assert float(smith_g1_ggx(1.0, 0.0)) == 1.0
+
+    @pytest.mark.filterwarnings("error")
+    @pytest.mark.parametrize("dtype", [np.float32, np.float64])
+    def test_finite_and_bounded_for_any_alpha(self, dtype):
+        c = np.array([0.0, 1e-30, 1e-8, 0.5, 1.0 - 1e-7, 1.0], dtype=dtype)[:, None]
+        alpha = np.array([0.0, 1e-300, 1e-6, 0.3, 1.0, 7.0, 1e4, 1e30, 1e150, 1e300])
+        alpha = alpha[alpha <= np.finfo(dtype).max].astype(dtype)
+        g = smith_g1_ggx(c, alpha)
+        d = ggx_ndf(c, alpha)
+        assert g.dtype == dtype and d.dtype == dtype
+        assert np.all(np.isfinite(g)) and np.all((g >= 0) & (g <= 1))
+        assert np.all(np.isfinite(d)) and np.all(d >= 0)
+        np.testing.assert_array_equal(g[0], 0.0)  # grazing
+        np.testing.assert_array_equal(g[-1], 1.0)  # normal incidence, whatever alpha
+
+    def test_huge_alpha_is_the_ceiling(self):
+        # sqrt(alpha^2 + (1 - alpha^2) cos^2) cancelled to 0 for alpha = 1e150 and gave G1 = 2.
+        assert float(smith_g1_ggx(1.0, 1e150)) == 1.0
+        # Hand value at the ceiling: G1(0.5) = 2 * 0.5 / (0.5 + sqrt(0.25 + 1e8 * 0.75)).
+        want = 1.0 / (0.5 + np.sqrt(0.25 + 0.75e8))
+        assert float(smith_g1_ggx(0.5, 1e150)) == pytest.approx(want, rel=1e-12)
+        assert float(smith_g1_ggx(0.5, 1e4)) == pytest.approx(want, rel=1e-12)
+        assert float(ggx_ndf(1.0, 1e150)) == pytest.approx(1 / (PI * 1e8), rel=1e-12)
+
+    def test_torch_gradients_are_finite_at_the_ends(self):
+        torch = pytest.importorskip("torch")
+        c = torch.tensor([0.0, 1e-6, 0.5, 1.0], requires_grad=True)
+        a = torch.tensor([0.0, 1e-6, 0.3, 1e6], requires_grad=True)
+        (smith_g1_ggx(c, a).sum() + ggx_ndf(c, a).sum()).backward()
+        assert torch.isfinite(c.grad).all() and torch.isfinite(a.grad).all()
 
 
 class TestSchlickFresnel:
@@ -521,6 +567,39 @@ class TestFitDisney:
         a, b = fit_disney(wi, wo, values), fit_disney(wi, wo, values)
         np.testing.assert_array_equal(a.albedo, b.albedo)
         assert (a.roughness, a.metallic, a.rmse, a.rel_rmse) == (b.roughness, b.metallic, b.rmse, b.rel_rmse)
+
+    def test_analytic_jacobian_matches_central_differences(self, rng):
+        # The fit's Jacobian (d model / d (albedo, roughness, metallic)) against central differences,
+        # at rough, glossy, metallic and mixed points, near-mirror pairs included.
+        from pbrdf.brdf import disney
+
+        wi, wo = rusinkiewicz_pairs(rng, 800)
+        wi, wo = wi[:400], wo[:400]
+        wo[:50] = wi[:50] * [-1.0, -1.0, 1.0]
+        ci, co, nh, ih, _ = disney._half_vector_cosines(disney._NUMPY_OPS, wi, wo)
+        geom = (ci, co, nh, ih, co)
+        for x in (
+            [0.3, 0.5, 0.9, 0.4, 0.2],
+            [0.9, 0.1, 0.2, 0.05, 0.9],
+            [0.5, 0.5, 0.5, 0.95, 0.0],
+            [0.1, 0.7, 0.3, 0.2, 1.0],
+        ):
+            x = np.array(x)
+            jac = disney._model_jacobian(geom, x)
+            for k in range(5):
+                h = 1e-6
+                xp, xm = x.copy(), x.copy()
+                xp[k] += h
+                xm[k] -= h
+                num = (disney._model(geom, xp[:3], xp[3], xp[4]) - disney._model(geom, xm[:3], xm[3], xm[4])) / (2 * h)
+                np.testing.assert_allclose(jac[..., k], num, rtol=0, atol=1e-6 * np.abs(num).max())
+
+    def test_roughness_is_not_fitted_below_the_alpha_clamp(self, rng):
+        # Below roughness sqrt(1e-3) = 0.0316 alpha is clamped and the model is flat in roughness:
+        # the fit's lower bound is that value, so a mirror-like material reads 0.0316, not 0.
+        wi, wo, values = synthetic_measurement(rng, [0.2, 0.2, 0.2], 0.0, 1.0, noise=0.0, n_outliers=0, n=400)
+        res = fit_disney(wi, wo, values, init=([0.2, 0.2, 0.2], 0.0, 1.0))
+        assert res.roughness == pytest.approx(np.sqrt(ALPHA_MIN), abs=1e-9)
 
     def test_bad_inputs(self):
         wi = np.tile(NORMAL, (10, 1))

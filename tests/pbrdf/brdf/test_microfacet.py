@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from pbrdf.brdf.microfacet import ALPHA_MIN, conductor_pbrdf, dielectric_pbrdf, ggx_d, smith_g1
+from pbrdf.brdf.microfacet import ALPHA_MAX, ALPHA_MIN, conductor_pbrdf, dielectric_pbrdf, ggx_d, smith_g1
 from pbrdf.polar import fresnel, mueller
 
 PI = np.pi
@@ -191,6 +191,24 @@ class TestSmithG1:
     def test_limits(self):
         assert smith_g1(1.0, 0.7) == 1.0
         np.testing.assert_array_equal(smith_g1([0.0, -0.3, -1.0], 0.7), 0.0)
+
+    @pytest.mark.filterwarnings("error")
+    def test_stays_in_the_unit_interval_for_huge_alpha(self):
+        # Used to return 2.0: alpha^2 + (1 - alpha^2) cos^2 cancelled to 0 at alpha = 1e150.
+        # alpha is clamped to [ALPHA_MIN, 1e4]: G1 = 1 at normal incidence, 0 at grazing.
+        assert smith_g1(1.0, 1e150) == 1.0
+        assert smith_g1(0.0, 1e150) == 0.0
+        c = np.array([-0.5, 0.0, 5e-324, 1e-8, 0.5, 1.0])[:, None]
+        g = smith_g1(c, np.array([0.0, 1e-6, 0.5, 1e4, 1e150, 1e300]))
+        assert np.all(np.isfinite(g)) and np.all((g >= 0) & (g <= 1))
+        np.testing.assert_array_equal(g[-1], 1.0)
+        d = ggx_d(c, np.array([0.0, 1e4, 1e150, 1e300]))
+        assert np.all(np.isfinite(d)) and np.all(d >= 0)
+        np.testing.assert_array_equal(ggx_d(c, 1e300), ggx_d(c, ALPHA_MAX))
+
+    def test_nan_alpha_is_refused(self):
+        with pytest.raises(ValueError, match="alpha"):
+            smith_g1(0.5, np.nan)
 
     def test_closed_form(self, rng):
         """G1 = 2 / (1 + sqrt(1 + alpha^2 tan^2)) (Walter et al. 2007, eq. 34) away from grazing."""

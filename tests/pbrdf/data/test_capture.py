@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import json
 import shutil
+import struct
+import warnings
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +14,7 @@ import pytest
 from PIL import Image
 
 from pbrdf.data import capture as cap
+from pbrdf.data import capture_decode as capdec
 from pbrdf.sensor.camera import CameraModel, SensorParams, simulate_capture
 from pbrdf.sensor.decode import decode
 
@@ -200,7 +204,10 @@ class TestDecodeCapture:
         raws = simulate_capture(_stokes_scene(rng), model, rng=np.random.default_rng(1234), noise=True)
         folder = cap.save_capture(tmp_path / "c", raws, model, file_format=file_format)
         expected = decode(raws, model, grid=grid)
-        for got in (cap.decode_capture(folder, grid=grid), cap.decode_capture(cap.load_capture(folder), grid=grid)):
+        for got in (
+            capdec.decode_capture(folder, grid=grid),
+            capdec.decode_capture(cap.load_capture(folder), grid=grid),
+        ):
             np.testing.assert_array_equal(got.maps, expected.maps)
             np.testing.assert_array_equal(got.mask, expected.mask)
             np.testing.assert_array_equal(got.stokes, expected.stokes)
@@ -210,7 +217,7 @@ class TestDecodeCapture:
     def test_calibrated_model_is_used(self, tmp_path, synthetic):
         raws, model = synthetic
         folder = cap.save_capture(tmp_path / "c", raws, model, file_format="npy")
-        got = cap.decode_capture(folder)
+        got = capdec.decode_capture(folder)
         np.testing.assert_array_equal(got.maps, decode(raws, model).maps)
         assert not np.array_equal(got.maps, decode(raws, CameraModel()).maps)
 
@@ -221,8 +228,8 @@ class TestDecodedCaptureMasks:
         st = np.zeros((H, W, 3, 4))
         st[8:24, 12:36, :, 0] = 0.05  # a bright rectangle on a black background
         raws = simulate_capture(st, model, rng=rng)
-        got = cap.decode_capture(cap.save_capture(tmp_path / "c", raws, model))
-        assert isinstance(got, cap.DecodedCapture) and got.foreground_source == "auto"
+        got = capdec.decode_capture(cap.save_capture(tmp_path / "c", raws, model))
+        assert isinstance(got, capdec.DecodedCapture) and got.foreground_source == "auto"
         assert got.measured.all()  # nothing saturates: every pixel was measured ...
         assert not got.mask.all()  # ... but the noise floor fails decode's s0 > 0 on some
         truth = np.zeros((H // 2, W // 2), bool)
@@ -238,13 +245,13 @@ class TestDecodedCaptureMasks:
         st = np.zeros((H, W, 3, 4))
         st[8:24, 12:36, :, 0] = 0.05
         st[14:18, 22:26, :, 0] = 100.0  # saturated in every exposure
-        got = cap.decode_capture(cap.Capture(raws=simulate_capture(st, model, rng=rng), model=model))
+        got = capdec.decode_capture(cap.Capture(raws=simulate_capture(st, model, rng=rng), model=model))
         assert got.foreground[8, 12] and not got.measured[8, 12]
         assert not got.input_mask[8, 12]
 
     def test_in_memory_capture_uses_the_automatic_mask(self, synthetic):
         raws, model = synthetic
-        got = cap.decode_capture(cap.Capture(raws=raws, model=model))
+        got = capdec.decode_capture(cap.Capture(raws=raws, model=model))
         assert got.foreground_source == "auto" and got.foreground.shape == (H // 2, W // 2)
 
 
@@ -254,8 +261,8 @@ class TestDecodedCaptureMasks:
 
 def _write_mask(folder: Path, array: np.ndarray, mode: str | None = None) -> Path:
     img = Image.fromarray(array) if mode is None else Image.fromarray(array).convert(mode)
-    img.save(folder / cap.MASK_FILE)
-    return folder / cap.MASK_FILE
+    img.save(folder / capdec.MASK_FILE)
+    return folder / capdec.MASK_FILE
 
 
 class TestMaskFile:
@@ -279,7 +286,7 @@ class TestMaskFile:
             path = _write_mask(folder, np.where(m, 1, 0).astype(np.uint16))  # any nonzero value
         else:
             path = _write_mask(folder, np.where(m, 255, 0).astype(np.uint8), "1")
-        got = cap.decode_capture(folder)
+        got = capdec.decode_capture(folder)
         np.testing.assert_array_equal(got.foreground, m)
         assert got.foreground_source == str(path)
         np.testing.assert_array_equal(got.input_mask, m & got.measured)
@@ -293,16 +300,16 @@ class TestMaskFile:
         expected = np.zeros((H // 2, W // 2), bool)
         expected[2:6, 3:7] = True
         expected[10, 10] = True
-        np.testing.assert_array_equal(cap.decode_capture(folder).foreground, expected)
+        np.testing.assert_array_equal(capdec.decode_capture(folder).foreground, expected)
         # On the full grid the raw-size mask is the decoded size: used as it is.
-        np.testing.assert_array_equal(cap.decode_capture(folder, grid="full").foreground, raw > 0)
+        np.testing.assert_array_equal(capdec.decode_capture(folder, grid="full").foreground, raw > 0)
 
     def test_example_capture_with_its_truth_as_mask(self, tmp_path):
         truth = np.load(REPO / "examples" / "capture_truth.npz")["mask"].astype(bool)
         folder = tmp_path / "capture"
         shutil.copytree(REPO / "examples" / "capture", folder)
         _write_mask(folder, np.where(truth, 255, 0).astype(np.uint8))
-        np.testing.assert_array_equal(cap.decode_capture(folder).foreground, truth)
+        np.testing.assert_array_equal(capdec.decode_capture(folder).foreground, truth)
 
     @pytest.mark.parametrize(
         ("write", "match"),
@@ -312,7 +319,7 @@ class TestMaskFile:
             (lambda f: _write_mask(f, np.zeros((H // 2, W // 2), np.uint8), "P"), "got mode 'P'"),
             (lambda f: _write_mask(f, np.full((H // 2, W // 2 + 1), 255, np.uint8)), "matches neither"),
             (lambda f: _write_mask(f, np.zeros((H // 2, W // 2), np.uint8)), "no object pixel"),
-            (lambda f: (f / cap.MASK_FILE).write_bytes(b"not a png"), "not a readable PNG"),
+            (lambda f: (f / capdec.MASK_FILE).write_bytes(b"not a png"), "not a readable PNG"),
             (lambda f: _truncate(_write_mask(f, np.full((H, W), 255, np.uint8))), "cannot read mask image"),
         ],
         ids=["RGB", "LA", "palette", "wrong size", "empty", "not an image", "truncated"],
@@ -320,13 +327,13 @@ class TestMaskFile:
     def test_bad_mask_files(self, folder, write, match):
         write(folder)
         with pytest.raises(ValueError, match=match) as info:
-            cap.decode_capture(folder)
+            capdec.decode_capture(folder)
         message = str(info.value)
-        assert "\n" not in message and message.startswith(str(folder / cap.MASK_FILE))
+        assert "\n" not in message and message.startswith(str(folder / capdec.MASK_FILE))
 
     def test_load_mask_missing_file(self, tmp_path):
         with pytest.raises(FileNotFoundError, match="mask file does not exist"):
-            cap.load_mask(tmp_path / cap.MASK_FILE, (4, 4), (8, 8))
+            capdec.load_mask(tmp_path / capdec.MASK_FILE, (4, 4), (8, 8))
 
 
 def _truncate(path: Path) -> None:
@@ -388,21 +395,35 @@ LOAD_ERRORS = {
         "3 exposures_s but 4 raw_files",
     ),
     "no exposures": (lambda f, r: _edit_json(f, exposures_s=[], raw_files=[]), ValueError, "no exposures"),
-    "zero exposure": (lambda f, r: _edit_json(f, exposures_s=[0.0, 0.02, 0.1, 0.2]), ValueError, "positive and finite"),
+    "zero exposure": (
+        lambda f, r: _edit_json(f, exposures_s=[0.0, 0.02, 0.1, 0.2]),
+        ValueError,
+        r"exposures_s entry 0 s is outside the valid range \[1e-07, 10000\] s",
+    ),
     "negative exposure": (
         lambda f, r: _edit_json(f, exposures_s=[-0.01, 0.02, 0.1, 0.2]),
         ValueError,
-        "positive and finite",
+        "exposures_s entry -0.01 s is outside the valid range",
     ),
     "NaN exposure": (
         lambda f, r: _write_json(f, (f / "capture.json").read_text().replace("0.02,", "NaN,", 1)),
         ValueError,
-        "exposure time nan s must be positive and finite",
+        "exposures_s entry nan s is outside the valid range",
     ),
     "infinite exposure": (
         lambda f, r: _write_json(f, (f / "capture.json").read_text().replace("0.02,", "Infinity,", 1)),
         ValueError,
-        "positive and finite",
+        "exposures_s entry inf s is outside the valid range",
+    ),
+    "tiny exposure": (
+        lambda f, r: _edit_json(f, exposures_s=[1e-300, 0.02, 0.1, 0.2]),
+        ValueError,
+        "exposures_s entry 1e-300 s is outside the valid range",
+    ),
+    "huge exposure": (
+        lambda f, r: _edit_json(f, exposures_s=[0.01, 0.02, 0.1, 1e300]),
+        ValueError,
+        "exposures_s entry 1e[+]300 s is outside the valid range",
     ),
     "exposure not a number": (
         lambda f, r: _edit_json(f, exposures_s=["10ms", 0.02, 0.1, 0.2]),
@@ -501,7 +522,7 @@ LOAD_ERRORS = {
     "black level at white level": (
         lambda f, r: _edit_json(f, black_level=4095),
         ValueError,
-        "black_level 4095.0 must be below white_level 4095",
+        "black_level 4095 must be below the saturation threshold",
     ),
     "white level not 2**bits - 1": (
         lambda f, r: _edit_json(f, white_level=65520, bits=None) or _drop_key(f, "bits"),
@@ -531,6 +552,159 @@ LOAD_ERRORS = {
         "out of order",
     ),
 }
+
+
+def _png_declaring(path: Path, width: int, height: int, bit_depth: int = 16) -> None:
+    """A grey PNG whose header declares ``width x height`` pixels, with (almost) no pixel data."""
+
+    def chunk(tag: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(tag + data))
+
+    header = struct.pack(">IIBBBBB", width, height, bit_depth, 0, 0, 0, 0)
+    path.write_bytes(
+        b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", zlib.compress(b"\0" * 64)) + chunk(b"IEND", b"")
+    )
+
+
+def _raw_declaring(folder: Path, width: int, height: int) -> None:
+    """Replace the first raw by a PNG declaring ``width x height`` pixels."""
+    meta = _read_json(folder)
+    meta["raw_files"][0] = "bomb.png"
+    _write_json(folder, meta)
+    _png_declaring(folder / "bomb.png", width, height)
+
+
+def _sensor_value(folder: Path, key: str, text: str) -> None:
+    """Set ``camera_model.sensor.<key>`` to a literal JSON token (``Infinity``, ``1e-320``, a 400-digit integer)."""
+    meta = _read_json(folder)
+    meta["camera_model"]["sensor"][key] = "__VALUE__"
+    meta.pop(key, None)  # a top-level override (black_level) would win
+    _write_json(folder, json.dumps(meta).replace('"__VALUE__"', text))
+
+
+def _camera_value(folder: Path, key: str, text: str) -> None:
+    meta = _read_json(folder)
+    meta["camera_model"][key] = "__VALUE__"
+    _write_json(folder, json.dumps(meta).replace('"__VALUE__"', text))
+
+
+# Found by fuzzing 252 malformed capture folders: each used to end in a traceback (DecompressionBombError,
+# OverflowError, RecursionError), in an error naming no field ("SVD did not converge", "sigma must be positive and
+# finite") or in a silent success with all-zero maps.
+LOAD_ERRORS.update(
+    {
+        "raw declaring 200 M pixels": (
+            lambda f, r: _raw_declaring(f, 20000, 10000),
+            ValueError,
+            r"bomb\.png: raw image too large to read \(Image size \(200000000 pixels\) exceeds limit",
+        ),
+        "TIFF raw declaring 400 M pixels": (
+            lambda f, r: _replace_raw_png(f, 0, Image.fromarray(np.zeros((8, 8), "<u2")), ".tif") or _tiff_declaring(f),
+            ValueError,
+            r"raw_0010\.0ms\.tif: raw image too large to read",
+        ),
+        "integer too large for a float": (
+            lambda f, r: _write_json(
+                f, (f / "capture.json").read_text().replace('"black_level": 64.0', '"black_level": 1' + "0" * 400)
+            ),
+            ValueError,
+            r"black_level 10000000000000000000\.\.\. is too large for a floating-point number",
+        ),
+        "exposure too large for a float": (
+            lambda f, r: _write_json(f, (f / "capture.json").read_text().replace("0.01,", "1" + "0" * 400 + ",", 1)),
+            ValueError,
+            "exposures_s entry 10000000000000000000... is too large",
+        ),
+        "camera model integer too large for a float": (
+            lambda f, r: _sensor_value(f, "gain", "1" + "0" * 400),
+            ValueError,
+            r"invalid camera model \(SensorParams.gain must be in \[0.0001, 10000\]; got inf\)",
+        ),
+        "integer of 5000 digits": (
+            lambda f, r: _write_json(
+                f, (f / "capture.json").read_text().replace('"bits": 12', '"bits": ' + "9" * 5000)
+            ),
+            ValueError,
+            r"capture\.json: invalid JSON \(Exceeds the limit",
+        ),
+        "nested 100000 levels": (
+            lambda f, r: _write_json(f, "[" * 100_000 + "]" * 100_000),
+            ValueError,
+            r"capture\.json: invalid JSON \(nested too deeply\)",
+        ),
+        "nested 100000 levels in a key": (
+            lambda f, r: _write_json(
+                f, (f / "capture.json").read_text().rstrip()[:-1] + ', "x": ' + "[" * 100_000 + "]" * 100_000 + "}"
+            ),
+            ValueError,
+            r"capture\.json: invalid JSON \(nested too deeply\)",
+        ),
+        "gain 1e-320": (lambda f, r: _sensor_value(f, "gain", "1e-320"), ValueError, "SensorParams.gain must be in"),
+        "gain 1e308": (lambda f, r: _sensor_value(f, "gain", "1e308"), ValueError, "SensorParams.gain must be in"),
+        "gain inf": (lambda f, r: _sensor_value(f, "gain", "Infinity"), ValueError, "SensorParams.gain must be in"),
+        "saturation 1e-320": (
+            lambda f, r: _sensor_value(f, "saturation", "1e-320"),
+            ValueError,
+            "SensorParams.saturation must be in",
+        ),
+        "black level above the saturation threshold": (
+            lambda f, r: _edit_json(f, black_level=3900.0),
+            ValueError,
+            "black_level 3900 must be below the saturation threshold",
+        ),
+        "extinction ratio 1": (
+            lambda f, r: _camera_value(f, "extinction_ratio", "[1, 1, 1]"),
+            ValueError,
+            r"invalid camera model \(extinction_ratio\[R\] must be in \[2, inf\]; got 1\)",
+        ),
+        "analyzer transmittance 1e300": (
+            lambda f, r: _camera_value(f, "analyzer_transmittance", "1e300"),
+            ValueError,
+            r"analyzer_transmittance must be in \[0.001, 1\]; got 1e\+300",
+        ),
+        "QWP angle inf": (
+            lambda f, r: _camera_value(f, "qwp_angle", "Infinity"),
+            ValueError,
+            r"qwp_angle \(radians\) must be in \[-6.28319, 6.28319\]; got inf",
+        ),
+        "QWP angle not a number": (
+            lambda f, r: _camera_value(f, "qwp_angle", '"x"'),
+            ValueError,
+            "qwp_angle .* must be a number",
+        ),
+        "bits 12.5": (
+            lambda f, r: _drop_top(f, "white_level") or _sensor_value(f, "bits", "12.5"),
+            ValueError,
+            "SensorParams.bits must be an integer",
+        ),
+        "raw file name too long": (
+            lambda f, r: _edit_json(f, raw_files=["r" * 300 + ".npy", *_read_json(f)["raw_files"][1:]]),
+            ValueError,
+            "raw_files entries must be plain file names",
+        ),
+    }
+)
+
+
+def _tiff_declaring(folder: Path) -> None:
+    """Patch the width and height tags of the first raw (an 8x8 TIFF) to 20000 x 20000."""
+    path = folder / _read_json(folder)["raw_files"][0]
+    data = bytearray(path.read_bytes())
+    assert data[:2] == b"II"
+    ifd = struct.unpack("<I", data[4:8])[0]
+    for i in range(struct.unpack("<H", data[ifd : ifd + 2])[0]):
+        entry = ifd + 2 + 12 * i
+        tag, kind = struct.unpack("<HH", data[entry : entry + 4])
+        if tag in (256, 257):  # ImageWidth, ImageLength
+            data[entry + 8 : entry + 12] = struct.pack("<HH", 20000, 0) if kind == 3 else struct.pack("<I", 20000)
+    path.write_bytes(bytes(data))
+
+
+def _drop_top(folder: Path, *keys: str) -> None:
+    meta = _read_json(folder)
+    for key in keys:
+        meta.pop(key, None)
+    _write_json(folder, meta)
 
 
 def _drop_key(folder: Path, key: str) -> None:
@@ -633,7 +807,6 @@ class TestValidateCapture:
             (lambda r, m: (r[:2], m), "2 raw frames for 4 exposure times"),
             (lambda r, m: (r[:, :30], m), "multiple of 4"),
             (lambda r, m: (r.astype(np.float64) + 0.5, m), "whole DN"),
-            (lambda r, m: (r, m.replace(sensor=SensorParams(bits=4))), "black_level 16.0 must be below"),
         ],
     )
     def test_invalid(self, synthetic, change, match):
@@ -644,7 +817,7 @@ class TestValidateCapture:
     def test_decode_capture_validates_in_memory_capture(self, synthetic):
         raws, model = synthetic
         with pytest.raises(ValueError, match="above white_level"):
-            cap.decode_capture(cap.Capture(raws=raws.astype(np.int32) + 8000, model=model))
+            capdec.decode_capture(cap.Capture(raws=raws.astype(np.int32) + 8000, model=model))
 
 
 class TestAtomicSave:
@@ -688,3 +861,99 @@ class TestAtomicSave:
         with pytest.raises(KeyboardInterrupt):
             cap.save_capture(tmp_path / "c", *synthetic)
         assert list(tmp_path.iterdir()) == []
+
+
+class TestLargeImages:
+    def test_raw_declaring_100m_pixels_warns_nothing(self, saved):
+        # Between 89 M and 179 M declared pixels Pillow only warns (DecompressionBombWarning), and that warning was
+        # printed before the error line. A header that merely claims the size fails on reading, without a warning.
+        folder, _ = saved
+        _raw_declaring(folder, 10000, 10000)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            with pytest.raises(ValueError, match=r"bomb\.png: cannot read image"):
+                cap.load_capture(folder)
+        assert [str(w.message) for w in caught] == []
+
+    def test_mask_declaring_200m_pixels(self, saved):
+        folder, _ = saved
+        _png_declaring(folder / capdec.MASK_FILE, 20000, 10000, bit_depth=8)
+        with pytest.raises(ValueError, match=r"mask\.png: mask image too large to read"):
+            capdec.decode_capture(folder)
+
+
+def _bracket(folder_root: Path, raws: np.ndarray, model: CameraModel, name: str = "c") -> tuple[cap.Capture, Path]:
+    folder = cap.save_capture(folder_root / name, raws, model, file_format="npy")
+    return cap.load_capture(folder), folder
+
+
+class TestCheckUsable:
+    """Captures that decode to nothing usable are refused with the reason; one without an object warns."""
+
+    def test_good_capture_passes_silently(self, tmp_path, synthetic):
+        capture, _ = _bracket(tmp_path, *synthetic)
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")
+            capdec.check_usable(capdec.decode_capture(capture), capture, need_object=True)
+
+    @pytest.mark.parametrize(
+        ("fill", "match"),
+        [
+            (
+                lambda r, m: np.full_like(r, int(m.sensor.black_level)),
+                "every raw value is at or below black_level 64 DN",
+            ),
+            (lambda r, m: np.zeros_like(r), "every raw value is at or below black_level 64 DN"),
+            (
+                lambda r, m: np.full_like(r, m.sensor.white_level),
+                r"every pixel is saturated \(at or above 3685.5 DN, saturation x white_level\) in every exposure",
+            ),
+            (
+                lambda r, m: np.concatenate([np.full_like(r[:2], 64), np.full_like(r[2:], m.sensor.white_level)]),
+                "no pixel has signal above black_level 64 DN in an exposure where it is below saturation",
+            ),
+        ],
+        ids=["all dark", "all zero", "all saturated", "dark then saturated"],
+    )
+    def test_nothing_usable_is_refused(self, tmp_path, synthetic, fill, match):
+        raws, model = synthetic
+        capture, folder = _bracket(tmp_path, fill(raws, model), model)
+        decoded = capdec.decode_capture(capture)
+        assert not decoded.mask.any() and not decoded.maps.any()  # what used to be written without a word
+        with pytest.raises(ValueError, match=match) as info:
+            capdec.check_usable(decoded, capture)
+        assert str(info.value).startswith(f"{folder}: nothing usable: ") and "\n" not in str(info.value)
+
+    def test_black_level_at_the_data(self, tmp_path, rng):
+        # A dim scene whose brightest raw value becomes the black level: every pixel at or below it.
+        model = _calibrated_model(sensor=SensorParams(black_level=64.0, bits=12))
+        raws = simulate_capture(0.01 * _stokes_scene(rng), model, rng=rng)
+        model = model.replace(sensor=SensorParams(black_level=float(raws.max()), bits=12))
+        capture, _ = _bracket(tmp_path, raws, model)
+        with pytest.raises(ValueError, match=f"at or below black_level {raws.max()} DN"):
+            capdec.check_usable(capdec.decode_capture(capture), capture)
+
+    def test_noise_only_warns_or_refuses(self, tmp_path, rng):
+        # A dark capture with read noise: about half the background passes the decoder's mask, but no object
+        # stands out from the noise floor. decode.py warns (one line); inference has nothing to reconstruct.
+        model = _calibrated_model()
+        capture, folder = _bracket(tmp_path, simulate_capture(np.zeros((H, W, 3, 4)), model, rng=rng), model)
+        decoded = capdec.decode_capture(capture)
+        assert decoded.mask.any() and not decoded.input_mask.any()
+        with pytest.warns(capdec.CaptureWarning, match="no object stands out from the background") as record:
+            capdec.check_usable(decoded, capture)
+        assert len(record) == 1
+        with pytest.raises(ValueError, match=f"{folder}: nothing to reconstruct: no object stands out"):
+            capdec.check_usable(decoded, capture, need_object=True)
+
+    def test_mask_file_outside_the_measured_pixels(self, tmp_path, synthetic):
+        raws, model = synthetic
+        raws = raws.copy()
+        raws[:, :, : W // 2] = model.sensor.white_level  # left half saturated everywhere
+        capture, folder = _bracket(tmp_path, raws, model)
+        mask = np.zeros((H // 2, W // 2), np.uint8)
+        mask[:, :4] = 255
+        Image.fromarray(mask).save(folder / capdec.MASK_FILE)
+        decoded = capdec.decode_capture(capture)
+        with pytest.raises(ValueError, match=r"mask\.png covers no measured pixel"):
+            capdec.check_usable(decoded, capture, need_object=True)

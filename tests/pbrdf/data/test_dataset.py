@@ -13,6 +13,7 @@ from pbrdf.data.dataset import (
     parse_shard,
     plan_work,
     read_manifest,
+    remove_manifest_leftovers,
     shard_indices,
     write_manifest,
 )
@@ -161,3 +162,17 @@ def test_manifest(tmp_path, rng):
     path.write_text('{"format": "other"}')
     with pytest.raises(ValueError, match="unsupported format 'other'"):
         read_manifest(tmp_path)
+
+
+def test_remove_manifest_leftovers_takes_only_dead_writers_manifests(tmp_path, rng):
+    _write_many(tmp_path, rng, range(2))
+    write_manifest(tmp_path, {"count": 2})
+    dead = ".manifest.json.tmp-999999999-0a1b2c3d"  # above any pid_max: a killed writer
+    live = f".manifest.json.tmp-{os.getpid()}-0a1b2c3d"  # a writer still running (here: this process)
+    others = ["notes.txt", ".notes.json.tmp-999999999-0a1b2c3d", ".manifest.json.old-999999999-0a1b2c3d"]
+    for name in (dead, live, *others):
+        (tmp_path / name).write_text("{")
+    assert [p.name for p in remove_manifest_leftovers(tmp_path)] == [dead]
+    assert sorted(os.listdir(tmp_path)) == sorted([live, *others, "manifest.json", "samples"])
+    assert sorted(os.listdir(tmp_path / "samples")) == ["000000.exr", "000000.json", "000001.exr", "000001.json"]
+    assert remove_manifest_leftovers(tmp_path / "missing") == []

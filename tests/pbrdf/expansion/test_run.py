@@ -26,6 +26,11 @@ def test_expansion_run_and_resume(tmp_path):
         assert 0 <= m["roughness"] <= 1 and 0 <= m["metallic"] <= 1
     manifest = json.loads((tmp_path / "manifest.json").read_text())
     assert manifest["validity"]["mean_cloude_fraction"] >= 0.95
+    # Every written table's Disney label passed the held-out fit check (its ground truth is usable).
+    for sidecar in (tmp_path / "tables").glob("gen_*.json"):
+        meta = json.loads(sidecar.read_text())
+        assert meta["fit_ok"] is True and meta["fit_error"] <= 0.5
+    assert all("fit_error" in s for s in manifest["seeds"])
     assert (tmp_path / "figure_generated.png").is_file() and (tmp_path / "figure_seeds.png").is_file()
     # Resume: nothing is regenerated, nothing lost.
     again = run_expansion(cfg, progress=False)
@@ -57,3 +62,34 @@ def test_measured_folder_is_used_instead_of_the_seed_set(tmp_path):
     manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
     assert manifest["seed_source"] == str(folder) and len(manifest["seeds"]) == 2
     assert report.written + report.failed == 2
+
+
+DEAD = 999_999_999  # above any pid_max: the pid of a killed run that no process can have
+
+
+def test_components_below_one_are_refused():
+    for k_i, k_p in ((0, 0), (0, 3), (3, 0), (-1, 2)):
+        with pytest.raises(ValueError, match=rf"^--components must be two integers >= 1 \(K_I K_P\), got {k_i} {k_p}$"):
+            ExpansionConfig(out=".", k_intensity=k_i, k_polarization=k_p)
+    for kw, flag in (({"count": 0}, "--count"), ({"max_attempts": 0}, "max_attempts"), ({"grid": (8, 1, 4)}, "grid"),
+                     ({"min_valid_fraction": 1.5}, "min_valid_fraction"), ({"figures": -1}, "figures")):  # fmt: skip
+        with pytest.raises(ValueError, match=f"^{flag} must"):
+            ExpansionConfig(out=".", **kw)
+
+
+def test_a_run_removes_the_temporaries_of_a_killed_one(tmp_path):
+    out = tmp_path / "x"
+    tmp = f"tmp-{DEAD}-0a1b2c3d"
+    leftovers = [f"seeds/.spectralon_8x6x16.pbsdf.{tmp}", f"tables/.gen_00000.pbsdf.{tmp}",
+                 f"tables/.gen_00000.json.{tmp}", f"model/.generator.pt.{tmp}", f"model/.pca.npz.{tmp}",
+                 f".manifest.json.{tmp}", f".materials.json.{tmp}", f".figure_seeds.png.{tmp}"]  # fmt: skip
+    kept = ["notes.txt", f".notes.txt.{tmp}", "tables/readme.txt", f"tables/.gen_00000.pbsdf.old-{DEAD}-0a1b2c3d"]
+    for name in leftovers + kept:
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_bytes(b"half")
+    cfg = ExpansionConfig(out=out, count=1, grid=GRID, generator_steps=20, fit_samples=100, figures=1)
+    run_expansion(cfg, progress=False)
+    assert not [n for n in leftovers if (out / n).exists()]
+    assert all((out / n).read_bytes() == b"half" for n in kept)
+    # Nothing of the run's own left behind either.
+    assert not [p for p in out.rglob("*") if ".tmp" in p.name and p.name not in {n.split("/")[-1] for n in kept}]

@@ -1,6 +1,11 @@
-"""Atomic writes: temporary sibling names and the targets they belong to."""
+"""Atomic writes: temporary sibling names, the targets they belong to, removal of a killed writer's leftovers."""
 
-from pbrdf.io.atomic import temporary_path, temporary_target
+import os
+import subprocess
+import sys
+import time
+
+from pbrdf.io.atomic import remove_leftovers, temporary_path, temporary_target
 
 
 def test_temporary_names(tmp_path):
@@ -10,3 +15,57 @@ def test_temporary_names(tmp_path):
     assert temporary_target(".000001_raw.old-12-0123abcd") == "000001_raw"  # pbrdf.data.capture's set-aside folders
     assert temporary_target("000001.exr") is None
     assert temporary_path(tmp_path / "a.exr") != temporary_path(tmp_path / "a.exr")
+
+
+DEAD = 999_999_999  # above any pid_max: no process has it
+
+
+def _plant(folder, names):
+    for name in names:
+        if name.endswith("/"):
+            (folder / name.rstrip("/")).mkdir()
+            (folder / name.rstrip("/") / "part").write_bytes(b"x")
+        else:
+            (folder / name).write_bytes(b"x")
+
+
+def test_remove_leftovers_takes_only_dead_writers_temporaries(tmp_path):
+    leftovers = [f".model.pt.tmp-{DEAD}-0a1b2c3d", f".log.csv.tmp-{DEAD}-89abcdef", f".000001_raw.tmp-{DEAD}-0123abcd/"]
+    kept = [
+        "model.pt",
+        "notes.txt",
+        ".model.pt.tmp",  # not the writer's pattern
+        f"model.pt.tmp-{DEAD}-0a1b2c3d",  # no leading dot
+        f".model.pt.tmp-{DEAD}-0A1B2C3D",  # upper-case hex
+        f".model.pt.tmp-{DEAD}-0a1b2c3",  # 7 hex digits
+        f".000002_raw.old-{DEAD}-0123abcd",  # a previous version set aside: maybe the only copy
+        f".model.pt.tmp-{os.getpid()}-0a1b2c3d",  # this process's own write in progress
+    ]
+    _plant(tmp_path, leftovers + kept)
+    removed = remove_leftovers(tmp_path)
+    assert sorted(p.name for p in removed) == sorted(n.rstrip("/") for n in leftovers)
+    assert sorted(os.listdir(tmp_path)) == sorted(kept)
+    assert remove_leftovers(tmp_path / "missing") == []
+
+
+def test_remove_leftovers_of_some_targets_only(tmp_path):
+    _plant(tmp_path, [f".model.pt.tmp-{DEAD}-0a1b2c3d", f".other.bin.tmp-{DEAD}-0a1b2c3d"])
+    assert [p.name for p in remove_leftovers(tmp_path, {"model.pt"})] == [f".model.pt.tmp-{DEAD}-0a1b2c3d"]
+    assert [p.name for p in remove_leftovers(tmp_path, lambda t: t.endswith(".csv"))] == []
+    assert os.listdir(tmp_path) == [f".other.bin.tmp-{DEAD}-0a1b2c3d"]
+
+
+def test_a_live_writer_keeps_its_temporary_and_a_killed_one_loses_it(tmp_path):
+    proc = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        name = f".manifest.json.tmp-{proc.pid}-0a1b2c3d"
+        (tmp_path / name).write_text("{")
+        assert remove_leftovers(tmp_path) == []  # still running: its write may be in progress
+        proc.kill()
+        if sys.platform.startswith("linux"):  # killed, not yet waited for: a zombie, whose writes are over
+            time.sleep(0.2)
+            assert [p.name for p in remove_leftovers(tmp_path)] == [name]
+    finally:
+        proc.wait()
+    remove_leftovers(tmp_path)
+    assert os.listdir(tmp_path) == []

@@ -352,3 +352,51 @@ class TestFresnelNumericalStress:
     def test_invalid_eta_raises_transmission(self, eta):
         with pytest.raises(ValueError, match="eta"):
             fresnel.transmission_mueller(0.5, eta)
+
+
+class TestFresnelRange:
+    """The documented range: |eta| in [1e-6, 1e6] and finite cosines; outside it, a clear ValueError."""
+
+    EDGE_ETAS = [1e-6, 1e6, 1e-6 - 9e5j, 9e5 - 1e-6j, 1e-6 - 1e-6j]
+    COS = np.array([0.0, 5e-324, 1e-300, 1e-12, 0.5, 1.0 - 1e-16, 1.0])
+
+    @pytest.mark.filterwarnings("error")
+    @pytest.mark.parametrize("eta", EDGE_ETAS)
+    def test_edges_of_the_range_are_finite_and_bounded(self, eta):
+        r = fresnel.fresnel_reflectance(self.COS, eta)
+        assert np.all(np.isfinite(r)) and np.all((r >= 0) & (r <= 1))
+        # Hand limits: R = 1 at grazing incidence; at normal incidence R0 = |(eta - 1)/(eta + 1)|^2,
+        # which tends to 1 for eta -> 0 and eta -> inf.
+        assert r[0] == pytest.approx(1.0, abs=1e-15)
+        assert r[-1] == pytest.approx(abs((eta - 1) / (eta + 1)) ** 2, rel=1e-12)
+        assert np.all(np.isfinite(fresnel.reflection_mueller(self.COS, eta)))
+        if np.imag(eta) == 0:
+            assert np.all(np.isfinite(fresnel.transmission_mueller(self.COS, eta)))
+
+    @pytest.mark.parametrize("eta", [1e-300, 1e-7, 1e7, 1e300, 1e-7 - 1e-7j, 1 - 2e6j, np.nan, np.inf, 1 + np.nan * 1j])
+    @pytest.mark.parametrize(
+        "fn",
+        [fresnel.fresnel_amplitudes, fresnel.fresnel_reflectance, fresnel.reflection_mueller],
+    )
+    def test_eta_outside_the_range_is_refused(self, fn, eta):
+        # fresnel_reflectance(1.0, 1e-300) used to be NaN: 1e-300**2 underflows and 0/0 followed.
+        with pytest.raises(ValueError, match=r"eta must be finite with \|eta\| in \[1e-06, 1e\+06\]"):
+            fn(1.0, eta)
+
+    @pytest.mark.parametrize("eta", [1e-300, 1e300, np.nan])
+    def test_eta_outside_the_range_is_refused_transmission(self, eta):
+        with pytest.raises(ValueError, match="eta"):
+            fresnel.transmission_mueller(1.0, eta)
+
+    @pytest.mark.parametrize("c", [np.nan, np.inf, -np.inf])
+    def test_non_finite_cosine_is_refused(self, c):
+        for fn in (fresnel.fresnel_reflectance, fresnel.reflection_mueller, fresnel.transmission_mueller):
+            with pytest.raises(ValueError, match="cos_theta_i must be finite"):
+                fn(np.array([0.5, c]), 1.5)
+
+    def test_reflectance_is_clamped_to_the_unit_interval(self, rng):
+        # Rounding of |r_s|^2 + |r_p|^2 never leaves [0, 1] (hand bound: |r| <= 1 for Re(eta) > 0).
+        c = rng.uniform(0, 1, 20000)
+        eta = 10.0 ** rng.uniform(-5.8, 5.8, 20000) - 1j * 10.0 ** rng.uniform(-6, 5.8, 20000)
+        r = fresnel.fresnel_reflectance(c, eta)
+        assert np.all((r >= 0) & (r <= 1))

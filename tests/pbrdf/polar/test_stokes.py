@@ -176,3 +176,35 @@ class TestIsPhysicalStokes:
     )
     def test_rejects(self, s):
         assert not stokes.is_physical_stokes(s)
+
+
+class TestExtremeMagnitudes:
+    """Finite input gives finite ratios: the norms are scaled, never squared in the input's dtype."""
+
+    @pytest.mark.parametrize(
+        ("dtype", "scale"),
+        [(np.float32, 1e30), (np.float32, 1e-30), (np.float64, 1e300), (np.float64, 1e-300)],
+    )
+    def test_ratios_are_scale_free(self, dtype, scale):
+        # [1, -1, 0, 0] is fully polarized (DoP = DoLP = 1) at any scale; [2, 1, 0, 1] has
+        # DoP sqrt(2)/2 and DoLP = DoCP = 1/2 (test_partially_polarized_values).
+        s = (np.array([[1.0, -1.0, 0.0, 0.0], [2.0, 1.0, 0.0, 1.0]]) * scale).astype(dtype)
+        with np.errstate(all="raise"):
+            np.testing.assert_allclose(stokes.dop(s), [1.0, np.sqrt(2) / 2], rtol=1e-6)
+            np.testing.assert_allclose(stokes.dolp(s), [1.0, 0.5], rtol=1e-6)
+            np.testing.assert_allclose(stokes.docp(s), [0.0, 0.5], rtol=1e-6)
+            assert np.all(stokes.is_physical_stokes(s))
+        assert stokes.dop(s).dtype == dtype
+
+    def test_float32_display_light_scaled_by_1e30(self):
+        s = np.array([1e30, -1e30, 0.0, 0.0], dtype=np.float32)
+        assert float(stokes.dop(s)) == 1.0
+        assert float(stokes.dolp(s)) == 1.0
+
+    def test_unphysical_ratio_stays_finite(self):
+        # |(s1, s2, s3)| / s0 = 1e300 / 1e-300 overflows: clamped to the largest float, no warning.
+        s = np.array([[1e-300, 1e300, 0.0, 1e300], [1e-300, 0.0, -1e300, -1e300]])
+        with np.errstate(all="raise"):
+            for f in (stokes.dop, stokes.dolp, stokes.docp):
+                out = f(s)
+                np.testing.assert_array_equal(out, np.finfo(np.float64).max)

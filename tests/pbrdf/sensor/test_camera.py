@@ -167,11 +167,42 @@ def test_camera_model_unknown_keys_are_named():
         ({"extinction_ratio": (100.0, np.nan, 100.0)}, "extinction_ratio"),
         ({"qwp_retardance": 0.0}, "qwp_retardance"),
         ({"analyzer_transmittance": 0.0}, "analyzer_transmittance"),
+        # Out of the documented ranges (found by fuzzing: these decoded to all-zero or meaningless maps, or failed
+        # with "SVD did not converge" naming no field).
+        ({"extinction_ratio": (1.0, 1.0, 1.0)}, r"extinction_ratio\[R\] must be in \[2, inf\]; got 1$"),
+        ({"extinction_ratio": (100.0, 100.0, 1.5)}, r"extinction_ratio\[B\] must be in \[2, inf\]"),
+        ({"analyzer_transmittance": 1e300}, r"analyzer_transmittance must be in \[0.001, 1\]; got 1e\+300"),
+        ({"analyzer_transmittance": 1e-300}, r"analyzer_transmittance must be in \[0.001, 1\]"),
+        ({"qwp_angle": np.inf}, r"qwp_angle \(radians\) must be in \[-6.28319, 6.28319\]; got inf"),
+        ({"qwp_angle": 1e300}, "qwp_angle"),
+        ({"qwp_angle": "0.1"}, "qwp_angle .* must be a number"),
+        ({"qwp_retardance": np.inf}, r"qwp_retardance \(radians\)\[R\] must be in \[0, 6.28319\]"),
+        ({"qwp_retardance": (1.5, 1.5)}, "qwp_retardance .* one number or three"),
+        ({"exposures": (1e-300,)}, r"exposures \(seconds\) must be in \[1e-07, 10000\]; got 1e-300"),
+        ({"exposures": (0.01, 1e300)}, r"exposures \(seconds\) must be in \[1e-07, 10000\]"),
+        ({"exposures": (0.01, np.inf)}, "exposures"),
+        ({"exposures": (0.01,) * 65}, "exposures must be a list of 1 to 64 times"),
+        ({"pattern_offset": (0.5, 0)}, "pattern_offset must be two integers"),
+        ({"pattern_offset": (1, 2, 3)}, "pattern_offset must be two integers"),
+        ({"sensor": {"gain": 1.0}}, "sensor must be a SensorParams"),
     ],
 )
 def test_camera_model_rejects_invalid_values(changes, match):
     with pytest.raises(ValueError, match=match):
         CameraModel(**changes)
+
+
+def test_camera_model_accepts_range_ends_and_normalises_types():
+    lo = {k: v[0] for k, v in camera.CAMERA_RANGES.items()}
+    hi = {k: v[1] for k, v in camera.CAMERA_RANGES.items()}
+    for ends in (lo, hi):
+        exposures = (ends.pop("exposures"),)
+        retardance = ends.pop("qwp_retardance")
+        retardance = retardance + (np.pi / 2 if retardance == 0 else -np.pi / 2)  # keep |sin| >= 0.1
+        CameraModel(exposures=exposures, qwp_retardance=retardance, **ends)
+    model = CameraModel(pattern_offset=(np.int64(5), 6.0), exposures=np.array([0.01, 0.02]))
+    assert model.pattern_offset == (1, 2) and model.exposures == (0.01, 0.02)
+    assert all(type(v) is int for v in model.pattern_offset)
 
 
 @pytest.mark.parametrize(
@@ -181,8 +212,60 @@ def test_camera_model_rejects_invalid_values(changes, match):
         ({"read_noise": -1.0}, "read_noise"),
         ({"bits": 17}, "bits"),
         ({"saturation": 0}, "saturation"),
+        # Out of the documented ranges (found by fuzzing: gain 1e-320 raised ZeroDivisionError, 1e308 and inf gave
+        # "sigma must be positive and finite" naming no field, and so on).
+        ({"gain": 1e-320}, r"SensorParams.gain must be in \[0.0001, 10000\]; got 9.99989e-321"),
+        ({"gain": 1e308}, r"SensorParams.gain must be in \[0.0001, 10000\]; got 1e\+308"),
+        ({"gain": np.inf}, r"SensorParams.gain must be in \[0.0001, 10000\]; got inf"),
+        ({"gain": np.nan}, r"SensorParams.gain must be in .*; got nan"),
+        ({"gain": "0.38"}, r"SensorParams.gain must be a number in \[0.0001, 10000\]; got '0.38'"),
+        ({"gain": None}, "SensorParams.gain must be a number"),
+        ({"gain": True}, "SensorParams.gain must be a number"),
+        ({"electrons_per_unit": 1e308}, r"SensorParams.electrons_per_unit must be in \[0.001, 1e\+12\]"),
+        ({"full_well": 1e-320}, r"SensorParams.full_well must be in \[1, 1e\+09\]"),
+        ({"read_noise": np.inf}, r"SensorParams.read_noise must be in \[0, 1e\+06\]"),
+        ({"saturation": 1e-320}, r"SensorParams.saturation must be in \[0.5, 1\]"),
+        ({"black_level": np.inf}, r"SensorParams.black_level must be in \[0, 65535\]"),
+        ({"bits": 12.5}, r"SensorParams.bits must be an integer in \[1, 16\]; got 12.5"),
+        ({"bits": "12"}, "SensorParams.bits must be an integer"),
+        ({"bits": 4}, "SensorParams.black_level 16 must be below the saturation threshold 14.25 DN"),
+        ({"black_level": 3900.0}, "SensorParams.black_level 3900 must be below the saturation threshold 3890.25 DN"),
     ],
 )
 def test_sensor_params_reject_invalid_values(changes, match):
     with pytest.raises(ValueError, match=match):
         SensorParams(**changes)
+
+
+def test_sensor_params_integral_float_bits_become_int():
+    assert SensorParams(bits=12.0).bits == 12 and type(SensorParams(bits=np.int64(10)).bits) is int
+
+
+@pytest.mark.parametrize(
+    ("path", "match"),
+    [
+        (("sensor", "gain"), "SensorParams.gain must be in"),
+        (("qwp_angle",), "qwp_angle .* must be in"),
+        (("exposures",), "exposures .* must be in"),
+    ],
+)
+def test_from_dict_int_too_large_for_a_float_is_a_value_error(path, match):
+    # JSON integers have no size limit; float(10**400) raises OverflowError, which used to escape as a traceback.
+    d = CameraModel().to_dict()
+    target = d
+    for key in path[:-1]:
+        target = target[key]
+    target[path[-1]] = 10**400 if path[-1] != "exposures" else [10**400]
+    with pytest.raises(ValueError, match=match):
+        CameraModel.from_dict(d)
+
+
+def test_from_dict_extinction_inf_string_and_bare_exposure():
+    d = CameraModel().to_dict()
+    d["extinction_ratio"] = ["inf", "INF", 50]
+    d["exposures"] = 0.05
+    model = CameraModel.from_dict(d)
+    assert model.extinction_ratio == (np.inf, np.inf, 50.0) and model.exposures == (0.05,)
+    d["sensor"] = [1]
+    with pytest.raises(ValueError, match="sensor must be an object"):
+        CameraModel.from_dict(d)

@@ -592,3 +592,41 @@ def test_decode_near_zero_signal_is_finite(value):
     # Raw zeros under a black level of 16: negative signal, masked, finite.
     dec = decode.decode(np.zeros((4, 16, 16), dtype=np.uint16), CameraModel())
     assert np.isfinite(dec.maps).all() and not dec.mask.any()
+
+
+@pytest.mark.filterwarnings("error")
+@pytest.mark.parametrize("bits", [8, 16])
+def test_decode_at_the_corners_of_the_calibration_ranges(bits):
+    # Every corner of camera.SENSOR_RANGES x CAMERA_RANGES (gain, electrons per unit, exposure, transmittance,
+    # saturation; extinction ratio and QWP angle alternate) decodes a mid-range capture to finite maps with a full
+    # mask and the right s0, without a numpy warning. Outside these ranges the fuzzed captures decoded to all-zero
+    # maps, an empty mask or NaN, so the model refuses them (test_camera.py).
+    from itertools import product
+
+    from pbrdf.sensor.foreground import capture_foreground, noise_floor
+
+    sr, cr = camera.SENSOR_RANGES, camera.CAMERA_RANGES
+    svec = np.array([1.0, -0.5, 0.0, 0.2])[None].repeat(3, 0)  # per colour: partly LP, some CP
+    corners = product(
+        sr["gain"], sr["electrons_per_unit"], cr["exposures"], cr["analyzer_transmittance"], sr["saturation"]
+    )
+    for k, (gain, epu, t, q, sat) in enumerate(corners):
+        sensor = SensorParams(gain=gain, electrons_per_unit=epu, bits=bits, black_level=1.0, saturation=sat)
+        model = CameraModel(
+            exposures=(t / 2, t) if t > 1 else (t, 2 * t),
+            analyzer_transmittance=q,
+            extinction_ratio=cr["extinction_ratio"][k % 2],
+            qwp_angle=cr["qwp_angle"][k % 2],
+            sensor=sensor,
+        )
+        irr = camera.mosaic(_constant_image(svec, 16, 16), model)
+        # Scale the scene so that the longest exposure reaches 30 % of the saturation threshold.
+        scale = 0.3 * sat * (sensor.white_level - 1) / (irr.max() * sensor.dn_per_unit_second * max(model.exposures))
+        raws = np.round([1.0 + irr * scale * sensor.dn_per_unit_second * tt for tt in model.exposures])
+        dec = decode.decode(raws, model)
+        where = (gain, epu, t, q, sat)
+        assert dec.mask.all() and np.isfinite(dec.maps).all() and np.isfinite(dec.stokes).all(), where
+        # 8-bit rounding of a 30 % signal: a few percent.
+        np.testing.assert_allclose(dec.stokes[..., 0] / scale, svec[0, 0], rtol=0.05, err_msg=str(where))
+        assert np.isfinite(noise_floor(model)) and noise_floor(model) > 0, where
+        capture_foreground(dec, model)  # runs without warnings

@@ -14,6 +14,7 @@ import pytest
 from scipy import ndimage
 
 from pbrdf.data import capture as pcapture
+from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.sensor import foreground as fg
 from pbrdf.sensor.camera import CameraModel, simulate_capture
 from pbrdf.sensor.decode import decode
@@ -219,11 +220,11 @@ class TestCaptureForeground:
         """examples/capture (rendered scene, camera model noise): IoU >= 0.9 against its truth."""
         truth = np.load(EXAMPLE_TRUTH)["mask"].astype(bool)
         cap = pcapture.load_capture(EXAMPLE)
-        dec = pcapture.decode_capture(cap)
+        dec = pdecode_capture.decode_capture(cap)
         assert dec.foreground_source == "auto"
         assert _iou(dec.foreground, truth) >= 0.9
         assert _iou(dec.mask, truth) < 0.8  # the bare decode validity keeps noisy background
-        full = pcapture.decode_capture(cap, grid="full")
+        full = pdecode_capture.decode_capture(cap, grid="full")
         assert _iou(full.foreground, np.repeat(np.repeat(truth, 2, 0), 2, 1)) >= 0.9
 
     @pytest.mark.parametrize("dark_patch", [False, True])
