@@ -280,3 +280,21 @@ def display_quadrature(display, point, normal=None, n=400):
     if normal is None:
         return np.einsum("pk,p,pc->ck", w, weight, rgb)
     return np.einsum("p,p,pc->c", np.clip(w @ normal, 0, None), weight, rgb)
+
+
+def rusinkiewicz_pairs(rng, n, min_cos=0.02):
+    """Direction pairs sampled like a measured-BRDF table: theta_h = (pi/2) u^2 concentrates on the peak.
+
+    theta_d and phi_d uniform; pairs with a direction below ``min_cos`` are dropped (so fewer than n).
+    """
+    th = 0.5 * math.pi * rng.uniform(0, 1, n) ** 2
+    ph = rng.uniform(0, 2 * math.pi, n)
+    td = rng.uniform(0, 0.5 * math.pi, n)
+    pd = rng.uniform(0, 2 * math.pi, n)
+    h = np.stack([np.sin(th) * np.cos(ph), np.sin(th) * np.sin(ph), np.cos(th)], axis=-1)
+    t = np.stack([-np.sin(ph), np.cos(ph), np.zeros(n)], axis=-1)  # perpendicular to h and to z
+    b = np.cross(h, t)
+    wi = (np.sin(td) * np.cos(pd))[:, None] * t + (np.sin(td) * np.sin(pd))[:, None] * b + np.cos(td)[:, None] * h
+    wo = 2 * np.sum(wi * h, axis=-1, keepdims=True) * h - wi
+    ok = (wi[:, 2] > min_cos) & (wo[:, 2] > min_cos)
+    return wi[ok], wo[ok]

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from pbrdf.brdf.disney import FitResult
+from pbrdf.brdf.disney_fit import FitResult
 from pbrdf.polar import validity
 
 __all__ = [
@@ -405,7 +405,7 @@ FIT_ERROR_MAX = 0.5
 
 @dataclass(frozen=True)
 class TableFit(FitResult):
-    """:class:`pbrdf.brdf.disney.FitResult` of a table, with a held-out check.
+    """:class:`pbrdf.brdf.disney_fit.FitResult` of a table, with a held-out check.
 
     Attributes:
         fit_error: RMS over fresh direction pairs (not those fitted, exact mirror pairs included)
@@ -432,7 +432,7 @@ def fit_table_disney(table, *, n: int = 2000, seed: int = 0) -> TableFit:
 
     The table is evaluated (cos-weighted, as Mitsuba renders it) at the renderer's R, G, B
     wavelengths on ``n`` direction pairs from :func:`sample_directions` and fitted by
-    :func:`pbrdf.brdf.disney.fit_disney` (analytic Jacobian, several starts, the best kept). The
+    :func:`pbrdf.brdf.disney_fit.fit_disney` (analytic Jacobian, several starts, the best kept). The
     fit is then checked on ``n`` fresh pairs of another random stream (:attr:`TableFit.fit_error`)
     and flagged (:attr:`TableFit.fit_ok`) when that error exceeds :data:`FIT_ERROR_MAX`.
 
@@ -448,12 +448,12 @@ def fit_table_disney(table, *, n: int = 2000, seed: int = 0) -> TableFit:
     Raises:
         ValueError: if ``n < 5`` or the table's values are not finite.
     """
-    from pbrdf.brdf import disney  # noqa: PLC0415
+    from pbrdf.brdf import disney, disney_fit  # noqa: PLC0415
 
     if n < 5:
         raise ValueError(f"n must be >= 5 direction pairs; got {n}")
     wi, wo = sample_directions(n, np.random.default_rng(seed))
-    fit = disney.fit_disney(wi, wo, _rgb_values(table, wi, wo))
+    fit = disney_fit.fit_disney(wi, wo, _rgb_values(table, wi, wo))
     wi, wo = sample_directions(n, np.random.default_rng([seed, 1]))
     values = np.maximum(_rgb_values(table, wi, wo), 0.0)
     if not np.all(np.isfinite(values)):

@@ -211,10 +211,10 @@ class TestFitTableDisney:
     def test_a_lobe_the_table_lacks_is_flagged(self, spectralon, monkeypatch):
         # The old label of the spectralon: roughness at the floor, a mirror spike. The held-out
         # check sees the spike on its exact mirror pairs: log1p(3e3 / 0.2) ~ 9.6 there.
-        from pbrdf.brdf import disney
+        from pbrdf.brdf import disney_fit
 
-        spike = disney.FitResult(np.full(3, 0.91), 0.0316, 0.0, 1.0, 10.2, True)
-        monkeypatch.setattr(disney, "fit_disney", lambda *a, **k: spike)
+        spike = disney_fit.FitResult(np.full(3, 0.91), 0.0316, 0.0, 1.0, 10.2, True)
+        monkeypatch.setattr(disney_fit, "fit_disney", lambda *a, **k: spike)
         f = expand.fit_table_disney(spectralon, n=600, seed=0)
         assert f.roughness == 0.0316 and f.rel_rmse == 10.2  # the fit's own fields are kept
         assert f.fit_error > 2.0 and not f.fit_ok
