@@ -117,9 +117,13 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
 
         return decode.run(height=args.height, width=args.width, **common)
     if args.what == "render":
+        from blender_addon.core import render as renderer  # noqa: PLC0415
+        from blender_addon.core.scenegen import benchmark_scene  # noqa: PLC0415
         from network.bench import render  # noqa: PLC0415
 
-        return render.run(resolution=args.resolution, ref_spp=args.ref_spp, spp=tuple(args.spp), **common)
+        return render.run(
+            renderer, benchmark_scene(), resolution=args.resolution, ref_spp=args.ref_spp, spp=tuple(args.spp), **common
+        )
     if args.what == "pbrdf":
         from network.bench import expansion  # noqa: PLC0415
 

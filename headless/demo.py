@@ -51,7 +51,11 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error)."""
     args = build_parser().parse_args(argv)
+    from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
     from network.demo import DemoConfig, run_demo  # noqa: PLC0415
+
+    def render_dataset(*, progress: bool, **fields):  # raw brackets kept: the demo decodes them as captures
+        return generate(GenerateConfig(keep_raw=True, resume=True, **fields), progress=progress)
 
     t0 = time.perf_counter()
     try:
@@ -62,7 +66,7 @@ def main(argv: list[str] | None = None) -> int:
             relight_samples=args.relight_samples, seed=args.seed, blender=not args.no_blender,
             progress=not args.quiet,
         )  # fmt: skip
-        summary = run_demo(cfg)
+        summary = run_demo(cfg, render_dataset)
     except (ValueError, OSError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2

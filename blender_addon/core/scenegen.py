@@ -21,7 +21,7 @@ from .procedural import PROCEDURAL_SHAPES
 from .spec import MaterialSpec, ObjectSpec, SceneSpec
 from .unseen_shapes import UNSEEN_SHAPES
 
-__all__ = ["METALS", "sample_seed", "random_material", "load_material_library", "random_scene"]
+__all__ = ["METALS", "sample_seed", "random_material", "load_material_library", "random_scene", "benchmark_scene"]
 
 #: Approximate complex IOR n - ik of common metals at the display primaries (630, 532, 465 nm),
 #: rounded from standard tabulations (e.g. Johnson and Christy 1972 for Au, Ag, Cu; Rakic 1995
@@ -113,3 +113,17 @@ def random_scene(
     material = materials[int(rng.integers(len(materials)))] if materials else random_material(rng)
     obj = ObjectSpec(name="object", mesh=mesh_ref, to_world=tuple(map(tuple, to_world)), material=material.name)
     return SceneSpec(rig=rig, objects=(obj,), materials=(material,), seed=int(seed) % 2**31)
+
+
+def benchmark_scene(seed: int = 0) -> SceneSpec:
+    """The render benchmark's fixed scene: a blob of pplastic (albedo 0.6, 0.4, 0.2; roughness 0.3) at 0.7 m.
+
+    Args:
+        seed: the scene's render seed.
+    """
+    m = np.eye(4)
+    m[:3, :3] *= 0.25
+    m[:3, 3] = (0.03, -0.02, -0.7)
+    mat = MaterialSpec.plastic("plastic", (0.6, 0.4, 0.2), roughness=0.3)
+    obj = ObjectSpec("blob", "builtin:blob?seed=1", tuple(map(tuple, m)), "plastic")
+    return SceneSpec(rig=Rig(), objects=(obj,), materials=(mat,), seed=seed)

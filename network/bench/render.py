@@ -1,7 +1,9 @@
 """Benchmark ``render``: error of the rendered nine maps against time, default vs naive configuration.
 
-One blob of rough plastic 0.7 m in front of the display is rendered by
-:func:`blender_addon.core.render.render_stokes` at a few sample counts in two configurations:
+One blob of rough plastic 0.7 m in front of the display (the caller's scene, e.g.
+``blender_addon.core.scenegen.benchmark_scene``) is rendered by the caller's renderer module
+(e.g. ``blender_addon.core.render``; ``network`` never imports the scene side) at a few sample
+counts in two configurations:
 the default (mono-polarized pass per colour channel, ``volpath`` with next-event estimation
 through the polarizer sheet, ``multijitter``, only the crop window) and a naive one (``path``,
 ``independent``, the full frame). Each point is timed under :mod:`network.bench.timing` and
@@ -21,36 +23,14 @@ from network.bench.timing import RULE, machine, time_call
 from network.metrics import normal_angle_deg
 from pbrdf.sensor import decode
 
-__all__ = ["bench_scene", "run"]
+__all__ = ["run"]
 
 #: Relative unpol/LP RMSE at which the configurations are compared.
 TARGET_ERROR = 0.02
 
 
-def bench_scene(seed: int = 0):
-    """The benchmark scene: a blob of pplastic (albedo 0.6, 0.4, 0.2; roughness 0.3) at 0.7 m.
-
-    Args:
-        seed: the scene's render seed.
-
-    Returns:
-        The :class:`blender_addon.core.spec.SceneSpec`.
-    """
-    from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: PLC0415
-    from pbrdf.sensor.rig import Rig  # noqa: PLC0415
-
-    m = np.eye(4)
-    m[:3, :3] *= 0.25
-    m[:3, 3] = (0.03, -0.02, -0.7)
-    mat = MaterialSpec.plastic("plastic", (0.6, 0.4, 0.2), roughness=0.3)
-    obj = ObjectSpec("blob", "builtin:blob?seed=1", tuple(map(tuple, m)), "plastic")
-    return SceneSpec(rig=Rig(), objects=(obj,), materials=(mat,), seed=seed)
-
-
-def _render_avg(spec, settings, spp: int, chunk: int):
+def _render_avg(render, spec, settings, spp: int, chunk: int):
     """Render ``spp`` samples as passes of at most ``chunk`` (bounded memory, distinct seeds), averaged."""
-    from blender_addon.core import render  # noqa: PLC0415
-
     acc, res, n = None, None, 0
     for k in range(0, spp, chunk):
         part = min(chunk, spp - k)
@@ -68,6 +48,8 @@ def _maps(stokes: np.ndarray) -> np.ndarray:
 
 
 def run(
+    render,
+    spec,
     *,
     resolution: int = 384,
     ref_spp: int = 1024,
@@ -79,12 +61,15 @@ def run(
     """Run the benchmark.
 
     Args:
+        render: the renderer module (``render_stokes``, ``RenderSettings``, ``choose_variant``;
+            ``blender_addon.core.render``).
+        spec: the scene spec to render (``blender_addon.core.scenegen.benchmark_scene``).
         resolution: crop size in pixels.
         ref_spp: samples per pixel of the reference.
         spp: sample counts to time, ascending.
         repeat: timed renders per point.
         warmup: untimed renders per point before them (the first includes Dr.Jit's compilation).
-        seed: scene seed; point ``spp`` renders with seed ``seed + spp``.
+        seed: point ``spp`` renders with seed ``seed + spp``.
 
     Returns:
         The JSON-ready result: per configuration ``points`` (``spp``, timing keys, ``seconds`` =
@@ -93,9 +78,7 @@ def run(
         ``seconds_for_2pct``; ``speedup_default_over_naive_at_2pct``, ``reference``,
         ``timing_rule`` and ``machine``.
     """
-    from blender_addon.core import render  # noqa: PLC0415
-
-    spec = bench_scene(seed)
+    spec = dataclasses.replace(spec, seed=seed)
     base = render.RenderSettings(resolution=resolution, spp=1)
     result: dict = {
         "benchmark": "render",
@@ -106,7 +89,7 @@ def run(
         "timing_rule": RULE,
     }
     ref_timing, ref = time_call(
-        lambda: _render_avg(spec, base, ref_spp, 64),
+        lambda: _render_avg(render, spec, base, ref_spp, 64),
         f"reference: {ref_spp} spp in chunks of 64 with distinct seeds, averaged (one call, not a benchmark point)",
         repeat=1,
         warmup=0,
@@ -130,7 +113,7 @@ def run(
             point_settings = dataclasses.replace(settings, spp=n_spp)
             timing, res = time_call(
                 lambda s=point_spec, st=point_settings: render.render_stokes(s, st),
-                f"blender_addon.core.render.render_stokes, {name}, {resolution} px, {n_spp} spp",
+                f"render_stokes, {name}, {resolution} px, {n_spp} spp",
                 repeat=repeat,
                 warmup=warmup,
             )

@@ -35,9 +35,11 @@ from __future__ import annotations
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -189,11 +191,16 @@ def _scene_figures(fig_dir: Path, name: str, maps, mask, gt, pred, base) -> list
     ]  # fmt: skip
 
 
-def run_demo(cfg: DemoConfig) -> dict:
+def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
     """Run every stage and write the report.
 
     Args:
         cfg: the demo's sizes and output folder.
+        render_dataset: renders a dataset with raw brackets: called as ``render_dataset(out=...,
+            count=..., resolution=..., spp=..., seed=..., pbrdfs=..., progress=...)`` and returns a
+            report with ``failed`` (``{index: reason}``). The caller supplies it
+            (``headless/demo.py`` wraps ``blender_addon.core.generate``), so ``network`` never
+            imports the scene side.
 
     Returns:
         The summary also written to ``OUT/metrics.json``: ``config``, ``checkpoint``, ``inputs``,
@@ -204,7 +211,6 @@ def run_demo(cfg: DemoConfig) -> dict:
         RuntimeError: a sample failed to render or a relighting process failed.
         ValueError, OSError: from the stages (bad checkpoint, unwritable folder).
     """
-    from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.constant import load_statistics  # noqa: PLC0415
     from network.infer import DEFAULT_CHECKPOINT, write_predictions  # noqa: PLC0415
@@ -240,14 +246,13 @@ def run_demo(cfg: DemoConfig) -> dict:
         analytic = cfg.scenes - cfg.measured_scenes
         reports = []
         if analytic:
-            reports.append(generate(GenerateConfig(
+            reports.append(render_dataset(
                 out=out / "data" / "analytic", count=analytic, resolution=cfg.resolution, spp=cfg.spp,
-                seed=cfg.seed, keep_raw=True, resume=True), progress=cfg.progress))  # fmt: skip
+                seed=cfg.seed, pbrdfs=None, progress=cfg.progress))  # fmt: skip
         if cfg.measured_scenes:
-            reports.append(generate(GenerateConfig(
+            reports.append(render_dataset(
                 out=out / "data" / "measured", count=cfg.measured_scenes, resolution=cfg.resolution, spp=cfg.spp,
-                seed=cfg.seed + 1, pbrdfs=out / "pbrdfs", keep_raw=True, resume=True),
-                progress=cfg.progress))  # fmt: skip
+                seed=cfg.seed + 1, pbrdfs=out / "pbrdfs", progress=cfg.progress))  # fmt: skip
         failed = {k: v for r in reports for k, v in r.failed.items()}
         if failed:
             raise RuntimeError(f"rendering failed for samples {failed}")

@@ -13,7 +13,10 @@ pytestmark = pytest.mark.mitsuba
 
 
 def test_bench_render_default_beats_naive():
-    result = render.run(resolution=32, ref_spp=128, spp=(4, 16))
+    from blender_addon.core import render as renderer
+    from blender_addon.core.scenegen import benchmark_scene
+
+    result = render.run(renderer, benchmark_scene(), resolution=32, ref_spp=128, spp=(4, 16))
     default = next(v for k, v in result.items() if k.startswith("default"))
     naive = next(v for k, v in result.items() if k.startswith("naive"))
     # Error falls with samples, and the default configuration is far more accurate per spp
