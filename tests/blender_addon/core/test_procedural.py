@@ -36,7 +36,9 @@ class TestProcedural:
     def test_seed_determinism(self, shape):
         a = pr.procedural(shape, seed=3)
         b = pr.procedural(shape, seed=3)
-        np.testing.assert_array_equal(a.vertices, b.vertices)
+        # numpy's SIMD pow/sin kernels may differ by 1 ulp with the arrays' memory alignment
+        # (seen on CI: 5.6e-17), so equal seeds give equal topology and vertices to rounding.
+        np.testing.assert_allclose(a.vertices, b.vertices, rtol=0, atol=1e-14)
         np.testing.assert_array_equal(a.faces, b.faces)
         if shape != "sphere":  # the sphere has no random parameters
             c = pr.procedural(shape, seed=4)
