@@ -7,6 +7,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 LLVM_STAMP := $(VENV)/.llvm-ok
 CHROMIUM_STAMP := $(VENV)/.chromium-ok
+MODELS_STAMP := $(VENV)/.testmodels-ok
 OUT ?= out
 
 .PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets
@@ -32,7 +33,11 @@ $(CHROMIUM_STAMP): $(STAMP) tools/ensure_chromium.sh tools/apt_install.sh
 	bash tools/ensure_chromium.sh
 	@touch $@
 
-setup: $(STAMP) $(LLVM_STAMP) $(CHROMIUM_STAMP)  ## create .venv with all extras; libllvm19 and chromium if missing
+$(MODELS_STAMP): $(STAMP) tools/ensure_testmodels.sh tools/apt_install.sh
+	bash tools/ensure_testmodels.sh
+	@touch $@
+
+setup: $(STAMP) $(LLVM_STAMP) $(CHROMIUM_STAMP) $(MODELS_STAMP)  ## create .venv with all extras; libllvm19, chromium, assimp-testmodels if missing
 
 demo: setup  ## set-up, then the main job on built-in defaults (writes $(OUT)/demo)
 	$(PY) headless/demo.py --out $(OUT)/demo

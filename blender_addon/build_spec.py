@@ -52,20 +52,6 @@ def _objects_collection(scene: bpy.types.Scene) -> bpy.types.Collection:
     return coll
 
 
-def _mesh_from_arrays(name: str, vertices: NDArray, faces: NDArray) -> bpy.types.Mesh:
-    mesh = bpy.data.meshes.new(name)
-    f = np.asarray(faces, dtype=np.int32)
-    mesh.vertices.add(len(vertices))
-    mesh.vertices.foreach_set("co", np.asarray(vertices, dtype=np.float32).ravel())
-    mesh.loops.add(f.size)
-    mesh.loops.foreach_set("vertex_index", f.ravel())
-    mesh.polygons.add(len(f))
-    mesh.polygons.foreach_set("loop_start", np.arange(0, f.size, 3, dtype=np.int32))
-    mesh.update()
-    mesh.shade_smooth()  # the polarized renderer interpolates vertex normals too
-    return mesh
-
-
 def _light_data(light: LightSpec) -> bpy.types.Light:
     types = {"point": "POINT", "spot": "SPOT", "area": "AREA", "sun": "SUN"}
     data = bpy.data.lights.new(light.name, types[light.kind])
@@ -149,7 +135,7 @@ def build_from_spec(scene: bpy.types.Scene, spec: SceneSpec) -> bpy.types.Object
         if o.material not in materials:
             raise ValueError(f"object {o.name!r} references unknown material {o.material!r}")
         tm = assets.load_mesh(o.mesh)
-        mesh = _mesh_from_arrays(o.name, np.asarray(tm.vertices), np.asarray(tm.faces))
+        mesh = scene_builder.blender_mesh(o.name, tm.vertices, tm.faces, tm.vertex_normals)
         mesh.materials.append(scene_builder.material_from_spec(materials[o.material]))
         obj = bpy.data.objects.new(o.name, mesh)
         obj[scene_builder.MATERIAL_KEY] = o.material

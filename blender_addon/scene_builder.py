@@ -1,7 +1,10 @@
 """Objaverse-like scenes in Blender: assets from a folder, random poses in view, pBRDF materials.
 
-:func:`build_scene` imports assets with Blender's own importers, joins each file's meshes into one
-object, normalises it (centred on its bounding box, unit bounding-box diagonal), places it with
+:func:`build_scene` imports assets through the same asset pipeline as the headless renderer
+(:func:`.core.assets.load_mesh`; FBX through Blender's importer, then
+:func:`.core.assets.build_render_mesh`), so both accept and refuse the same files and shade them
+with the same normals (custom split normals here). A refused file is skipped with a warning. Each
+asset becomes one object, normalised (centred on its bounding box, unit bounding-box diagonal), placed with
 :func:`.core.assets.place` 50-100 cm from the camera with every corner of its bounding box inside
 the view (so every vertex is), and assigns a material: an entry of a pBRDF library
 (``materials.json`` read by :func:`.core.scenegen.load_material_library`) or, without one, a
@@ -32,7 +35,6 @@ from pathlib import Path
 from types import ModuleType, SimpleNamespace
 from typing import TYPE_CHECKING
 
-import bmesh
 import bpy
 import numpy as np
 from bpy.props import BoolProperty, IntProperty, StringProperty
@@ -46,7 +48,15 @@ from . import rig_bpy
 if TYPE_CHECKING:
     from .core.spec import MaterialSpec
 
-__all__ = ["CLASSES", "IMPORTERS", "MAX_OVERLAP_TRIES", "build_scene", "import_asset", "list_asset_files"]
+__all__ = [
+    "CLASSES",
+    "IMPORTERS",
+    "MAX_OVERLAP_TRIES",
+    "blender_mesh",
+    "build_scene",
+    "import_asset",
+    "list_asset_files",
+]
 
 #: File suffix -> Blender import operator (``bpy.ops`` path), as named in Blender 4.2-5.0.
 IMPORTERS = {
@@ -116,50 +126,118 @@ def _world(obj: bpy.types.Object) -> Matrix:
     return m if obj.parent is None else _world(obj.parent) @ m
 
 
-def import_asset(path: str | os.PathLike, name: str | None = None) -> bpy.types.Mesh:
-    """Import one asset file into a new mesh: all its meshes joined in world space, then normalised.
+def _blender_import_parts(path: Path) -> list:
+    """Read a file only Blender reads (FBX) into :class:`.core.assets.MeshPart` triangles with corner normals.
 
-    Normalised: centred on its axis-aligned bounding box, scaled to a unit bounding-box diagonal.
-    Everything else the importer created (objects, materials, images, ...) is removed again.
-
-    Raises:
-        ValueError: unsupported suffix, a failed import, or no non-degenerate mesh in the file.
+    Everything the importer created (objects, materials, images, ...) is removed again.
     """
-    path = Path(path)
-    if path.suffix.lower() not in IMPORTERS:
-        raise ValueError(f"{path}: unsupported asset type; supported: {sorted(IMPORTERS)}")
+    assets = _core()[0]
     op = _importer(path)
     before = {attr: set(getattr(bpy.data, attr)) for attr in _IMPORT_DATA}
     try:
         op(filepath=str(path))
     except RuntimeError as e:
-        raise ValueError(f"{path}: import failed: {str(e).strip()}") from None
+        raise ValueError(f"{path}: import failed: {' '.join(str(e).split())}") from None
     finally:
         created = {attr: [i for i in getattr(bpy.data, attr) if i not in before[attr]] for attr in _IMPORT_DATA}
+    parts = []
     try:
-        bm = bmesh.new()
         for obj in created["objects"]:
             if obj.type != "MESH":
                 continue
             tmp = obj.data.copy()
-            tmp.transform(_world(obj))
-            bm.from_mesh(tmp)
-            bpy.data.meshes.remove(tmp)
-        mesh = bpy.data.meshes.new(name or path.stem)
-        bm.to_mesh(mesh)
-        bm.free()
+            try:
+                tmp.transform(_world(obj))
+                tmp.calc_loop_triangles()
+                nv, nt, nl = len(tmp.vertices), len(tmp.loop_triangles), len(tmp.loops)
+                if nt == 0:
+                    continue
+                co = np.empty(3 * nv, dtype=np.float32)
+                tmp.vertices.foreach_get("co", co)
+                tri = np.empty(3 * nt, dtype=np.int32)
+                tmp.loop_triangles.foreach_get("loops", tri)
+                loop_vert = np.empty(nl, dtype=np.int32)
+                tmp.loops.foreach_get("vertex_index", loop_vert)
+                normals = np.empty(3 * nl, dtype=np.float32)
+                tmp.corner_normals.foreach_get("vector", normals)
+            finally:
+                bpy.data.meshes.remove(tmp)
+            # One vertex per corner: the shared pipeline welds positions and keeps corner normals.
+            parts.append(
+                assets.MeshPart(
+                    vertices=co.reshape(-1, 3)[loop_vert[tri]].astype(np.float64),
+                    faces=np.arange(3 * nt, dtype=np.int64).reshape(-1, 3),
+                    normals=normals.reshape(-1, 3)[tri].astype(np.float64),
+                )
+            )
     finally:
         bpy.data.batch_remove([i for attr in _IMPORT_DATA for i in created[attr]])
-    mesh.materials.clear()
-    v = np.empty(3 * len(mesh.vertices), dtype=np.float32)
-    mesh.vertices.foreach_get("co", v)
-    v = v.reshape(-1, 3).astype(np.float64)
-    diag = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if len(v) else 0.0
-    if len(mesh.polygons) == 0 or not diag > 0:
-        bpy.data.meshes.remove(mesh)
-        raise ValueError(f"{path}: no mesh with faces and a non-zero size in the file")
-    v = (v - (v.min(axis=0) + v.max(axis=0)) / 2) / diag
-    mesh.vertices.foreach_set("co", v.astype(np.float32).ravel())
+    if not parts:
+        raise ValueError(f"{path}: degenerate mesh: no triangle geometry (empty file, point cloud or lines only)")
+    return parts
+
+
+def import_asset(path: str | os.PathLike, name: str | None = None) -> bpy.types.Mesh:
+    """Import one asset file into a new mesh through the shared asset pipeline, then normalise it.
+
+    GLB/GLTF/OBJ/PLY/STL/OFF go through :func:`.core.assets.load_mesh`, FBX through Blender's
+    importer and then :func:`.core.assets.build_render_mesh`: the same accepted files, cleaning,
+    outward orientation and shading normals as the headless renderer (authored normals kept,
+    crease-angle normals otherwise), stored as custom split normals on a mesh welded by position.
+    Normalised: centred on its axis-aligned bounding box, scaled to a unit bounding-box diagonal.
+
+    Raises:
+        ValueError: one line naming the file: unsupported suffix, a failed import or a mesh the
+            pipeline refuses (no triangles, flat, NaN coordinates, ...).
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in IMPORTERS:
+        raise ValueError(f"{path}: unsupported asset type; supported: {sorted(IMPORTERS)}")
+    assets = _core()[0]
+    if suffix in assets.MESH_SUFFIXES:
+        tm = assets.load_mesh(path)
+    else:
+        tm = assets.build_render_mesh(_blender_import_parts(path), str(path))
+    v = np.asarray(tm.vertices, dtype=np.float64)
+    lo, hi = v.min(axis=0), v.max(axis=0)
+    v = (v - (lo + hi) / 2) / float(np.linalg.norm(hi - lo))
+    return blender_mesh(name or path.stem, v, np.asarray(tm.faces), np.asarray(tm.vertex_normals))
+
+
+def blender_mesh(name: str, vertices: NDArray, faces: NDArray, normals: NDArray) -> bpy.types.Mesh:
+    """A Blender mesh from a render mesh: vertices welded by position, the normals as custom split normals.
+
+    Args:
+        name: the mesh data-block's name.
+        vertices: ``(N, 3)`` render-mesh positions (split at hard edges and seams).
+        faces: ``(F, 3)`` triangles.
+        normals: ``(N, 3)`` shading normals per render vertex.
+
+    Returns:
+        The new mesh: connected where the render mesh was split, smooth-shaded, and with corner
+        normals equal to ``normals`` (so Blender shades what Mitsuba renders).
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    f = np.asarray(faces, dtype=np.int64)
+    n = np.asarray(normals, dtype=np.float64)
+    _, first, weld = np.unique(np.round(v, 9), axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first, kind="stable")  # welded vertices in order of first use: keeps vertex order
+    rank = np.empty(len(first), dtype=np.int64)
+    rank[order] = np.arange(len(first))
+    first = first[order]
+    loops = rank[weld.reshape(-1)][f].astype(np.int32)
+    mesh = bpy.data.meshes.new(name)
+    mesh.vertices.add(len(first))
+    mesh.vertices.foreach_set("co", v[first].astype(np.float32).ravel())
+    mesh.loops.add(loops.size)
+    mesh.loops.foreach_set("vertex_index", loops.ravel())
+    mesh.polygons.add(len(f))
+    mesh.polygons.foreach_set("loop_start", np.arange(0, loops.size, 3, dtype=np.int32))
+    mesh.update()
+    mesh.polygons.foreach_set("use_smooth", np.ones(len(f), dtype=bool))
+    # Loop k is corner k of the faces (loop_start above), so the corner normals line up.
+    mesh.normals_split_custom_set(n[f.ravel()].tolist())
     mesh.update()
     return mesh
 
@@ -245,6 +323,7 @@ def build_scene(
     distance: tuple[float, float] = (0.5, 1.0),
     size: tuple[float, float] = (0.15, 0.35),
     replace: bool = True,
+    skipped: dict[str, str] | None = None,
 ) -> list[bpy.types.Object]:
     """Place ``count`` random assets from ``folder`` in front of the rig's camera (see the module docstring).
 
@@ -258,12 +337,14 @@ def build_scene(
         distance: (min, max) distance in m from the camera centre to an object's bounding-box centre.
         size: (min, max) bounding-box diagonal of an object in m.
         replace: remove the objects of the previous build first.
+        skipped: if given, filled with ``{file: reason}`` for asset files the pipeline refused;
+            a refused file is dropped from the draw and another drawn in its place.
 
     Returns:
         The new objects, in draw order.
 
     Raises:
-        ValueError: bad count or seed, a failed import, an asset that cannot fit in view.
+        ValueError: bad count or seed, every asset file refused, an asset that cannot fit in view.
         FileNotFoundError: missing asset folder, no assets, missing library or tables.
         RuntimeError: a Python package the core needs is missing (the message says which).
     """
@@ -284,10 +365,21 @@ def build_scene(
     placed: list[tuple[NDArray, float]] = []
     out = []
     try:
+        refused: dict[str, str] = {} if skipped is None else skipped
         for i in range(count):
-            path = files[int(rng.integers(len(files)))]
-            if path not in meshes:
-                meshes[path] = import_asset(path, name=f"PDIR source {path.stem}")
+            while True:
+                good = [p for p in files if str(p) not in refused]
+                if not good:
+                    first = next(iter(refused.values()))
+                    raise ValueError(f"{folder}: every asset file was refused ({len(refused)}; first: {first})")
+                path = good[int(rng.integers(len(good)))]
+                if path in meshes:
+                    break
+                try:
+                    meshes[path] = import_asset(path, name=f"PDIR source {path.stem}")
+                    break
+                except ValueError as e:  # one bad file does not abort the build
+                    refused[str(path)] = str(e)
             corners = SimpleNamespace(vertices=_bbox_corners(meshes[path]))
             for _ in range(MAX_OVERLAP_TRIES):
                 pose = assets.place(corners, rig, rng, distance=distance, size=size)
@@ -344,6 +436,7 @@ class PDIR_OT_build_scene(bpy.types.Operator):
             self.report({"ERROR"}, "Choose an asset folder")
             return {"CANCELLED"}
         library = bpy.path.abspath(self.library.strip()) if self.library.strip() else None
+        skipped: dict[str, str] = {}
         try:
             objs = build_scene(
                 context.scene,
@@ -352,12 +445,15 @@ class PDIR_OT_build_scene(bpy.types.Operator):
                 self.seed,
                 library,
                 replace=self.replace,
+                skipped=skipped,
             )
         except (ValueError, OSError, RuntimeError) as e:
             self.report({"ERROR"}, str(e))
             return {"CANCELLED"}
+        for reason in skipped.values():
+            self.report({"WARNING"}, f"skipped {reason}")
         source = "pBRDF library" if library else "random analytic materials"
-        self.report({"INFO"}, f"Placed {len(objs)} objects (seed {self.seed}, {source})")
+        self.report({"INFO"}, f"Placed {len(objs)} objects (seed {self.seed}, {source}; {len(skipped)} files skipped)")
         return {"FINISHED"}
 
 

@@ -5,8 +5,9 @@ the camera model and the decoder.
 
     python headless/render.py --split NAME [--out DIR] [--count N] [--resume]
     python headless/render.py --out DIR --count N [--resolution 384] [--seed S] [--spp 32]
-        [--assets DIR] [--pbrdfs DIR] [--rig FILE] [--resume] [--shard K/N]
-        [--scene SPEC.json] [--via-blender] [--npz] [--quiet]
+        [--assets DIR] [--shapes SET] [--objects MIN-MAX] [--pbrdfs DIR] [--table-fraction F]
+        [--variant auto] [--rig FILE] [--resume] [--shard K/N] [--scene SPEC.json] [--via-blender]
+        [--npz] [--quiet]
 
 Each sample is DIR/samples/NNNNNN.exr (nine maps, mask, normal, albedo, roughness, metallic,
 depth; optionally Stokes) plus a JSON sidecar (rig, pose, material, Disney parameters, seeds,
@@ -19,11 +20,21 @@ test-pbrdf; pbrdf/data/splits.py) with its own seed, count, resolution, spp and 
 splits keep the raw brackets so they are scored through the real-capture path. The manifest
 and every sidecar record the split; training refuses test splits.
 
-Without --assets the built-in procedural shapes are used (--shapes meshes: the unseen test
-meshes); without --pbrdfs, analytic polarimetric materials (pplastic and rough conductors)
-with random parameters. --scene renders one given scene spec (e.g. exported by the Blender
-add-on) instead of random scenes (--count
-defaults to 1). --npz also writes DIR/arrays/NNNNNN.npz (numpy only, read by the add-on).
+Shapes: each object is drawn from a pool of built-in shapes (--shapes SET: procedural, the
+default; generated: sharp-edged, concave, thin and multi-part training shapes; train: both;
+meshes: the unseen test meshes) plus, with --assets DIR, the asset files there. With --assets
+and no --shapes the pool is the asset files alone (--shapes none says so explicitly).
+--objects N or MIN-MAX puts that many objects in each scene (default 1), their bounding
+spheres disjoint (an object without a free pose after 20 draws is left out). Materials:
+analytic polarimetric ones (pplastic and rough conductors) with random parameters, or with
+--pbrdfs DIR entries of that pBRDF table library; --table-fraction F draws each object's
+material from the library with probability F and analytic otherwise (default 1 with --pbrdfs,
+0 without). --variant picks the Mitsuba variant: auto (default; cuda_ad_mono_polarized when
+Dr.Jit has a CUDA backend, else llvm), llvm, cuda, scalar (scalar_spectral_polarized, slow) or
+any *_polarized variant name; --split renders with llvm unless --variant is given. --scene
+renders one given scene spec (e.g. exported by the Blender add-on) instead of random scenes
+(--count defaults to 1). --npz also writes DIR/arrays/NNNNNN.npz (numpy only, read by the
+add-on).
 
 Two routes, same arguments, same files for the same seeds:
   - bpy-free (default): python headless/render.py ...
@@ -68,6 +79,8 @@ def _apply_split(args: argparse.Namespace) -> str | None:
         raise ValueError(f"--split {split.name} renders with seed {split.seed}; --seed cannot change it")
     if args.scene is not None or args.assets is not None:
         raise ValueError("--split draws its own scenes: it cannot be combined with --scene or --assets")
+    if args.objects is not None or args.table_fraction is not None:
+        raise ValueError(f"--split {split.name} draws one object per scene: drop --objects and --table-fraction")
     if split.pbrdfs and args.pbrdfs is None:
         raise ValueError(f"--split {split.name} needs --pbrdfs DIR (expanded tables; `make test-sets` makes them)")
     if not split.pbrdfs and args.pbrdfs is not None:
@@ -82,6 +95,7 @@ def _apply_split(args: argparse.Namespace) -> str | None:
     if args.shapes != split.shapes:
         raise ValueError(f"--split {split.name} uses --shapes {split.shapes}")
     args.keep_raw = args.keep_raw or split.keep_raw
+    args.variant = args.variant or "llvm"  # the variant the splits were made with, GPU or not
     args.out = args.out or Path("out/splits") / split.name
     return split.name
 
@@ -103,10 +117,27 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, help="run seed (default 0)")
     parser.add_argument("--spp", type=int, help="samples per pixel per colour pass (default 32)")
     parser.add_argument(
-        "--shapes", choices=["procedural", "meshes"], help="built-in shapes: the training ones or the unseen meshes"
+        "--shapes",
+        choices=["procedural", "generated", "train", "meshes", "none"],
+        help="built-in shapes in the pool: procedural (default), generated, train (procedural + generated), "
+        "meshes (unseen test meshes), none (with --assets; the default there)",
     )
-    parser.add_argument("--assets", type=Path, help="folder of GLB/GLTF/OBJ/PLY assets (default: procedural shapes)")
+    parser.add_argument(
+        "--assets", type=Path, help="folder of GLB/GLTF/OBJ/PLY assets, added to the --shapes pool (default: none)"
+    )
+    parser.add_argument("--objects", help="objects per scene: N or MIN-MAX, inclusive (default 1)")
     parser.add_argument("--pbrdfs", type=Path, help="folder with materials.json and pBRDF tables (default: analytic)")
+    parser.add_argument(
+        "--table-fraction",
+        type=float,
+        help="probability that an object's material comes from --pbrdfs rather than analytic (default 1 with "
+        "--pbrdfs, else 0; > 0 needs --pbrdfs)",
+    )
+    parser.add_argument(
+        "--variant",
+        help="Mitsuba variant: auto (default: cuda when Dr.Jit has CUDA, else llvm; llvm for --split), llvm, cuda, "
+        "scalar, or a *_polarized variant name",
+    )
     parser.add_argument("--rig", type=Path, help="rig JSON overriding the default rig (calibrated rigs)")
     parser.add_argument("--scene", type=Path, help="render this scene spec JSON instead of random scenes")
     parser.add_argument("--via-blender", action="store_true", help="lay every scene out in Blender (bpy) first")
@@ -126,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(script_args(sys.argv) if argv is None else argv)
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING, format="%(levelname)s %(message)s")
 
-    from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
+    from blender_addon.core.generate import GenerateConfig, generate, parse_objects  # noqa: PLC0415
     from pbrdf.data.dataset import parse_shard  # noqa: PLC0415
 
     try:
@@ -151,7 +182,10 @@ def main(argv: list[str] | None = None) -> int:
             resolution=384 if args.resolution is None else args.resolution,
             seed=0 if args.seed is None else args.seed,
             spp=32 if args.spp is None else args.spp,
-            shapes=args.shapes or "procedural",
+            shapes=args.shapes,
+            objects=parse_objects(args.objects) if args.objects is not None else (1, 1),
+            table_fraction=args.table_fraction,
+            variant=args.variant or "auto",
             split=split,
             assets=args.assets,
             pbrdfs=args.pbrdfs,

@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Iterable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qsl
@@ -37,11 +38,17 @@ except ModuleNotFoundError:  # Blender's Python: specs, placement and PLY output
 
 from pbrdf.sensor.rig import Rig, atomic_write_bytes
 
+from . import mesh_normals as _mn
+from .generated_shapes import GENERATED_SHAPES, generated_shape
 from .procedural import PROCEDURAL_SHAPES, diameter, normalize, procedural, require_trimesh
 from .unseen_shapes import UNSEEN_SHAPES, unseen_shape
 
 __all__ = [
+    "CREASE_DEG",
     "MESH_SUFFIXES",
+    "MIN_THICKNESS",
+    "MeshPart",
+    "build_render_mesh",
     "ensure_uv",
     "list_assets",
     "load_mesh",
@@ -57,8 +64,12 @@ __all__ = [
     "procedural",
 ]
 
-#: File types :func:`load_mesh` reads (lower case).
-MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply")
+#: File types :func:`load_mesh` reads (lower case). FBX is read only inside Blender (the add-on).
+MESH_SUFFIXES = (".glb", ".gltf", ".obj", ".ply", ".stl", ".off")
+#: Dihedral angle (degrees) above which an edge of a mesh without authored normals is hard.
+CREASE_DEG = 30.0
+#: Thinnest accepted bounding-box extent as a fraction of the largest: flatter meshes are cards.
+MIN_THICKNESS = 0.005
 
 _BUILTIN_PREFIX = "builtin:"
 
@@ -84,42 +95,38 @@ def parse_builtin(mesh: str) -> tuple[str, dict[str, Any]] | None:
 # --------------------------------------------------------------------------- loading and cleaning
 
 
+@dataclass
+class MeshPart:
+    """Triangles of one part of an asset, in the asset's frame (the scene transform applied).
+
+    Attributes:
+        vertices: ``(N, 3)`` positions.
+        faces: ``(F, 3)`` vertex indices.
+        normals: ``(N, 3)`` authored vertex normals, or None when the file has none.
+        uvs: ``(N, 2)`` texture coordinates, or None.
+    """
+
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    normals: NDArray[np.float64] | None = None
+    uvs: NDArray[np.float64] | None = None
+
+
 def _degenerate(name: str, reason: str) -> ValueError:
     return ValueError(f"{name}: degenerate mesh: {reason}")
 
 
-def _clean(mesh: trimesh.Trimesh, name: str) -> trimesh.Trimesh:
-    """Merge duplicate vertices, drop degenerate/duplicate faces and unused vertices; reject non-solids."""
-    v = np.asarray(mesh.vertices)
-    if len(mesh.faces) == 0 or len(v) == 0:
-        raise _degenerate(name, "no triangles")
-    if not np.all(np.isfinite(v)):
-        bad = int(np.sum(~np.isfinite(v).all(axis=1)))
-        raise _degenerate(name, f"{bad} vertex{'es' if bad != 1 else ''} with NaN or Inf coordinates")
-    mesh.merge_vertices(merge_norm=True)
-    mesh.update_faces(mesh.nondegenerate_faces())
-    mesh.update_faces(mesh.unique_faces())
-    mesh.remove_unreferenced_vertices()
-    if len(mesh.faces) < 4:
-        n = len(mesh.faces)
-        plural = "s" if n != 1 else ""
-        raise _degenerate(name, f"only {n} non-degenerate face{plural} (a closed solid needs at least 4)")
-    extents = np.asarray(mesh.extents, dtype=np.float64)
-    if not extents.max() > 0:
-        raise _degenerate(name, "all vertices coincide (zero extent)")
-    if extents.min() <= 1e-6 * extents.max():
-        axis = "xyz"[int(np.argmin(extents))]
-        raise _degenerate(name, f"flat: zero extent along {axis} (bounding-box extents {extents.tolist()})")
-    # Consistent winding, outward for closed meshes (the renderer's normals come from the faces).
-    if not mesh.is_winding_consistent:
-        trimesh.repair.fix_winding(mesh)
-    if mesh.is_watertight and mesh.volume < 0:
-        mesh.invert()
-    return mesh
+def _authored_normals(geom: trimesh.Trimesh) -> NDArray[np.float64] | None:
+    """The vertex normals a file supplied (trimesh keeps them in its cache), else None."""
+    cache = getattr(getattr(geom, "_cache", None), "cache", {})
+    n = cache.get("vertex_normals") if hasattr(cache, "get") else None
+    if n is None or np.shape(n) != np.shape(geom.vertices):
+        return None
+    return np.asarray(n, dtype=np.float64)
 
 
-def _scene_to_mesh(scene: trimesh.Scene, name: str) -> trimesh.Trimesh:
-    """Concatenate every triangle mesh of a scene with its scene-graph transform applied.
+def _scene_parts(scene: trimesh.Scene, name: str) -> list[MeshPart]:
+    """Every triangle mesh of a scene with its scene-graph transform applied (normals and winding too).
 
     UVs are kept only when the scene holds exactly one textured triangle mesh: UV charts of
     separate parts overlap, so a merged multi-part mesh is left without UVs for :func:`ensure_uv`.
@@ -130,33 +137,222 @@ def _scene_to_mesh(scene: trimesh.Scene, name: str) -> trimesh.Trimesh:
         geom = scene.geometry.get(geom_name)
         if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
             continue
+        m = np.asarray(transform, dtype=np.float64)
+        v = np.asarray(geom.vertices, dtype=np.float64)
+        f = np.asarray(geom.faces, dtype=np.int64)
+        if f.ndim != 2 or f.shape[1] != 3 or f.min() < 0 or f.max() >= len(v):
+            raise ValueError(f"{name}: face indices out of range (the file has {len(v)} vertices)")
+        n = _authored_normals(geom)
+        if not np.all(np.isfinite(m)) or abs(np.linalg.det(m[:3, :3])) < 1e-300:
+            raise ValueError(f"{name}: singular or non-finite node transform")
+        if not np.all(np.isfinite(v)):
+            bad = int(np.sum(~np.isfinite(v).all(axis=1)))
+            raise _degenerate(name, f"{bad} vertex{'es' if bad != 1 else ''} with NaN or Inf coordinates")
+        v = v @ m[:3, :3].T + m[:3, 3]
+        if n is not None:
+            n = n @ np.linalg.inv(m[:3, :3])  # inverse transpose, row vectors
+        if np.linalg.det(m[:3, :3]) < 0:  # a mirroring transform turns the winding around
+            f = f[:, ::-1]
         uv = getattr(geom.visual, "uv", None)
-        part = trimesh.Trimesh(vertices=np.asarray(geom.vertices), faces=np.asarray(geom.faces), process=False)
-        part.apply_transform(np.asarray(transform, dtype=np.float64))
-        parts.append((part, None if uv is None or len(uv) != len(geom.vertices) else np.asarray(uv)))
+        uv = None if uv is None or len(uv) != len(geom.vertices) else np.asarray(uv, dtype=np.float64)
+        parts.append(MeshPart(v, f, n, uv))
     if not parts:
         raise _degenerate(name, "no triangle geometry (empty file, point cloud or lines only)")
-    if len(parts) == 1:
-        mesh, uv = parts[0]
-        if uv is not None:
-            mesh.visual = trimesh.visual.TextureVisuals(uv=uv)
-        return mesh
-    return trimesh.util.concatenate([p for p, _ in parts])
+    if len(parts) > 1:
+        for p in parts:
+            p.uvs = None
+    return parts
 
 
-def load_mesh(path_or_builtin: str | os.PathLike) -> trimesh.Trimesh:
-    """Load a mesh file (GLB, GLTF, OBJ, PLY) or a ``builtin:`` shape as one clean triangle mesh.
+def _unique_rows(keys: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """``(first, ids)`` of equal rows, ids numbered in order of first occurrence (keeps vertex order)."""
+    _, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    rank = np.empty(len(first), dtype=np.int64)
+    order = np.argsort(first, kind="stable")
+    rank[order] = np.arange(len(first))
+    return first[order], rank[inverse.reshape(-1)]
 
-    Files are read as scenes and all parts merged with their scene transforms applied; then
-    duplicate vertices are merged (by position), degenerate and duplicate faces and unreferenced
-    vertices removed, the winding made consistent and, for closed meshes, outward. The mesh keeps
-    its file's scale and position (see :func:`normalize`).
+
+def _weld(v: NDArray[np.float64], scale: float) -> NDArray[np.int64]:
+    """Id per vertex; vertices within about 1e-7 of ``scale`` of each other share it (UV seams, split normals)."""
+    return _unique_rows(np.round(v / (scale * 1e-7)).astype(np.int64))[1]
+
+
+def _flipped(before: NDArray[np.int64], after: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """Which faces ``after`` lists in the opposite cyclic order of ``before`` (same vertices)."""
+    same = np.zeros(len(before), dtype=bool)
+    for r in range(3):
+        same |= np.all(np.roll(before, r, axis=1) == after, axis=1)
+    return ~same
+
+
+def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | None = None) -> trimesh.Trimesh:
+    """Clean, orient and shade the parts of an asset: the one mesh every renderer gets.
+
+    Steps: reject non-finite or empty input; weld vertices by position (UV seams and split
+    normals join) for topology only; drop degenerate and duplicate faces (a card modelled as two
+    coincident layers keeps one); refuse meshes with fewer than 4 faces or a flat bounding box;
+    make the winding consistent and closed bodies outward (:func:`trimesh.repair.fix_normals`,
+    per body); keep authored normals where they are finite and on the front of their face (a
+    flipped face flips its corner normals), otherwise use crease-angle normals
+    (:func:`.mesh_normals.crease_corner_normals`); split vertices where corner normals differ.
+
+    Args:
+        parts: the asset's parts in one frame.
+        name: the asset's name for error messages (e.g. the file path).
+        crease_deg: dihedral angle above which an edge without authored normals is hard
+            (default :data:`CREASE_DEG`).
+
+    Returns:
+        A trimesh with ``vertex_normals`` set to the shading normals (do not edit its vertices:
+        that would recompute them) and, when the input had them, UVs. ``metadata["two_sided"]``
+        is True for a mesh that is not closed (its back may be seen; render it two-sided),
+        ``metadata["bodies"]`` counts its connected parts.
+
+    Raises:
+        ValueError: ``"<name>: degenerate mesh: <reason>"``.
+    """
+    crease = CREASE_DEG if crease_deg is None else float(crease_deg)
+    offsets = np.cumsum([0] + [len(p.vertices) for p in parts])
+    v = np.concatenate([p.vertices for p in parts]).astype(np.float64)
+    faces = np.concatenate([p.faces + o for p, o in zip(parts, offsets, strict=False)]).astype(np.int64)
+    if len(faces) == 0 or len(v) == 0:
+        raise _degenerate(name, "no triangles")
+    if not np.all(np.isfinite(v)):
+        bad = int(np.sum(~np.isfinite(v).all(axis=1)))
+        raise _degenerate(name, f"{bad} vertex{'es' if bad != 1 else ''} with NaN or Inf coordinates")
+    used = v[np.unique(faces)]
+    extents = used.max(axis=0) - used.min(axis=0)
+    diag = float(np.linalg.norm(extents))
+    if not diag > 0:
+        raise _degenerate(name, "all vertices coincide (zero extent)")
+    authored = None
+    if any(p.normals is not None for p in parts):
+        authored = np.concatenate(
+            [p.normals if p.normals is not None else np.full((len(p.vertices), 3), np.nan) for p in parts]
+        )
+    uv = parts[0].uvs if len(parts) == 1 else None
+
+    weld = _weld(v, diag)
+    wf = weld[faces]
+    _, area = _mn.face_normals(v, faces)
+    ok = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2]) & (area > 1e-14 * diag**2)
+    faces, wf = faces[ok], wf[ok]
+    if len(wf):
+        _, first = np.unique(np.sort(wf, axis=1), axis=0, return_index=True)
+        keep = np.sort(first)
+        faces, wf = faces[keep], wf[keep]
+    if len(faces) < 4:
+        n = len(faces)
+        raise _degenerate(name, f"only {n} non-degenerate face{'s' if n != 1 else ''} (a solid needs at least 4)")
+    used = v[np.unique(faces)]
+    extents = used.max(axis=0) - used.min(axis=0)
+    if extents.min() < MIN_THICKNESS * extents.max():
+        axis = "xyz"[int(np.argmin(extents))]
+        raise _degenerate(
+            name,
+            f"flat: thickness along {axis} is {extents.min() / extents.max():.2g} of the size "
+            f"(a card, needs >= {MIN_THICKNESS:g}; bounding-box extents {np.round(extents, 6).tolist()})",
+        )
+
+    # Topology on the welded mesh: consistent winding, closed bodies outward.
+    welded = trimesh.Trimesh(vertices=_first_positions(v, weld, int(weld.max()) + 1), faces=wf, process=False)
+    before = wf.copy()
+    trimesh.repair.fix_normals(welded, multibody=True)
+    flip = _flipped(before, np.asarray(welded.faces))
+    faces = np.where(flip[:, None], faces[:, ::-1], faces)
+    two_sided = not welded.is_watertight
+
+    corner = _mn.crease_corner_normals(v, faces, crease_deg=crease, weld=weld)
+    if authored is not None:
+        fn, _ = _mn.face_normals(v, faces)
+        a = authored[faces]  # (F, 3, 3)
+        a = np.where(flip[:, None, None], -a, a)
+        length = np.linalg.norm(a, axis=-1, keepdims=True)
+        a = a / np.where(length > 0, length, 1.0)
+        valid = np.isfinite(a).all(axis=-1) & (length[..., 0] > 1e-6)
+        valid &= np.einsum("fkj,fj->fk", np.nan_to_num(a), fn) > 0
+        corner = np.where(valid[..., None], a, corner)
+    # One source vertex per (position, UV): a triangle soup or a file's split normals join again.
+    key = weld[:, None] if uv is None else np.concatenate([weld[:, None], np.round(uv * 1e7)], axis=1)
+    canon_first, canon = _unique_rows(key)
+    src, rfaces, rnormals = _mn.split_by_corner_normals(canon[faces], corner)
+    src = canon_first[src]
+    visual = trimesh.visual.TextureVisuals(uv=uv[src]) if uv is not None else None
+    mesh = trimesh.Trimesh(vertices=v[src], faces=rfaces, vertex_normals=rnormals, visual=visual, process=False)
+    mesh.metadata["two_sided"] = bool(two_sided)
+    mesh.metadata["bodies"] = int(welded.body_count)
+    return mesh
+
+
+def _first_positions(v: NDArray, weld: NDArray, count: int) -> NDArray:
+    out = np.zeros((count, 3))
+    out[weld[::-1]] = v[::-1]  # the first vertex of each id wins
+    return out
+
+
+def _read_file(path: Path, suffix: str, name: str) -> list[MeshPart]:
+    """Parse a mesh file into parts; every failure becomes one ``ValueError`` naming the file."""
+    if suffix in (".gltf", ".glb"):
+        _check_gltf(path, suffix, name)
+    try:
+        scene = trimesh.load(path, file_type=suffix[1:], force="scene", process=False)
+        return _scene_parts(scene, name)
+    except Exception as e:  # trimesh raises many types for malformed files; report them as bad content
+        if isinstance(e, ValueError) and str(e).startswith(name):
+            raise
+        why = " ".join(str(e).split())[:200] or "malformed content"
+        raise ValueError(f"{name}: cannot read mesh: {type(e).__name__}: {why}") from None
+
+
+def _check_gltf(path: Path, suffix: str, name: str) -> None:
+    """Refuse glTF features trimesh would silently misread: version 1 and Draco-compressed meshes."""
+    import json  # noqa: PLC0415
+    import struct  # noqa: PLC0415
+
+    raw = path.read_bytes()
+    try:
+        if suffix == ".glb":
+            if raw[:4] != b"glTF" or len(raw) < 20:
+                raise ValueError("not a GLB file (bad magic)")
+            container = struct.unpack_from("<I", raw, 4)[0]
+            if container != 2:
+                raise ValueError(f"unsupported GLB container version {container} (glTF 2.0 only; re-export it)")
+            length, kind = struct.unpack_from("<II", raw, 12)
+            if kind != 0x4E4F534A:  # "JSON"
+                raise ValueError("GLB without a JSON chunk")
+            doc = json.loads(raw[20 : 20 + length].decode("utf-8"))
+        else:
+            doc = json.loads(raw.decode("utf-8-sig"))
+    except (ValueError, UnicodeDecodeError, struct.error) as e:
+        raise ValueError(f"{name}: cannot read mesh: {e}") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{name}: cannot read mesh: the glTF JSON is not an object")
+    version = str((doc.get("asset") or {}).get("version", "")) if isinstance(doc.get("asset"), dict) else ""
+    if not version.startswith("2"):
+        raise ValueError(f"{name}: unsupported glTF version {version or '1.0'!r} (glTF 2.0 only; re-export it)")
+    used = doc.get("extensionsRequired") or doc.get("extensionsUsed") or []
+    if isinstance(used, list) and "KHR_draco_mesh_compression" in used:
+        raise ValueError(f"{name}: Draco-compressed glTF is not supported (re-export without Draco compression)")
+
+
+def load_mesh(path_or_builtin: str | os.PathLike, *, crease_deg: float | None = None) -> trimesh.Trimesh:
+    """Load a mesh file (GLB, GLTF, OBJ, PLY, STL, OFF) or a ``builtin:`` shape as one render-ready mesh.
+
+    Files are read as scenes, their parts put in one frame by the scene transforms, and then
+    cleaned, oriented and shaded by :func:`build_render_mesh` (authored normals kept, crease-angle
+    normals otherwise; ``metadata["two_sided"]`` marks open meshes). Built-in shapes go through
+    the same step. The mesh keeps its file's scale and position (see :func:`normalize`).
+
+    Args:
+        path_or_builtin: a file path or ``builtin:<shape>[?key=value&...]``.
+        crease_deg: crease angle for meshes without authored normals (default :data:`CREASE_DEG`).
 
     Raises:
         FileNotFoundError: the file does not exist.
-        ValueError: unsupported file type, unreadable file, or ``"<file>: degenerate mesh: <reason>"``
-            for an empty file, no triangles, fewer than 4 faces, NaN vertices, or a flat or
-            zero-extent bounding box.
+        ValueError: one line ``"<file>: <reason>"``: unsupported type, unreadable or malformed
+            content, or ``degenerate mesh: ...`` (no triangles, fewer than 4 faces, NaN vertices,
+            flat or zero extent).
     """
     require_trimesh()
     builtin = parse_builtin(str(path_or_builtin)) if isinstance(path_or_builtin, str) else None
@@ -165,8 +361,13 @@ def load_mesh(path_or_builtin: str | os.PathLike) -> trimesh.Trimesh:
         if shape in UNSEEN_SHAPES:
             if params:
                 raise ValueError(f"builtin:{shape} takes no parameters, got {sorted(params)}")
-            return unseen_shape(shape)
-        return procedural(shape, **params)
+            raw = unseen_shape(shape)
+        elif shape in GENERATED_SHAPES:
+            raw = generated_shape(shape, **params)
+        else:
+            raw = procedural(shape, **params)
+        part = MeshPart(np.asarray(raw.vertices, dtype=np.float64), np.asarray(raw.faces, dtype=np.int64))
+        return build_render_mesh([part], str(path_or_builtin), crease_deg=crease_deg)
     path = Path(path_or_builtin)
     name = str(path)
     if not path.is_file():
@@ -176,11 +377,7 @@ def load_mesh(path_or_builtin: str | os.PathLike) -> trimesh.Trimesh:
         raise ValueError(f"{name}: unsupported mesh type {suffix!r}; supported: {list(MESH_SUFFIXES)}")
     if path.stat().st_size == 0:
         raise _degenerate(name, "empty file (0 bytes)")
-    try:
-        scene = trimesh.load(path, file_type=suffix[1:], force="scene", process=False)
-    except Exception as e:  # trimesh raises many types for malformed files; report them as bad content
-        raise ValueError(f"{name}: cannot read mesh: {type(e).__name__}: {e}") from None
-    return _clean(_scene_to_mesh(scene, name), name)
+    return build_render_mesh(_read_file(path, suffix, name), name, crease_deg=crease_deg)
 
 
 # --------------------------------------------------------------------------- scale, UVs

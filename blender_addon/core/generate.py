@@ -30,15 +30,38 @@ from pbrdf.data import dataset
 from pbrdf.io.atomic import atomic_write_bytes, remove_leftovers
 from pbrdf.sensor.rig import Rig
 
-from . import assets, render, scenegen
+from . import assets, passes, render, scenegen
+from .generated_shapes import GENERATED_SHAPES
 from .procedural import PROCEDURAL_SHAPES
 from .spec import SceneSpec
 from .unseen_shapes import UNSEEN_SHAPES
 
-__all__ = ["ARRAYS_DIR", "GenerateConfig", "GenerateReport", "generate", "render_sample", "versions", "write_arrays"]
+__all__ = [
+    "ARRAYS_DIR",
+    "SHAPE_SETS",
+    "VARIANT_ALIASES",
+    "GenerateConfig",
+    "GenerateReport",
+    "generate",
+    "parse_objects",
+    "render_sample",
+    "versions",
+    "write_arrays",
+]
 
-#: ``--shapes`` choices: the training shapes, or the unseen meshes of the ``test-meshes`` split.
-SHAPE_SETS = {"procedural": PROCEDURAL_SHAPES, "meshes": UNSEEN_SHAPES}
+#: ``--shapes`` choices: built-in shape sets. ``procedural`` and ``generated`` are training shapes
+#: (``train`` is both), ``meshes`` the unseen meshes of the ``test-meshes`` split, ``none`` no
+#: built-in shape (asset files only).
+SHAPE_SETS = {
+    "procedural": PROCEDURAL_SHAPES,
+    "generated": GENERATED_SHAPES,
+    "train": PROCEDURAL_SHAPES + GENERATED_SHAPES,
+    "meshes": UNSEEN_SHAPES,
+    "none": (),
+}
+
+#: ``--variant`` aliases (:func:`.passes.choose_variant`); any ``*_polarized`` Mitsuba variant works too.
+VARIANT_ALIASES = ("auto", "llvm", "cuda", "scalar")
 
 #: Folder of a dataset holding the optional ``NNNNNN.npz`` copies of the samples (``--npz``).
 ARRAYS_DIR = "arrays"
@@ -65,20 +88,65 @@ class GenerateConfig:
     noise: bool = True
     scene: Path | None = None
     npz: bool = False
-    shapes: str = "procedural"
+    shapes: str | None = None
     split: str | None = None
+    objects: tuple[int, int] = (1, 1)
+    table_fraction: float | None = None
+    variant: str = "auto"
 
     def __post_init__(self) -> None:
+        """Check the flags; ``shapes`` None becomes ``none`` with ``assets``, else ``procedural``."""
         if self.count < 1:
             raise ValueError(f"--count must be >= 1, got {self.count}")
         for name in ("assets", "pbrdfs", "rig", "scene"):
             p = getattr(self, name)
             if p is not None and not Path(p).exists():
                 raise FileNotFoundError(f"--{name} {p}: does not exist")
+        if self.shapes is None:
+            object.__setattr__(self, "shapes", "none" if self.assets is not None else "procedural")
         if self.shapes not in SHAPE_SETS:
             raise ValueError(f"--shapes must be one of {sorted(SHAPE_SETS)}, got {self.shapes!r}")
+        if self.shapes == "none" and self.assets is None and self.scene is None:
+            raise ValueError("--shapes none leaves nothing to draw: give --assets DIR")
         if self.scene is not None and (self.assets is not None or self.pbrdfs is not None):
             raise ValueError("--scene renders the given scene: it cannot be combined with --assets or --pbrdfs")
+        object.__setattr__(self, "objects", parse_objects(self.objects))
+        if self.scene is not None and (self.objects != (1, 1) or self.table_fraction is not None):
+            raise ValueError(
+                "--scene renders the given scene: it cannot be combined with --objects or --table-fraction"
+            )
+        if self.table_fraction is not None:
+            if not 0.0 <= self.table_fraction <= 1.0:
+                raise ValueError(f"--table-fraction must be in [0, 1], got {self.table_fraction}")
+            if self.table_fraction > 0 and self.pbrdfs is None:
+                raise ValueError(
+                    f"--table-fraction {self.table_fraction} > 0 needs --pbrdfs DIR (a pBRDF table library)"
+                )
+        if self.variant not in VARIANT_ALIASES and not self.variant.endswith("_polarized"):
+            valid = f"one of {list(VARIANT_ALIASES)} or a *_polarized Mitsuba variant"
+            raise ValueError(f"--variant must be {valid}, got {self.variant!r}")
+
+
+def parse_objects(value: str | int | tuple[int, int]) -> tuple[int, int]:
+    """``--objects``: ``"N"``, ``"MIN-MAX"``, an int or a pair -> ``(min, max)`` with ``1 <= min <= max``.
+
+    Example:
+        >>> parse_objects("2-4"), parse_objects("3"), parse_objects((1, 1))
+        ((2, 4), (3, 3), (1, 1))
+    """
+    try:
+        if isinstance(value, str):
+            parts = value.split("-")
+            lo, hi = (int(parts[0]), int(parts[-1])) if 1 <= len(parts) <= 2 else (0, -1)
+        elif isinstance(value, (int, np.integer)) and not isinstance(value, bool):
+            lo = hi = int(value)
+        else:
+            lo, hi = (int(v) for v in value)
+    except (TypeError, ValueError):
+        lo, hi = 0, -1
+    if not 1 <= lo <= hi:
+        raise ValueError(f"--objects must be N or MIN-MAX with 1 <= MIN <= MAX, got {value!r}")
+    return lo, hi
 
 
 @dataclass
@@ -199,6 +267,10 @@ def generate(
     if cfg.assets and not asset_files:
         raise ValueError(f"--assets {cfg.assets}: no GLB/GLTF/OBJ/PLY files found")
     materials = scenegen.load_material_library(cfg.pbrdfs) if cfg.pbrdfs else None
+    try:
+        variant = passes.choose_variant(cfg.variant)
+    except RuntimeError as e:
+        raise ValueError(f"--variant {cfg.variant}: {e}") from None
     out = Path(cfg.out)
     todo = dataset.plan_work(out, cfg.count, cfg.shard, cfg.resume)
     if cfg.resume:
@@ -206,7 +278,7 @@ def generate(
     dataset.remove_manifest_leftovers(out)
     remove_leftovers(out / ARRAYS_DIR, lambda name: _array_in_shard(name, cfg.shard))
     report = GenerateReport(skipped=len(dataset.shard_indices(cfg.count, cfg.shard)) - len(todo))
-    settings = render.RenderSettings(resolution=cfg.resolution, spp=cfg.spp, noise=cfg.noise)
+    settings = render.RenderSettings(resolution=cfg.resolution, spp=cfg.spp, noise=cfg.noise, variant=variant)
     info = {
         "count": cfg.count,
         "resolution": cfg.resolution,
@@ -215,9 +287,17 @@ def generate(
         "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
         "rig": rig.to_dict(),
         "versions": versions(),
+        "variant": variant,
     }
     if cfg.split is not None:
         info["split"] = cfg.split
+    # Recorded in every sidecar when they differ from the single-object defaults.
+    scene_args = {}
+    if cfg.objects != (1, 1):
+        scene_args["objects_range"] = list(cfg.objects)
+    if cfg.table_fraction is not None:
+        scene_args["table_fraction"] = cfg.table_fraction
+    info.update(scene_args)
     if spec_hook is not None:
         info["spec_hook"] = f"{spec_hook.__module__}.{spec_hook.__qualname__}"
     bar = None
@@ -233,7 +313,13 @@ def generate(
                 spec = fixed
             else:
                 spec = scenegen.random_scene(
-                    rig, seed, asset_files=asset_files, materials=materials, shapes=SHAPE_SETS[cfg.shapes]
+                    rig,
+                    seed,
+                    asset_files=asset_files,
+                    materials=materials,
+                    shapes=SHAPE_SETS[cfg.shapes],
+                    objects=cfg.objects,
+                    table_fraction=cfg.table_fraction,
                 )
             if spec_hook is not None:
                 spec = spec_hook(spec)
@@ -244,6 +330,7 @@ def generate(
             meta.update(sample_seed=seed, run_seed=cfg.seed, versions=info["versions"], spec=spec.to_dict())
             if cfg.split is not None:
                 meta["split"] = cfg.split
+            meta.update(scene_args)
             t3 = time.perf_counter()
             t2 = t1 + stages["render"]
             dataset.write_sample(out, index, sample, meta)

@@ -3,15 +3,26 @@
 The display is an ``area`` emitter on a rectangle (or a curved strip) showing one colour
 channel of the RGB pattern, with a ``polarizer`` sheet 1 mm in front of it; its radiance is
 doubled for the sheet's 50 % loss. Objects carry polarization-aware BSDFs only: ``pplastic``
-(Baek et al. 2018) and ``roughconductor`` for analytic materials and ``measured_polarized`` for
-pBRDF tables (``principled`` and ``diffuse`` depolarize). The integrator is ``stokes`` around
+(Baek et al. 2018) and ``roughconductor`` for analytic materials and :mod:`.table_bsdf` or
+``measured_polarized`` for pBRDF tables (``principled`` and ``diffuse`` depolarize). The integrator is ``stokes`` around
 ``volpath`` (``path`` cannot send shadow rays through the polarizer sheet), with AOVs for the
 ground truth.
 
 Spectral multiplexing: one ``*_mono_polarized`` pass per colour channel, each with that
 channel's part of the pattern and the material's value at that channel's wavelength
 (:data:`CHANNEL_WAVELENGTHS_NM`). Between the passes of one sample only parameters change
-(:func:`channel_updates`), so Dr.Jit reuses the compiled kernel.
+(:func:`channel_updates`, :func:`display_updates`). Table materials use :mod:`.table_bsdf`
+there (faster than ``measured_polarized``, and its data are parameters); the plugin,
+which has no parameters, remains for tables on non-uniform grids (the scene is then reloaded per
+channel) and for spectral variants.
+
+Kernel reuse: Dr.Jit compiles every value that is not a JIT parameter into its kernels as a
+constant, and compiling one takes seconds (docs/measurements/headless.md). What changes from
+sample to sample is kept out of the kernels: the crop window enters through the sensor's
+principal point (:func:`sensor_dict`), and the plugin's importance-sampling roughness is rounded
+to a few levels (:data:`ALPHA_SAMPLE_LEVELS`). What stays is one kernel per colour channel (the
+lit rectangle of the display and a table's wavelength are constants), per set of BSDF types, per
+``max_depth`` and per ``spp``, compiled once per process and cached on disk by Dr.Jit.
 
 The RGB (non-polarized) preview of a Blender scene and its XML are in :mod:`.mitsuba_preview`.
 
@@ -48,6 +59,11 @@ __all__ = [
     "mesh_from_arrays",
     "scene_dict",
     "channel_updates",
+    "alpha_sample",
+    "is_convex",
+    "auto_max_depth",
+    "ALPHA_SAMPLE_LEVELS",
+    "DIRECT_LIGHT_DEPTH",
     "SHEET_OFFSET",
     "MIN_ALPHA",
     "curved_strip",
@@ -65,6 +81,16 @@ SHEET_OFFSET = 1e-3
 BUILTIN_RECTANGLE_PATTERNS = ("rgb_halves", "white")
 #: Smallest GGX alpha handed to Mitsuba (roughness near 0 makes the microfacet lobes singular).
 MIN_ALPHA = 1e-3
+#: GGX alphas ``measured_polarized`` importance-samples tables with: the material's alpha rounded
+#: to the nearest level in log scale. The plugin compiles its ``alpha_sample`` into the kernel as a
+#: constant, so a continuous value would recompile every sample; any value is unbiased.
+ALPHA_SAMPLE_LEVELS = (0.05, 0.1, 0.2, 0.4, 0.8)
+#: ``max_depth`` of direct light only (camera -> object -> display) per integrator: ``volpath``
+#: does not count the polarizer sheet (a null interface) as a bounce, ``path`` does (measured:
+#: ``path`` at 2 renders black). One more adds one interreflection.
+DIRECT_LIGHT_DEPTH = {"volpath": 2, "path": 3}
+#: Volume over convex-hull volume above which a closed mesh counts as convex.
+CONVEX_VOLUME_RATIO = 0.999
 
 
 @dataclass(frozen=True)
@@ -285,30 +311,32 @@ def display_updates(display: DisplaySpec, channel: int, params: Any) -> dict[str
 
 
 def sensor_dict(camera: CameraSpec, window: CropWindow, spp: int, *, sampler: str = "independent") -> dict:
-    """Perspective sensor for the crop window; box filter so AOVs stay per-pixel averages."""
+    """Perspective sensor for the crop window; box filter so AOVs stay per-pixel averages.
+
+    The film is only the crop (``window.size``): the crop's field of view and its offset from
+    the optical axis (``principal_point_offset_x/y``, in film widths and heights) place it in the
+    virtual film. These are JIT parameters, whereas a film's size and crop are compiled into
+    Dr.Jit's kernels as constants: with this form, samples whose objects project to different
+    windows reuse one compiled kernel (the same pixel rays as a cropped film, to float rounding;
+    tested).
+    """
     c2w = np.asarray(camera.camera_to_world(), dtype=np.float64)
     origin = c2w[:3, 3]
     forward = -c2w[:3, 2]  # OpenGL camera looks along -z
     up = c2w[:3, 1]
     import mitsuba as mi  # noqa: PLC0415
 
+    w, h = window.size
+    focal_px = camera.focal_length / (camera.pixel_pitch * window.binning)
     return {
         "type": "perspective",
-        "fov": math.degrees(window.fov_x(camera)),
+        "fov": math.degrees(2 * math.atan(w / (2 * focal_px))),
         "fov_axis": "x",
+        "principal_point_offset_x": (window.offset[0] + w / 2 - window.film_size[0] / 2) / w,
+        "principal_point_offset_y": (window.offset[1] + h / 2 - window.film_size[1] / 2) / h,
         "to_world": mi.ScalarTransform4f().look_at(origin=origin.tolist(), target=(origin + forward).tolist(),
                                                    up=up.tolist()),
-        "film": {
-            "type": "hdrfilm",
-            "width": window.film_size[0],
-            "height": window.film_size[1],
-            "crop_offset_x": window.offset[0],
-            "crop_offset_y": window.offset[1],
-            "crop_width": window.size[0],
-            "crop_height": window.size[1],
-            "pixel_format": "luminance",
-            "rfilter": {"type": "box"},
-        },
+        "film": {"type": "hdrfilm", "width": w, "height": h, "pixel_format": "luminance", "rfilter": {"type": "box"}},
         "sampler": {"type": sampler, "sample_count": spp},
     }  # fmt: skip
 
@@ -349,31 +377,135 @@ def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = No
     if material.kind == "diffuse":  # Lambertian, depolarizing
         return {"type": "diffuse", "reflectance": value(material.albedo, "reflectance")}
     if material.kind == "measured":
-        out = {"type": "measured_polarized", "filename": str(material.table), "alpha_sample": max(alpha, 0.05)}
+        if channel is not None and _table_bsdf(material):
+            from . import table_bsdf  # noqa: PLC0415
+
+            table_bsdf.register()
+            return {
+                "type": table_bsdf.PLUGIN,
+                "filename": str(material.table),
+                "wavelength": CHANNEL_WAVELENGTHS_NM[channel],
+                "alpha_sample": max(alpha, ALPHA_SAMPLE_LEVELS[0]),
+            }
+        out = {"type": "measured_polarized", "filename": str(material.table), "alpha_sample": alpha_sample(alpha)}
         if channel is not None:
             out["wavelength"] = CHANNEL_WAVELENGTHS_NM[channel]
         return out
     raise ValueError(f"unknown material kind {material.kind!r}; valid: pplastic, conductor, measured, diffuse")
 
 
-def channel_updates(name: str, material: MaterialSpec, channel: int) -> dict[str, float] | None:
-    """Scene-parameter updates that switch an object's BSDF to ``channel``; None if a reload is needed."""
+def alpha_sample(alpha: float) -> float:
+    """The ``alpha_sample`` of a table material: ``alpha`` rounded to :data:`ALPHA_SAMPLE_LEVELS` in log scale.
+
+    >>> alpha_sample(0.3), alpha_sample(0.0), alpha_sample(1.0)
+    (0.4, 0.05, 0.8)
+    """
+    levels = np.asarray(ALPHA_SAMPLE_LEVELS)
+    return float(levels[np.argmin(np.abs(np.log(levels) - math.log(max(alpha, levels[0]))))])
+
+
+def is_convex(vertices: NDArray, faces: NDArray) -> bool:
+    """Whether a mesh is closed and convex.
+
+    Closed: every edge (after merging coincident vertices) joins exactly two faces. Convex: the
+    enclosed volume (consistent winding assumed) over the convex hull's exceeds
+    :data:`CONVEX_VOLUME_RATIO`.
+
+    >>> tet = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
+    >>> faces = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    >>> is_convex(tet, faces), is_convex(tet, faces[1:])
+    (True, False)
+    """
+    from scipy.spatial import ConvexHull, QhullError  # noqa: PLC0415
+
+    v = np.asarray(vertices, dtype=np.float64)
+    _, ids = np.unique(v, axis=0, return_inverse=True)
+    f = ids.reshape(-1)[np.asarray(faces, dtype=np.int64)]
+    edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
+    key = edges.min(axis=1) * (int(ids.max()) + 1) + edges.max(axis=1)
+    if len(f) < 4 or np.any(np.unique(key, return_counts=True)[1] != 2):
+        return False  # open or non-manifold
+    tri = v[np.asarray(faces, dtype=np.int64)]
+    volume = abs(np.einsum("ij,ij->i", tri[:, 0], np.cross(tri[:, 1], tri[:, 2])).sum()) / 6.0
+    try:
+        hull = ConvexHull(v).volume
+    except (QhullError, ValueError):  # flat or degenerate point sets
+        return False
+    return bool(hull > 0 and volume / hull > CONVEX_VOLUME_RATIO)
+
+
+def auto_max_depth(meshes: list, integrator: str = "volpath") -> int:
+    """The path length limit a scene needs: direct light only where no object can see another or itself.
+
+    That is one closed convex object (:func:`is_convex`); otherwise one interreflection.
+    Rendering a sphere with direct light only gives the same Stokes images as with one
+    interreflection, within noise, and a torus does not (tested).
+
+    Args:
+        meshes: ``(vertices, faces, ...)`` per object (:func:`.passes.world_meshes`).
+        integrator: ``"volpath"`` or ``"path"`` (:data:`DIRECT_LIGHT_DEPTH`).
+    """
+    direct = DIRECT_LIGHT_DEPTH[integrator]
+    if len(meshes) == 1 and is_convex(meshes[0][0], meshes[0][1]):
+        return direct
+    return direct + 1
+
+
+def _table_bsdf(material: MaterialSpec) -> bool:
+    """Whether a mono pass renders this table material with :mod:`.table_bsdf` (else ``measured_polarized``).
+
+    In the ``*_mono_polarized`` JIT variants, for tables on uniform angle grids.
+    """
+    import mitsuba as mi  # noqa: PLC0415
+
+    from . import table_bsdf  # noqa: PLC0415
+
+    variant = mi.variant() or ""
+    mono_jit = variant.endswith("_mono_polarized") and not variant.startswith("scalar")
+    return mono_jit and table_bsdf.uniform_axes(material.table)
+
+
+def channel_updates(
+    name: str, material: MaterialSpec, channel: int, *, two_sided: bool = False
+) -> dict[str, Any] | None:
+    """Scene-parameter updates that switch an object's BSDF to ``channel``; None if a reload is needed.
+
+    ``two_sided``: the BSDF is wrapped in ``twosided`` (:func:`mesh_object`), one level deeper.
+    Table materials rendered with :mod:`.table_bsdf` switch by replacing its data.
+    """
+    bsdf = f"{name}.bsdf.brdf_0" if two_sided else f"{name}.bsdf"
     if material.kind == "pplastic":
-        return {f"{name}.bsdf.diffuse_reflectance.value": float(material.albedo[channel])}
+        return {f"{bsdf}.diffuse_reflectance.value": float(material.albedo[channel])}
     if material.kind == "conductor":
         return {
-            f"{name}.bsdf.eta.value": float(material.eta[channel]),
-            f"{name}.bsdf.k.value": float(material.k[channel]),
+            f"{bsdf}.eta.value": float(material.eta[channel]),
+            f"{bsdf}.k.value": float(material.k[channel]),
         }
     if material.kind == "diffuse":
-        return {f"{name}.bsdf.reflectance.value": float(material.albedo[channel])}
+        return {f"{bsdf}.reflectance.value": float(material.albedo[channel])}
+    if material.kind == "measured" and _table_bsdf(material):
+        import mitsuba as mi  # noqa: PLC0415
+
+        from . import table_bsdf  # noqa: PLC0415
+
+        data, _ = table_bsdf.channel_matrices(material.table, CHANNEL_WAVELENGTHS_NM[channel])
+        return {f"{bsdf}.data": mi.Float(data.reshape(-1))}
     return None
 
 
-def mesh_object(name: str, vertices_world: NDArray, faces: NDArray, normals_world: NDArray | None, bsdf: dict):
-    """A Mitsuba mesh built from arrays (no temporary files) carrying ``bsdf``."""
+def mesh_object(
+    name: str, vertices_world: NDArray, faces: NDArray, normals_world: NDArray | None, bsdf: dict,
+    *, two_sided: bool = False,
+):  # fmt: skip
+    """A Mitsuba mesh built from arrays (no temporary files) carrying ``bsdf``.
+
+    ``two_sided`` wraps the BSDF in Mitsuba's ``twosided`` (it keeps polarization): an open mesh
+    seen from the back is then shaded like its front instead of black.
+    """
     import mitsuba as mi  # noqa: PLC0415
 
+    if two_sided:
+        bsdf = {"type": "twosided", "bsdf": bsdf}
     return mesh_from_arrays(name, vertices_world, faces, {"bsdf": mi.load_dict(bsdf)}, normals=normals_world)
 
 
@@ -399,7 +531,8 @@ def scene_dict(
         objects: name -> Mitsuba shape (from :func:`mesh_object`) or shape dict.
         channel: colour channel 0, 1, 2 (R, G, B).
         spp: samples per pixel.
-        max_depth: path length limit (4 covers camera -> object -> object -> display).
+        max_depth: path length limit (:data:`DIRECT_LIGHT_DEPTH` is direct light only; one more adds
+            one interreflection; :func:`auto_max_depth` chooses).
         integrator: ``"volpath"`` (default; the only one whose shadow rays pass the sheet) or
             ``"path"`` (for benchmarks).
         sampler: Mitsuba sampler plugin name.

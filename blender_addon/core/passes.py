@@ -39,8 +39,11 @@ class RenderSettings:
     Attributes:
         resolution: output size R (the decoded maps are R x R; the raw mosaic 2R x 2R).
         spp: samples per pixel per colour pass.
-        max_depth: path length limit (3: camera -> object -> object -> display, one
-            interreflection; 2 would be direct light only).
+        max_depth: path length limit, or None (default) to choose it from the scene
+            (:func:`.mitsuba_scene.auto_max_depth`: direct light only for one closed convex
+            object, which sees neither itself nor another, else one interreflection). With
+            ``volpath`` 2 is direct light only and 3 adds one interreflection; ``path`` counts
+            the polarizer sheet as a bounce and needs one more.
         crop: render only the objects' screen-space bounding box (True) or the full sensor at
             the same sampling (benchmarks).
         margin: border around the bounding box, as a fraction of its size.
@@ -54,7 +57,7 @@ class RenderSettings:
 
     resolution: int = 384
     spp: int = 32
-    max_depth: int = 3
+    max_depth: int | None = None
     crop: bool = True
     margin: float = 0.06
     integrator: str = "volpath"
@@ -67,6 +70,8 @@ class RenderSettings:
             raise ValueError(f"resolution must be even and >= 8, got {self.resolution}")
         if self.spp < 1:
             raise ValueError(f"spp must be >= 1, got {self.spp}")
+        if self.max_depth is not None and self.max_depth < 1:
+            raise ValueError(f"max_depth must be None or >= 1, got {self.max_depth}")
         if self.integrator not in ("volpath", "path"):
             raise ValueError(f"integrator must be 'volpath' or 'path', got {self.integrator!r}")
 
@@ -83,7 +88,11 @@ class RenderResult:
         object_index: ``(H, W)`` int, index into ``spec.objects``, -1 on background.
         window: the crop window rendered.
         variant: Mitsuba variant used.
-        seconds: wall time per pass.
+        seconds: wall time per pass (``load``, ``pass_R`` ...) and, in JIT variants, the part
+            spent on kernels new to the process, compiled or loaded from Dr.Jit's disk cache
+            (``jit_compile``; 0 when every kernel was compiled by an earlier sample).
+        max_depth: the path length limit rendered with (chosen from the scene when the
+            settings left it None).
     """
 
     stokes: NDArray[np.float32]
@@ -94,6 +103,7 @@ class RenderResult:
     window: ms.CropWindow
     variant: str
     seconds: dict = field(default_factory=dict)
+    max_depth: int | None = None
 
     @property
     def mask(self) -> NDArray[np.bool_]:
@@ -107,13 +117,33 @@ def choose_variant(preferred: str = "llvm_ad_mono_polarized") -> str:
     LLVM older than 16 is rejected (LLVM 15 aborts on Mitsuba's polarized kernels; ``make
     setup`` installs libllvm19). Without it, falls back to ``scalar_spectral_polarized`` with a
     warning (much slower; the display pattern must be the built-in one there).
+
+    Args:
+        preferred: a Mitsuba variant name or an alias (``headless/render.py --variant``):
+            ``auto`` (``cuda_ad_mono_polarized`` when Dr.Jit's CUDA backend works and Mitsuba
+            has that variant, else as ``llvm``), ``llvm`` (``llvm_ad_mono_polarized``), ``cuda``
+            (``cuda_ad_mono_polarized``), ``scalar`` (``scalar_spectral_polarized``).
+
+    Raises:
+        RuntimeError: the variant is not built into Mitsuba, or a CUDA variant without a working
+            CUDA backend.
     """
     if preferred in _VARIANT_CACHE:
         return _VARIANT_CACHE[preferred]
     import mitsuba as mi  # noqa: PLC0415
 
-    variant = preferred
-    if preferred.startswith("llvm"):
+    aliases = {
+        "llvm": "llvm_ad_mono_polarized",
+        "cuda": "cuda_ad_mono_polarized",
+        "scalar": "scalar_spectral_polarized",
+    }
+    variant = aliases.get(preferred, preferred)
+    if variant == "auto":
+        cuda = "cuda_ad_mono_polarized"
+        variant = cuda if cuda in mi.variants() and cuda_ok() else aliases["llvm"]
+    if variant.startswith("cuda") and not cuda_ok():
+        raise RuntimeError(f"Mitsuba variant {variant!r} needs Dr.Jit's CUDA backend (an NVIDIA GPU and driver)")
+    if variant.startswith("llvm"):
         if not llvm_ok():
             warnings.warn(
                 "Dr.Jit's LLVM backend is inactive or older than LLVM 16 (install Debian's libllvm19, "
@@ -126,6 +156,13 @@ def choose_variant(preferred: str = "llvm_ad_mono_polarized") -> str:
         raise RuntimeError(f"Mitsuba variant {variant!r} is not available; have {mi.variants()}")
     _VARIANT_CACHE[preferred] = variant
     return variant
+
+
+def cuda_ok() -> bool:
+    """Dr.Jit's CUDA backend works (an NVIDIA GPU with its driver)."""
+    import drjit as dr  # noqa: PLC0415
+
+    return bool(dr.has_backend(dr.JitBackend.CUDA))
 
 
 def llvm_ok() -> bool:
@@ -155,8 +192,12 @@ def set_variant(variant: str):
     return mi
 
 
-def world_meshes(spec: SceneSpec) -> list[tuple[NDArray, NDArray, NDArray]]:
-    """(vertices, faces, vertex normals) of every object, in world coordinates."""
+def world_meshes(spec: SceneSpec) -> list[tuple[NDArray, NDArray, NDArray, bool]]:
+    """(vertices, faces, shading normals, two-sided) of every object, in world coordinates.
+
+    The meshes come from :func:`.assets.load_mesh` (its normals are the shading normals the
+    ground truth reports); two-sided marks open meshes, whose back faces may be seen.
+    """
     from . import assets  # noqa: PLC0415
 
     out = []
@@ -166,7 +207,10 @@ def world_meshes(spec: SceneSpec) -> list[tuple[NDArray, NDArray, NDArray]]:
         v = np.asarray(mesh.vertices) @ m[:3, :3].T + m[:3, 3]
         n = np.asarray(mesh.vertex_normals) @ np.linalg.inv(m[:3, :3])  # inverse-transpose, row vectors
         n /= np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-12)
-        out.append((v, np.asarray(mesh.faces), n))
+        faces = np.asarray(mesh.faces)
+        if np.linalg.det(m[:3, :3]) < 0:  # a mirroring pose turns the winding around
+            faces = faces[:, ::-1]
+        out.append((v, faces, n, bool(mesh.metadata.get("two_sided", False))))
     return out
 
 
@@ -178,14 +222,16 @@ def render_window(spec: SceneSpec, settings: RenderSettings, meshes: list | None
     """
     cam = spec.rig.camera
     meshes = world_meshes(spec) if meshes is None else meshes
-    uv = np.concatenate([cam.project(v)[0] for v, _, _ in meshes])
+    uv = np.concatenate([cam.project(m[0])[0] for m in meshes])
     window = ms.crop_window(cam, uv, settings.resolution, margin=settings.margin)
     if settings.crop:
         return window
     return ms.CropWindow(window.binning, window.film_size, (0, 0), window.film_size)
 
 
-def aov_result(aov: NDArray, scene, spec: SceneSpec, names: list[str]) -> dict[str, NDArray]:
+def aov_result(
+    aov: NDArray, scene, spec: SceneSpec, names: list[str], two_sided: list[bool] | None = None
+) -> dict[str, NDArray]:
     """Coverage, camera-frame normals, depth and object index from the AOV block of a render.
 
     Args:
@@ -195,6 +241,9 @@ def aov_result(aov: NDArray, scene, spec: SceneSpec, names: list[str]) -> dict[s
         scene: the Mitsuba scene that produced them (for the shape ids).
         spec: the scene spec (camera pose).
         names: Mitsuba shape names of ``spec.objects`` in order.
+        two_sided: per object, whether it is rendered two-sided; there a normal facing away
+            from the camera (a back face seen) is flipped, as Mitsuba's ``twosided`` flips the
+            shading frame.
     """
     import drjit as dr  # noqa: PLC0415
     import mitsuba as mi  # noqa: PLC0415
@@ -224,6 +273,10 @@ def aov_result(aov: NDArray, scene, spec: SceneSpec, names: list[str]) -> dict[s
     for i, name in enumerate(names):
         if name in shape_names:
             index[mask & (rounded == int(registry[shape_names.index(name)]))] = i
+    if two_sided is not None and any(two_sided):
+        seen_back = np.einsum("hwk,hwk->hw", normal, -p_cam) < 0
+        flip = seen_back & np.isin(index, np.flatnonzero(np.asarray(two_sided, dtype=bool)))
+        normal[flip] *= -1.0
     return {
         "normal": normal.astype(np.float32),
         "depth": depth.astype(np.float32),

@@ -14,6 +14,7 @@ truth.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -62,75 +63,122 @@ log = logging.getLogger(__name__)
 def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> RenderResult:
     """Render the Stokes images (per colour channel) and ground-truth AOVs of a scene spec.
 
+    Between the channel passes only parameters change where the plugins allow it; scenes with
+    table materials (``measured_polarized`` has no parameters) are rebuilt per channel, after
+    the previous one is freed, so that Dr.Jit's registry hands out the same instance ids, which
+    its kernels depend on. With the sensor and material choices of :mod:`.mitsuba_scene`, the
+    kernels compiled for the first sample of a process serve every later one with the same
+    resolution, ``spp``, ``max_depth`` and BSDF types (``seconds["jit_compile"]`` is then 0).
+
     Args:
         spec: validated scene spec (rig, objects, materials).
-        settings: resolution, samples, cropping, variant.
+        settings: resolution, samples, cropping, variant; ``max_depth`` None chooses it from the
+            scene (:func:`.mitsuba_scene.auto_max_depth`).
 
     Returns:
-        :class:`RenderResult` on the crop window.
+        :class:`RenderResult` on the crop window, with the ``max_depth`` used.
     """
     settings = settings or RenderSettings()
     variant = settings.variant or choose_variant()
     mi = set_variant(variant)
+    meshes = world_meshes(spec)
+    max_depth = settings.max_depth
+    if max_depth is None:
+        max_depth = ms.auto_max_depth(meshes, settings.integrator)
     if "spectral" in variant:  # the fallback without LLVM, and cross-checks
-        return render_stokes_spectral(spec, settings, variant=variant)
+        result = render_stokes_spectral(spec, dataclasses.replace(settings, max_depth=max_depth), variant=variant)
+        result.max_depth = max_depth
+        return result
     rig = spec.rig
     cam = rig.camera
-    meshes = world_meshes(spec)
     window = render_window(spec, settings, meshes)
     materials = {m.name: m for m in spec.materials}
     names = [f"object_{i}" for i in range(len(spec.objects))]
 
     def build(channel: int):
         objs = {
-            name: ms.mesh_object(name, v, f, n, ms.bsdf_dict(materials[obj.material], channel))
-            for name, obj, (v, f, n) in zip(names, spec.objects, meshes, strict=True)
+            name: ms.mesh_object(name, v, f, n, ms.bsdf_dict(materials[obj.material], channel), two_sided=two)
+            for name, obj, (v, f, n, two) in zip(names, spec.objects, meshes, strict=True)
         }
         return mi.load_dict(
             ms.scene_dict(
                 rig.display, cam, window, objs, channel,
-                spp=settings.spp, max_depth=settings.max_depth, integrator=settings.integrator,
-                sampler=settings.sampler,
+                spp=settings.spp, max_depth=max_depth, integrator=settings.integrator, sampler=settings.sampler,
             )
         )  # fmt: skip
 
+    def channel_updates(channel: int, params) -> dict | None:
+        updates = ms.display_updates(rig.display, channel, params)
+        for name, obj, mesh in zip(names, spec.objects, meshes, strict=True):
+            u = ms.channel_updates(name, materials[obj.material], channel, two_sided=mesh[3])
+            if u is None or updates is None:
+                return None
+            updates.update(u)
+        return updates
+
     seconds: dict[str, float] = {}
-    t0 = time.perf_counter()
-    scene = build(0)
-    params = mi.traverse(scene)
-    seconds["load"] = time.perf_counter() - t0
     w, h = window.size
     stokes = np.zeros((h, w, 3, 4), dtype=np.float32)
     aovs: dict[str, NDArray] = {}
-    for c in range(3):
+    with _CompileTimer() as compile_timer:
         t0 = time.perf_counter()
-        if c > 0:
-            updates = {}
-            for name, obj in zip(names, spec.objects, strict=True):
-                u = ms.channel_updates(name, materials[obj.material], c)
-                if u is None:
-                    updates = None
-                    break
-                updates.update(u)
-            if updates is None:
-                scene = build(c)
-                params = mi.traverse(scene)
-            else:
-                disp = ms.display_updates(rig.display, c, params)
-                if disp is None:
+        scene = build(0)
+        params = mi.traverse(scene)
+        seconds["load"] = time.perf_counter() - t0
+        for c in range(3):
+            t0 = time.perf_counter()
+            if c > 0:
+                updates = channel_updates(c, params)
+                if updates is None:
+                    scene = params = None  # freed before the next one is built (see above)
                     scene = build(c)
                     params = mi.traverse(scene)
                 else:
-                    for k, v in {**disp, **updates}.items():
-                        params[k] = v
-                    params.update()
-        img = np.asarray(mi.render(scene, seed=(int(spec.seed) * 3 + c) % 2**32, spp=settings.spp))
-        # Mono layout: [Y, S0 x3, S1 x3, S2 x3, S3 x3, AOVs...].
-        stokes[:, :, c, :] = img[:, :, [1, 4, 7, 10]]
-        if c == 0:  # AOVs from the first pass, with that scene's shape ids
-            aovs = aov_result(img[:, :, 13:], scene, spec, names)
-        seconds[f"pass_{'RGB'[c]}"] = time.perf_counter() - t0
-    return RenderResult(stokes=stokes, window=window, variant=variant, seconds=seconds, **aovs)
+                    params.update(updates)
+            img = np.asarray(mi.render(scene, seed=(int(spec.seed) * 3 + c) % 2**32, spp=settings.spp))
+            # Mono layout: [Y, S0 x3, S1 x3, S2 x3, S3 x3, AOVs...].
+            stokes[:, :, c, :] = img[:, :, [1, 4, 7, 10]]
+            if c == 0:  # AOVs from the first pass, with that scene's shape ids
+                aovs = aov_result(img[:, :, 13:], scene, spec, names, [m[3] for m in meshes])
+            seconds[f"pass_{'RGB'[c]}"] = time.perf_counter() - t0
+    seconds["jit_compile"] = compile_timer.seconds
+    return RenderResult(
+        stokes=stokes, window=window, variant=variant, seconds=seconds, max_depth=max_depth, **aovs
+    )  # fmt: skip
+
+
+class _CompileTimer:
+    """Seconds Dr.Jit spent on kernels new to the process inside a ``with`` block.
+
+    New kernels are compiled, or loaded from Dr.Jit's disk cache (then only their code
+    generation counts, a fraction of a millisecond); kernels already in memory count nothing.
+    Reads and clears Dr.Jit's kernel history (``JitFlag.KernelHistory``), switched on for the
+    block and restored after it.
+    """
+
+    def __init__(self) -> None:
+        self.seconds = 0.0
+        self._was_on = False
+
+    def __enter__(self) -> _CompileTimer:
+        import drjit as dr  # noqa: PLC0415
+
+        self._was_on = bool(dr.flag(dr.JitFlag.KernelHistory))
+        if not self._was_on:
+            dr.set_flag(dr.JitFlag.KernelHistory, True)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        import drjit as dr  # noqa: PLC0415
+
+        history = dr.kernel_history([dr.KernelType.JIT])  # also clears it
+        self.seconds = sum(
+            (k.get("codegen_time", 0.0) + k.get("backend_time", 0.0)) / 1000.0
+            for k in history
+            if not k.get("cache_hit") or k.get("cache_disk")
+        )
+        if not self._was_on:
+            dr.set_flag(dr.JitFlag.KernelHistory, False)
 
 
 def ground_truth(spec: SceneSpec, result: RenderResult) -> dict[str, NDArray]:
@@ -204,6 +252,7 @@ def synthesize_sample(
         "window": result.window.to_dict(),
         "intrinsics": result.window.intrinsics(spec.rig.camera).tolist(),
         "variant": result.variant,
+        "max_depth": result.max_depth,
         "seconds": {**result.seconds, "camera_and_decode": t_camera},
         "mask_fraction": float(mask.mean()),
     }

@@ -1,18 +1,24 @@
-"""Objaverse-like random scenes: an asset, a random pose in view, a random polarimetric material.
+"""Objaverse-like random scenes: one or more objects at random poses in view, random polarimetric materials.
 
 Everything is drawn from one seed, so a sample index and a run seed reproduce the scene bit for
-bit (``sample_seed``). Assets come from a folder (GLB/GLTF/OBJ/PLY, :mod:`.assets`) or, without
-one, from the built-in procedural set. Materials come from a folder of measured/generated pBRDF
-tables (a ``materials.json`` there lists each table with its Disney parameters) or, without one,
-from analytic ``pplastic`` and ``roughconductor`` materials with random parameters.
+bit (``sample_seed``). Shapes come from a pool of asset files (GLB/GLTF/OBJ/PLY, :mod:`.assets`)
+and built-in shapes (:mod:`.procedural`, :mod:`.generated_shapes`, :mod:`.unseen_shapes`).
+Materials come from a folder of measured/generated pBRDF tables (a ``materials.json`` there lists
+each table with its Disney parameters), from analytic ``pplastic`` and ``roughconductor``
+materials with random parameters, or from both (``table_fraction``). Objects never interpenetrate:
+their bounding spheres are disjoint. One object with the default arguments draws exactly the
+random stream of the single-object scenes before multi-object scenes existed, so existing
+datasets and splits reproduce.
 """
 
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
 from pbrdf.sensor.rig import Rig
 
@@ -21,7 +27,15 @@ from .procedural import PROCEDURAL_SHAPES
 from .spec import MaterialSpec, ObjectSpec, SceneSpec
 from .unseen_shapes import UNSEEN_SHAPES
 
-__all__ = ["METALS", "sample_seed", "random_material", "load_material_library", "random_scene", "benchmark_scene"]
+__all__ = [
+    "METALS",
+    "POSE_TRIES",
+    "sample_seed",
+    "random_material",
+    "load_material_library",
+    "random_scene",
+    "benchmark_scene",
+]
 
 #: Approximate complex IOR n - ik of common metals at the display primaries (630, 532, 465 nm),
 #: rounded from standard tabulations (e.g. Johnson and Christy 1972 for Au, Ag, Cu; Rakic 1995
@@ -35,6 +49,11 @@ METALS: dict[str, tuple[tuple[float, float, float], tuple[float, float, float]]]
     "iron": ((2.90, 2.90, 2.40), (3.10, 2.90, 2.70)),
     "brass": ((0.44, 0.74, 1.10), (3.70, 2.60, 2.10)),
 }
+
+
+#: Poses drawn for an object of a multi-object scene while its bounding sphere overlaps an earlier
+#: object's; then the object is left out.
+POSE_TRIES = 20
 
 
 def sample_seed(run_seed: int, index: int) -> int:
@@ -79,40 +98,123 @@ def load_material_library(folder: str | Path) -> list[MaterialSpec]:
     return out
 
 
+def _object_range(objects: tuple[int, int]) -> tuple[int, int]:
+    try:
+        lo, hi = (int(v) for v in objects)
+    except (TypeError, ValueError):
+        lo, hi = 0, -1
+    if not 1 <= lo <= hi or (lo, hi) != tuple(objects):
+        raise ValueError(f"objects must be (min, max) integers with 1 <= min <= max, got {objects!r}")
+    return lo, hi
+
+
+def _unique(name: str, used: set[str]) -> str:
+    """``name``, or ``name_2``, ``name_3``, ... whichever is not in ``used`` first."""
+    out, k = name, 2
+    while out in used:
+        out, k = f"{name}_{k}", k + 1
+    return out
+
+
+def _bounding_sphere(mesh, to_world: NDArray) -> tuple[NDArray, float]:
+    """World centre and radius of a placed mesh's bounding sphere (bounding-box centre, half diameter)."""
+    v = np.asarray(mesh.vertices, dtype=np.float64)
+    centre = (v.min(axis=0) + v.max(axis=0)) / 2
+    radius = float(np.sqrt(np.max(np.sum((v - centre) ** 2, axis=1))))
+    scale = float(np.linalg.norm(to_world[:3, 0]))  # rotation times a uniform scale
+    return to_world[:3, :3] @ centre + to_world[:3, 3], scale * radius
+
+
 def random_scene(
     rig: Rig,
     seed: int,
     *,
     asset_files: list[Path] | None = None,
     materials: list[MaterialSpec] | None = None,
-    shapes: tuple[str, ...] = PROCEDURAL_SHAPES,
+    shapes: tuple[str, ...] | None = None,
     distance: tuple[float, float] = (0.5, 1.0),
     size: tuple[float, float] = (0.15, 0.35),
+    objects: tuple[int, int] = (1, 1),
+    table_fraction: float | None = None,
+    pose_tries: int = POSE_TRIES,
 ) -> SceneSpec:
-    """One object at a random pose in view, with a random material; reproducible from ``seed``.
+    """Objects at random, non-overlapping poses in view, each with its own random material.
+
+    Randomness: one ``numpy.random.default_rng(seed)`` draws the number of objects (only when
+    ``objects`` is a range), then per object in order: its shape, its shape seed (when the pool
+    has built-in shapes), its pose (redrawn while its bounding sphere overlaps an earlier
+    object's, at most ``pose_tries`` times, then the object is left out; the first always
+    stays), whether its material is tabulated (only when ``0 < table_fraction < 1``) and the
+    material. Objects are named ``object``, ``object_2``, ...; materials keep their names, made
+    unique with ``_2``, ``_3``, ... suffixes (a table drawn twice is listed twice).
 
     Args:
         rig: the capture rig.
         seed: scene seed (e.g. :func:`sample_seed`).
-        asset_files: asset meshes to choose from; None uses the built-in ``shapes``.
-        shapes: built-in shapes to choose from (:data:`.procedural.PROCEDURAL_SHAPES`, the
-            training shapes, or :data:`.unseen_shapes.UNSEEN_SHAPES`).
-        materials: material library to choose from; None draws analytic materials.
+        asset_files: asset meshes of the pool.
+        materials: pBRDF table library (:func:`load_material_library`); None: analytic materials.
+        shapes: built-in shapes of the pool (:data:`.procedural.PROCEDURAL_SHAPES`,
+            :data:`.generated_shapes.GENERATED_SHAPES`, :data:`.unseen_shapes.UNSEEN_SHAPES`);
+            None: none with ``asset_files``, else the procedural shapes.
         distance: object distance from the camera in metres.
         size: object diameter in metres.
+        objects: (min, max) number of objects, inclusive; fewer when poses run out.
+        table_fraction: probability that an object's material is a table of ``materials`` rather
+            than an analytic one; None: 1 with ``materials``, else 0.
+        pose_tries: pose draws per object while it overlaps an earlier one.
+
+    Returns:
+        The scene, seeded with ``seed % 2**31``.
+
+    Raises:
+        ValueError: an empty pool, a bad ``objects`` range, a ``table_fraction`` outside [0, 1] or
+            above 0 without ``materials``, or no pose in view (:func:`.assets.place`).
     """
+    lo, hi = _object_range(objects)
+    if table_fraction is None:
+        table_fraction = 1.0 if materials else 0.0
+    if not 0.0 <= table_fraction <= 1.0:
+        raise ValueError(f"table_fraction must be in [0, 1], got {table_fraction}")
+    if table_fraction > 0 and not materials:
+        raise ValueError(f"table_fraction {table_fraction} > 0 needs a pBRDF table library (materials)")
+    if pose_tries < 1:
+        raise ValueError(f"pose_tries must be >= 1, got {pose_tries}")
+    files = [str(f) for f in asset_files or ()]
+    builtins = tuple(shapes) if shapes is not None else (() if files else PROCEDURAL_SHAPES)
+    pool = files + [f"builtin:{s}" for s in builtins]
+    if not pool:
+        raise ValueError("random_scene: no shapes to draw from (no asset files and no built-in shapes)")
     rng = np.random.default_rng(seed)
-    if asset_files:
-        mesh_ref = str(asset_files[int(rng.integers(len(asset_files)))])
-    else:
-        shape = shapes[int(rng.integers(len(shapes)))]
-        shape_seed = int(rng.integers(2**31))  # drawn for every shape, so the stream does not depend on it
-        mesh_ref = f"builtin:{shape}" if shape in UNSEEN_SHAPES else f"builtin:{shape}?seed={shape_seed}"
-    mesh = assets.load_mesh(mesh_ref)
-    to_world = assets.place(mesh, rig, rng, distance=distance, size=size)
-    material = materials[int(rng.integers(len(materials)))] if materials else random_material(rng)
-    obj = ObjectSpec(name="object", mesh=mesh_ref, to_world=tuple(map(tuple, to_world)), material=material.name)
-    return SceneSpec(rig=rig, objects=(obj,), materials=(material,), seed=int(seed) % 2**31)
+    count = lo if lo == hi else int(rng.integers(lo, hi + 1))
+    placed: list[tuple[NDArray, float]] = []
+    objs: list[ObjectSpec] = []
+    mats: list[MaterialSpec] = []
+    for _ in range(count):
+        k = int(rng.integers(len(pool)))
+        mesh_ref = pool[k]
+        if builtins:
+            shape_seed = int(rng.integers(2**31))  # drawn for every shape, so the stream does not depend on it
+            if k >= len(files) and builtins[k - len(files)] not in UNSEEN_SHAPES:
+                mesh_ref = f"{mesh_ref}?seed={shape_seed}"
+        mesh = assets.load_mesh(mesh_ref)
+        for _ in range(pose_tries):
+            to_world = assets.place(mesh, rig, rng, distance=distance, size=size)
+            centre, radius = _bounding_sphere(mesh, to_world)
+            if all(np.linalg.norm(centre - c) >= radius + r for c, r in placed):
+                break
+        else:
+            continue  # no free pose: leave the object out
+        placed.append((centre, radius))
+        table = table_fraction == 1.0 or (0.0 < table_fraction and rng.random() < table_fraction)
+        suffix = "" if not objs else f"_{len(objs) + 1}"
+        material = materials[int(rng.integers(len(materials)))] if table else random_material(rng, f"material{suffix}")
+        material = replace(material, name=_unique(material.name, {m.name for m in mats}))
+        obj = ObjectSpec(
+            name=f"object{suffix}", mesh=mesh_ref, to_world=tuple(map(tuple, to_world)), material=material.name
+        )
+        objs.append(obj)
+        mats.append(material)
+    return SceneSpec(rig=rig, objects=tuple(objs), materials=tuple(mats), seed=int(seed) % 2**31)
 
 
 def benchmark_scene(seed: int = 0) -> SceneSpec:

@@ -47,6 +47,7 @@ from pbrdf.sensor.rig import (
 )
 
 from . import assets
+from .generated_shapes import GENERATED_SHAPES
 from .procedural import PROCEDURAL_SHAPES
 from .unseen_shapes import UNSEEN_SHAPES
 
@@ -250,8 +251,8 @@ class ObjectSpec:
         if not isinstance(self.mesh, str) or not self.mesh:
             raise ValueError(f"{where}: mesh must be a file path or 'builtin:<shape>', got {self.mesh!r}")
         builtin = assets.parse_builtin(self.mesh)
-        if builtin is not None and builtin[0] not in PROCEDURAL_SHAPES + UNSEEN_SHAPES:
-            valid = list(PROCEDURAL_SHAPES + UNSEEN_SHAPES)
+        if builtin is not None and builtin[0] not in PROCEDURAL_SHAPES + GENERATED_SHAPES + UNSEEN_SHAPES:
+            valid = list(PROCEDURAL_SHAPES + GENERATED_SHAPES + UNSEEN_SHAPES)
             raise ValueError(f"{where}: unknown builtin shape {builtin[0]!r}; valid: {valid}")
         m = _as_matrix4(self.to_world, f"{where}: to_world")
         if not np.linalg.det(np.asarray(m)[:3, :3]) > 0:

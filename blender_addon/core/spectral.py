@@ -201,18 +201,21 @@ def render_stokes_spectral(
     window = passes.render_window(spec, settings, meshes)
     materials = {m.name: m for m in spec.materials}
     names = [f"object_{i}" for i in range(len(spec.objects))]
+    max_depth = settings.max_depth
+    if max_depth is None:  # chosen from the scene, as the mono passes do
+        max_depth = ms.auto_max_depth(meshes, settings.integrator)
 
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
     objs = {
-        name: ms.mesh_object(name, v, f, n, bsdf_dict(materials[obj.material]))
-        for name, obj, (v, f, n) in zip(names, spec.objects, meshes, strict=True)
+        name: ms.mesh_object(name, v, f, n, bsdf_dict(materials[obj.material]), two_sided=two)
+        for name, obj, (v, f, n, two) in zip(names, spec.objects, meshes, strict=True)
     }
     # As mitsuba_scene.scene_dict, with the spectral display (its own would load a raw bitmap).
     inner = {
         "type": "aov",
         "aovs": ms.AOVS,
-        "integrator": {"type": settings.integrator, "max_depth": settings.max_depth},
+        "integrator": {"type": settings.integrator, "max_depth": max_depth},
     }
     scene = mi.load_dict({
         "type": "scene",
@@ -230,7 +233,7 @@ def render_stokes_spectral(
     h, w = img.shape[:2]
     # [Y, S0.RGB, S1.RGB, S2.RGB, S3.RGB]: channel 1 + 3 i + c is S_i of colour c.
     stokes = img[..., 1:_STOKES_CHANNELS].reshape(h, w, 4, 3).transpose(0, 1, 3, 2)
-    aovs = passes.aov_result(img[..., _STOKES_CHANNELS:], scene, spec, names)
+    aovs = passes.aov_result(img[..., _STOKES_CHANNELS:], scene, spec, names, [m[3] for m in meshes])
     return passes.RenderResult(
         stokes=np.ascontiguousarray(stokes, dtype=np.float32),
         window=window,

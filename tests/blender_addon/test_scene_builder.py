@@ -200,3 +200,37 @@ def test_errors_are_one_line_reports(tmp_path, asset_dir):
         scene_builder.import_asset(bad)
     # Nothing was left behind by the failures.
     assert not [o for o in bpy.data.objects if o.get(rig_bpy.ROLE_KEY) == "scene_object"]
+
+
+def test_hard_edges_survive_as_custom_split_normals(tmp_path):
+    path = tmp_path / "cube.stl"  # STL has no normals: the pipeline's crease-angle normals apply
+    trimesh.creation.box(extents=(1.0, 2.0, 3.0)).export(path)
+    mesh = scene_builder.import_asset(path)
+    try:
+        assert len(mesh.vertices) == 8 and len(mesh.polygons) == 12  # welded topology
+        corner = np.empty(3 * len(mesh.loops), dtype=np.float32)
+        mesh.corner_normals.foreach_get("vector", corner)
+        face = np.empty(3 * len(mesh.polygons), dtype=np.float32)
+        mesh.polygons.foreach_get("normal", face)
+        loop_face = np.repeat(np.arange(len(mesh.polygons)), 3)
+        cos = np.einsum("ij,ij->i", corner.reshape(-1, 3), face.reshape(-1, 3)[loop_face])
+        assert cos.min() > np.cos(np.radians(0.5))  # every corner keeps its flat face's normal
+    finally:
+        bpy.data.meshes.remove(mesh)
+
+
+def test_bad_files_are_skipped_not_fatal(tmp_path, asset_dir):
+    folder = tmp_path / "mixed"
+    folder.mkdir()
+    (folder / "good.glb").write_bytes((asset_dir / "box.glb").read_bytes())
+    (folder / "empty.obj").write_bytes(b"")
+    (folder / "card.obj").write_text("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\nf 1 2 4\nf 2 3 4\n")
+    skipped: dict = {}
+    objs = scene_builder.build_scene(bpy.context.scene, folder, 6, seed=1, skipped=skipped)
+    assert len(objs) == 6 and all(o["pdir_asset"].endswith("good.glb") for o in objs)
+    assert set(map(lambda p: p.rsplit("/", 1)[-1], skipped)) <= {"empty.obj", "card.obj"} and skipped
+    for reason in skipped.values():
+        assert "degenerate mesh" in reason and "\n" not in reason
+    (folder / "good.glb").unlink()
+    with pytest.raises(ValueError, match="every asset file was refused"):
+        scene_builder.build_scene(bpy.context.scene, folder, 1, seed=1)

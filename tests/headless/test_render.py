@@ -172,3 +172,69 @@ def test_split_prefix_is_labelled_and_keeps_raw(tmp_path):
     # The ground truth covers the object; the training mask is the decoded part of it.
     cover = sample["object"] >= 0
     assert np.all(sample["mask"] <= cover) and np.all(np.linalg.norm(sample["normal"][cover], axis=-1) > 0.99)
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [
+        (["--count", "1", "--objects", "3-2"], "--objects must be N or MIN-MAX with 1 <= MIN <= MAX, got '3-2'"),
+        (["--count", "1", "--objects", "0"], "--objects must be N or MIN-MAX"),
+        (["--count", "1", "--table-fraction", "0.3"], "--table-fraction 0.3 > 0 needs --pbrdfs DIR"),
+        (["--count", "1", "--shapes", "none"], "--shapes none leaves nothing to draw: give --assets DIR"),
+        (["--count", "1", "--variant", "gpu"], "--variant must be one of ['auto', 'llvm', 'cuda', 'scalar']"),
+        (["--split", "val", "--objects", "2"], "--split val draws one object per scene: drop --objects"),
+        (["--split", "val", "--table-fraction", "0"], "drop --objects and --table-fraction"),
+    ],
+)
+def test_scene_content_flag_errors_are_one_line(tmp_path, extra, message):
+    res = subprocess.run([sys.executable, "headless/render.py", "--out", str(tmp_path / "o"), *extra],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120)  # fmt: skip
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:") and message in lines[0], res.stderr
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.mitsuba
+def test_cuda_variant_without_a_gpu_fails_with_one_line(tmp_path):
+    drjit = pytest.importorskip("drjit")
+    if drjit.has_backend(drjit.JitBackend.CUDA):
+        pytest.skip("Dr.Jit has a CUDA backend here")
+    cmd = [sys.executable, "headless/render.py", "--out", str(tmp_path / "o"), "--count", "1", "--variant", "cuda"]
+    res = subprocess.run([*cmd, *SMALL], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1, res.stderr
+    assert lines[0].startswith("error: --variant cuda: ") and "CUDA backend" in lines[0]
+
+
+def test_splits_render_with_llvm_unless_told_and_help_lists_the_new_flags():
+    from headless.render import _apply_split, build_parser
+
+    parser = build_parser()
+    args = parser.parse_args(["--split", "val"])
+    _apply_split(args)
+    assert args.variant == "llvm" and args.objects is None and args.shapes == "procedural"
+    args = parser.parse_args(["--split", "val", "--variant", "scalar"])
+    _apply_split(args)
+    assert args.variant == "scalar"
+    text = parser.format_help()
+    for flag in ("--objects", "--table-fraction", "--variant", "generated", "train", "none"):
+        assert flag in text
+
+
+@pytest.mark.mitsuba
+def test_objects_flag_renders_several_objects(tmp_path):
+    from pbrdf.data import dataset
+
+    out = tmp_path / "multi"
+    _run("headless/render.py", "--out", str(out), "--count", "2", "--seed", "4", "--objects", "2-3", "--variant",
+         "llvm", *SMALL)  # fmt: skip
+    for i in range(2):
+        sample, meta = dataset.read_sample(out, i)
+        n = len(meta["spec"]["objects"])
+        assert 2 <= n <= 3 and meta["objects_range"] == [2, 3] and "table_fraction" not in meta
+        assert meta["variant"] == "llvm_ad_mono_polarized"
+        assert len({o["material"] for o in meta["spec"]["objects"]}) == n
+        assert set(np.unique(sample["object"]).tolist()) <= {-1.0, *map(float, range(n))}
+        assert len(np.unique(sample["object"])) >= 3  # background and at least two objects in view
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["config"]["objects"] == [2, 3] and manifest["variant"] == "llvm_ad_mono_polarized"

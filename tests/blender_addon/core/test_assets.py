@@ -39,10 +39,13 @@ class TestLoad:
         path = tmp_path / "two.glb"
         scene.export(path)
         m = assets.load_mesh(path)
-        assert len(m.vertices) == 16 and len(m.faces) == 24  # two boxes, 8 + 8 vertices
+        # Two boxes, 8 + 8 corners; hard edges split each corner into 3 render vertices.
+        assert len(m.vertices) == 48 and len(m.faces) == 24 and m.metadata["bodies"] == 2
         expected = np.concatenate([trimesh.transform_points(a.vertices, ta), trimesh.transform_points(b.vertices, tb)])
-        np.testing.assert_allclose(np.sort(m.vertices, axis=0), np.sort(expected, axis=0), atol=1e-6)
+        corners = np.unique(np.round(np.asarray(m.vertices), 5), axis=0)
+        np.testing.assert_allclose(np.sort(corners, axis=0), np.sort(expected, axis=0), atol=1e-5)
         assert m.volume == pytest.approx(6.0 + 8.0, rel=1e-6)
+        assert not m.metadata["two_sided"]
 
     @pytest.mark.parametrize("suffix", [".obj", ".ply", ".glb", ".gltf"])
     def test_formats(self, tmp_path, suffix):
@@ -55,8 +58,8 @@ class TestLoad:
         else:
             box.export(path)
         m = assets.load_mesh(path)
-        assert len(m.vertices) == 8 and len(m.faces) == 12
-        assert m.is_watertight and m.volume == pytest.approx(0.006, rel=1e-6)
+        assert len(np.unique(np.asarray(m.vertices), axis=0)) == 8 and len(m.faces) == 12
+        assert not m.metadata["two_sided"] and m.volume == pytest.approx(0.006, rel=1e-6)
 
     def test_cleaning(self, tmp_path):
         box = trimesh.creation.box()
@@ -67,7 +70,8 @@ class TestLoad:
         path = tmp_path / "soup.ply"
         trimesh.Trimesh(v, f, process=False).export(path)
         m = assets.load_mesh(path)
-        assert (len(m.vertices), len(m.faces)) == (8, 12) and m.is_watertight
+        # 8 corners x 3 faces meeting at hard edges = 24 render vertices; welded, the box is closed.
+        assert (len(m.vertices), len(m.faces)) == (24, 12) and not m.metadata["two_sided"]
 
     def test_inside_out_mesh_is_flipped(self, tmp_path):
         box = trimesh.creation.box()
@@ -89,7 +93,7 @@ class TestLoad:
         box = trimesh.creation.box()
         box.vertices[:, 2] = 0.0
         trimesh.Trimesh(box.vertices, box.faces, process=False).export(flat)
-        with pytest.raises(ValueError, match=r"degenerate mesh: flat: zero extent along z"):
+        with pytest.raises(ValueError, match=r"degenerate mesh: flat: thickness along z is 0 "):
             assets.load_mesh(flat)
         nan = tmp_path / "nan.obj"
         v = np.array(trimesh.creation.box().vertices)
@@ -106,9 +110,13 @@ class TestLoad:
     def test_file_errors(self, tmp_path):
         with pytest.raises(FileNotFoundError, match="mesh file not found"):
             assets.load_mesh(tmp_path / "missing.glb")
+        fbx = tmp_path / "x.fbx"  # FBX: only inside Blender
+        fbx.write_text("x")
+        with pytest.raises(ValueError, match=r"unsupported mesh type '.fbx'"):
+            assets.load_mesh(fbx)
         stl = tmp_path / "x.stl"
         stl.write_text("solid x\nendsolid x\n")
-        with pytest.raises(ValueError, match=r"unsupported mesh type '.stl'"):
+        with pytest.raises(ValueError, match=r"x.stl: degenerate mesh: no triangle geometry"):
             assets.load_mesh(stl)
         junk = tmp_path / "junk.glb"
         junk.write_bytes(b"definitely not a glb")
@@ -194,7 +202,7 @@ class TestFiles:
             (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
             (tmp_path / name).write_bytes(b"x")
         found = [p.relative_to(tmp_path).as_posix() for p in assets.list_assets(tmp_path)]
-        assert found == ["a.obj", "b/a.ply", "b/c/m.glb", "b/z.GLB", "c.gltf"]
+        assert found == ["a.obj", "b/a.ply", "b/c/m.glb", "b/z.GLB", "c.gltf", "d.stl"]
         with pytest.raises(FileNotFoundError, match="asset folder not found"):
             assets.list_assets(tmp_path / "nope")
 
