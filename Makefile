@@ -10,7 +10,7 @@ CHROMIUM_STAMP := $(VENV)/.chromium-ok
 MODELS_STAMP := $(VENV)/.testmodels-ok
 OUT ?= out
 
-.PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets
+.PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets train-data
 
 help:  ## list targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -86,6 +86,16 @@ test-sets: setup  ## render the test splits (48 scenes each, raw brackets kept) 
 	$(PY) headless/render.py --split test-meshes --out $(SPLITS_DIR)/test-meshes --resume --quiet
 	$(PY) headless/expand_pbrdf.py --out $(SPLITS_DIR)/pbrdfs-test --count 24 --seed 22000 --quiet
 	$(PY) headless/render.py --split test-pbrdf --pbrdfs $(SPLITS_DIR)/pbrdfs-test --out $(SPLITS_DIR)/test-pbrdf --resume --quiet
+	$(PY) headless/render.py --split test-scenes --pbrdfs $(SPLITS_DIR)/pbrdfs-test --out $(SPLITS_DIR)/test-scenes --resume --quiet
+
+# The data engine's training data (pbrdf/data/splits.py train-engine, val-engine): 2,000 + 64
+# scenes of 1-3 objects at 192 px, half the materials expanded pBRDF tables. Long: every command
+# resumes where a killed run stopped. SHARD=K/N renders one shard (run N machines or processes).
+SHARD ?= 0/1
+train-data: setup  ## render the data engine's train-engine and val-engine splits (resumable; SHARD=K/N)
+	$(PY) headless/expand_pbrdf.py --out $(SPLITS_DIR)/pbrdfs-train --count 200 --seed 12000 --quiet
+	$(PY) headless/render.py --split val-engine --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/val-engine --shard $(SHARD) --resume --quiet
+	$(PY) headless/render.py --split train-engine --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/train-engine --shard $(SHARD) --resume --quiet
 
 addon: setup  ## build the Blender extension zip into dist/
 	$(PY) tools/build_addon.py --out dist

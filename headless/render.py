@@ -16,8 +16,9 @@ versions); DIR/manifest.json lists the completed samples. Every sample is a pure
 a job array, into the same folder), --resume skips completed samples after a kill.
 
 --split renders one of the project's fixed splits (train, val, test-procedural, test-meshes,
-test-pbrdf; pbrdf/data/splits.py) with its own seed, count, resolution, spp and shapes; test
-splits keep the raw brackets so they are scored through the real-capture path. The manifest
+test-pbrdf, and the data engine's train-engine, val-engine, test-scenes; pbrdf/data/splits.py)
+with its own seed, count, resolution, spp, shapes, objects per scene, material mix and asset
+corpus; test splits keep the raw brackets so they are scored through the real-capture path. The manifest
 and every sidecar record the split; training refuses test splits.
 
 Shapes: each object is drawn from a pool of built-in shapes (--shapes SET: procedural, the
@@ -80,7 +81,7 @@ def _apply_split(args: argparse.Namespace) -> str | None:
     if args.scene is not None or args.assets is not None:
         raise ValueError("--split draws its own scenes: it cannot be combined with --scene or --assets")
     if args.objects is not None or args.table_fraction is not None:
-        raise ValueError(f"--split {split.name} draws one object per scene: drop --objects and --table-fraction")
+        raise ValueError(f"--split {split.name} fixes the objects and materials: drop --objects and --table-fraction")
     if split.pbrdfs and args.pbrdfs is None:
         raise ValueError(f"--split {split.name} needs --pbrdfs DIR (expanded tables; `make test-sets` makes them)")
     if not split.pbrdfs and args.pbrdfs is not None:
@@ -95,6 +96,9 @@ def _apply_split(args: argparse.Namespace) -> str | None:
     if args.shapes != split.shapes:
         raise ValueError(f"--split {split.name} uses --shapes {split.shapes}")
     args.keep_raw = args.keep_raw or split.keep_raw
+    args.objects = f"{split.objects[0]}-{split.objects[1]}"
+    args.table_fraction = split.table_fraction
+    args.assets = split.asset_folder()
     args.variant = args.variant or "llvm"  # the variant the splits were made with, GPU or not
     args.out = args.out or Path("out/splits") / split.name
     return split.name

@@ -49,6 +49,7 @@ __all__ = [
     "MIN_THICKNESS",
     "MeshPart",
     "build_render_mesh",
+    "usable_assets",
     "ensure_uv",
     "list_assets",
     "load_mesh",
@@ -336,6 +337,26 @@ def _check_gltf(path: Path, suffix: str, name: str) -> None:
         raise ValueError(f"{name}: Draco-compressed glTF is not supported (re-export without Draco compression)")
 
 
+def usable_assets(files: Iterable[str | os.PathLike]) -> tuple[list[Path], dict[str, str]]:
+    """Split asset files into those :func:`load_mesh` loads and those it refuses.
+
+    Returns:
+        ``(loadable files in the given order, {file: the one-line reason})``.
+    """
+    ok, refused = [], {}
+    for f in files:
+        try:
+            load_mesh(f)
+            ok.append(Path(f))
+        except (ValueError, OSError) as e:
+            refused[str(f)] = str(e)
+    return ok, refused
+
+
+#: Meshes :func:`load_mesh` keeps per process (scene generation and rendering load each twice).
+_CACHE_SIZE = 32
+
+
 def load_mesh(path_or_builtin: str | os.PathLike, *, crease_deg: float | None = None) -> trimesh.Trimesh:
     """Load a mesh file (GLB, GLTF, OBJ, PLY, STL, OFF) or a ``builtin:`` shape as one render-ready mesh.
 
@@ -343,6 +364,9 @@ def load_mesh(path_or_builtin: str | os.PathLike, *, crease_deg: float | None = 
     cleaned, oriented and shaded by :func:`build_render_mesh` (authored normals kept, crease-angle
     normals otherwise; ``metadata["two_sided"]`` marks open meshes). Built-in shapes go through
     the same step. The mesh keeps its file's scale and position (see :func:`normalize`).
+
+    Meshes are cached per process (the last :data:`_CACHE_SIZE`, files keyed by path, size and
+    modification time): treat the result as read-only.
 
     Args:
         path_or_builtin: a file path or ``builtin:<shape>[?key=value&...]``.
@@ -355,6 +379,29 @@ def load_mesh(path_or_builtin: str | os.PathLike, *, crease_deg: float | None = 
             flat or zero extent).
     """
     require_trimesh()
+    ref = str(path_or_builtin)
+    key: tuple = (ref, crease_deg)
+    if not ref.startswith(_BUILTIN_PREFIX):
+        try:
+            st = os.stat(ref)
+            key += (st.st_mtime_ns, st.st_size)
+        except OSError:
+            key = ()
+    if key and key in _MESH_CACHE:
+        _MESH_CACHE[key] = _MESH_CACHE.pop(key)  # most recently used last
+        return _MESH_CACHE[key]
+    mesh = _load_mesh(path_or_builtin, crease_deg)
+    if key:
+        _MESH_CACHE[key] = mesh
+        while len(_MESH_CACHE) > _CACHE_SIZE:
+            _MESH_CACHE.pop(next(iter(_MESH_CACHE)))
+    return mesh
+
+
+_MESH_CACHE: dict[tuple, trimesh.Trimesh] = {}
+
+
+def _load_mesh(path_or_builtin: str | os.PathLike, crease_deg: float | None) -> trimesh.Trimesh:
     builtin = parse_builtin(str(path_or_builtin)) if isinstance(path_or_builtin, str) else None
     if builtin is not None:
         shape, params = builtin

@@ -265,7 +265,16 @@ def generate(
             raise ValueError(f"--scene {cfg.scene}: {e}") from None
     asset_files = assets.list_assets(cfg.assets) if cfg.assets else None
     if cfg.assets and not asset_files:
-        raise ValueError(f"--assets {cfg.assets}: no GLB/GLTF/OBJ/PLY files found")
+        raise ValueError(f"--assets {cfg.assets}: no {'/'.join(s[1:].upper() for s in assets.MESH_SUFFIXES)} files")
+    if asset_files:
+        # Files the pipeline refuses are left out of the pool (the same for every shard and rerun).
+        asset_files, refused = assets.usable_assets(asset_files)
+        if refused:
+            log.warning("--assets %s: %d of %d files refused and left out", cfg.assets, len(refused),
+                        len(refused) + len(asset_files))  # fmt: skip
+        if not asset_files:
+            first = next(iter(refused.values()))
+            raise ValueError(f"--assets {cfg.assets}: every file was refused (first: {first})")
     materials = scenegen.load_material_library(cfg.pbrdfs) if cfg.pbrdfs else None
     try:
         variant = passes.choose_variant(cfg.variant)

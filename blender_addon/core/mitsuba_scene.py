@@ -129,6 +129,8 @@ class CropWindow:
 def crop_window(camera: CameraSpec, uv: NDArray, resolution: int, *, margin: float = 0.06) -> CropWindow:
     """Square crop around projected points, rendered at ``resolution`` x ``resolution``.
 
+    The square is always ``resolution`` pixels on a side, also where it extends past the sensor.
+
     Args:
         camera: the rig camera.
         uv: ``(N, 2)`` sensor pixel coordinates of the object (e.g. its projected vertices).
@@ -142,9 +144,12 @@ def crop_window(camera: CameraSpec, uv: NDArray, resolution: int, *, margin: flo
     film = (math.ceil(camera.sensor_width_px / binning), math.ceil(camera.sensor_height_px / binning))
     centre = (lo + hi) / 2 / binning
     off = np.round(centre - resolution / 2).astype(int)
-    off = np.clip(off, 0, np.maximum(np.array(film) - resolution, 0))
-    size = (min(resolution, film[0]), min(resolution, film[1]))
-    return CropWindow(binning, film, (int(off[0]), int(off[1])), size)
+    spare = np.array(film) - resolution
+    # Inside the film where the square fits; where it does not (objects spread across more than
+    # the sensor's shorter side), centred on the film: the square's rows past the sensor edge
+    # are rendered like any other (background), so every sample stays R x R.
+    off = np.where(spare >= 0, np.clip(off, 0, np.maximum(spare, 0)), spare // 2)
+    return CropWindow(binning, film, (int(off[0]), int(off[1])), (resolution, resolution))
 
 
 def scalar_transform(m: NDArray):

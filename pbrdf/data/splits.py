@@ -21,7 +21,7 @@ Example:
     >>> SPLITS["test-procedural"].role, SPLITS["test-procedural"].count
     ('test', 48)
     >>> sorted(s.name for s in test_splits())
-    ['test-meshes', 'test-pbrdf', 'test-procedural']
+    ['test-meshes', 'test-pbrdf', 'test-procedural', 'test-scenes']
 """
 
 from __future__ import annotations
@@ -44,6 +44,10 @@ __all__ = [
 
 #: The three roles a split can have.
 ROLES = ("train", "val", "test")
+#: Built-in shape sets a split may draw from (``headless/render.py --shapes``).
+SHAPE_SET_NAMES = ("procedural", "generated", "train", "meshes", "none")
+#: Asset corpora a split may add to its shape pool, by name -> folder.
+ASSET_CORPORA = {"assimp-testmodels": "/usr/share/assimp/models"}
 
 
 @dataclass(frozen=True)
@@ -57,12 +61,18 @@ class Split:
         count: number of scenes.
         resolution: rendered sample size in pixels.
         spp: samples per pixel per colour pass.
-        shapes: ``procedural`` (the built-in primitives) or ``meshes`` (generated concave,
-            sharp-edged, thin and multi-part meshes, plus a mesh corpus when one is installed).
+        shapes: built-in shape set of ``headless/render.py --shapes``: ``procedural`` (the
+            primitives), ``generated`` (seeded concave, sharp-edged, thin and multi-part training
+            shapes), ``train`` (both), ``meshes`` (the unseen test meshes) or ``none``.
         pbrdfs: materials from expanded pBRDF tables (``True``) or analytic ones.
         keep_raw: store the raw HDR brackets (a capture folder per sample), so the split can be
             scored through the real-capture path.
         description: one line for tables and ``--help``.
+        objects: ``(min, max)`` objects per scene.
+        table_fraction: with ``pbrdfs``, the probability that an object's material is a table
+            (the rest analytic); None: every object a table.
+        assets: an asset corpus added to the shape pool: ``"assimp-testmodels"`` (Debian's
+            package, :data:`ASSET_CORPORA`) or None.
     """
 
     name: str
@@ -75,12 +85,35 @@ class Split:
     pbrdfs: bool = False
     keep_raw: bool = False
     description: str = ""
+    objects: tuple[int, int] = (1, 1)
+    table_fraction: float | None = None
+    assets: str | None = None
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
             raise ValueError(f"split {self.name!r}: role must be one of {ROLES}, got {self.role!r}")
-        if self.shapes not in ("procedural", "meshes"):
-            raise ValueError(f"split {self.name!r}: shapes must be 'procedural' or 'meshes', got {self.shapes!r}")
+        if self.shapes not in SHAPE_SET_NAMES:
+            raise ValueError(f"split {self.name!r}: shapes must be one of {SHAPE_SET_NAMES}, got {self.shapes!r}")
+        if not 1 <= self.objects[0] <= self.objects[1]:
+            raise ValueError(f"split {self.name!r}: objects must be (min, max) with 1 <= min <= max")
+        if self.assets is not None and self.assets not in ASSET_CORPORA:
+            raise ValueError(f"split {self.name!r}: assets must be one of {sorted(ASSET_CORPORA)} or None")
+
+    def asset_folder(self) -> Path | None:
+        """The folder of the split's asset corpus (None without one).
+
+        Raises:
+            FileNotFoundError: the corpus is not installed (the message says how to install it).
+        """
+        if self.assets is None:
+            return None
+        folder = Path(ASSET_CORPORA[self.assets])
+        if not folder.is_dir():
+            raise FileNotFoundError(
+                f"split {self.name!r} draws assets from {folder}, which is missing: install Debian's "
+                f"{self.assets} (`make setup` does)"
+            )
+        return folder
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-friendly form (stored in the manifest)."""
@@ -119,6 +152,48 @@ SPLITS: dict[str, Split] = {
             pbrdfs=True,
             keep_raw=True,
             description="procedural shapes, expanded measured pBRDFs",
+        ),
+        # The data engine's scenes (issue #13): 1-3 objects of the procedural and generated
+        # training shapes, half the materials expanded pBRDF tables (out/splits/pbrdfs-train),
+        # half analytic. `make train-data` renders them; a killed run resumes.
+        Split(
+            "train-engine",
+            "train",
+            seed=30_000,
+            count=2000,
+            resolution=192,
+            spp=16,
+            shapes="train",
+            pbrdfs=True,
+            objects=(1, 3),
+            table_fraction=0.5,
+            description="1-3 procedural and generated shapes, half pBRDF tables, half analytic",
+        ),
+        Split(
+            "val-engine",
+            "val",
+            seed=31_000,
+            count=64,
+            resolution=192,
+            spp=16,
+            shapes="train",
+            pbrdfs=True,
+            objects=(1, 3),
+            table_fraction=0.5,
+            description="as train-engine (selection)",
+        ),
+        Split(
+            "test-scenes",
+            "test",
+            seed=23_000,
+            count=48,
+            shapes="meshes",
+            pbrdfs=True,
+            keep_raw=True,
+            objects=(1, 4),
+            table_fraction=0.5,
+            assets="assimp-testmodels",
+            description="1-4 objects: assimp-testmodels corpus files and unseen meshes, half pBRDF tables",
         ),
     )
 }

@@ -7,6 +7,7 @@ byte-level fingerprint, which follows from the maps).
 """
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -182,7 +183,7 @@ def test_split_prefix_is_labelled_and_keeps_raw(tmp_path):
         (["--count", "1", "--table-fraction", "0.3"], "--table-fraction 0.3 > 0 needs --pbrdfs DIR"),
         (["--count", "1", "--shapes", "none"], "--shapes none leaves nothing to draw: give --assets DIR"),
         (["--count", "1", "--variant", "gpu"], "--variant must be one of ['auto', 'llvm', 'cuda', 'scalar']"),
-        (["--split", "val", "--objects", "2"], "--split val draws one object per scene: drop --objects"),
+        (["--split", "val", "--objects", "2"], "--split val fixes the objects and materials: drop --objects"),
         (["--split", "val", "--table-fraction", "0"], "drop --objects and --table-fraction"),
     ],
 )
@@ -212,7 +213,7 @@ def test_splits_render_with_llvm_unless_told_and_help_lists_the_new_flags():
     parser = build_parser()
     args = parser.parse_args(["--split", "val"])
     _apply_split(args)
-    assert args.variant == "llvm" and args.objects is None and args.shapes == "procedural"
+    assert args.variant == "llvm" and args.objects == "1-1" and args.shapes == "procedural"
     args = parser.parse_args(["--split", "val", "--variant", "scalar"])
     _apply_split(args)
     assert args.variant == "scalar"
@@ -238,3 +239,34 @@ def test_objects_flag_renders_several_objects(tmp_path):
         assert len(np.unique(sample["object"])) >= 3  # background and at least two objects in view
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["config"]["objects"] == [2, 3] and manifest["variant"] == "llvm_ad_mono_polarized"
+
+
+@pytest.mark.mitsuba
+def test_test_scenes_split_draws_corpus_files_and_unseen_meshes(tmp_path):
+    from pbrdf.brdf import seeds, table
+    from pbrdf.data import dataset
+    from pbrdf.data.splits import ASSET_CORPORA
+
+    corpus = ASSET_CORPORA["assimp-testmodels"]
+    if not os.path.isdir(corpus):
+        pytest.skip("Debian's assimp-testmodels is not installed (make setup installs it)")
+    lib = tmp_path / "lib"
+    lib.mkdir()
+    mat = seeds.SEED_MATERIALS[3]
+    table.save_table(lib / "t.pbsdf", seeds.seed_table(mat, grid=(4, 4, 6)))
+    entry = {"name": "t", "table": "t.pbsdf", "albedo": [0.5, 0.4, 0.3], "roughness": mat.roughness, "metallic": 0.0}
+    (lib / "materials.json").write_text(json.dumps([entry]))
+    out = tmp_path / "ts"
+    cmd = [sys.executable, "headless/render.py", "--split", "test-scenes", "--count", "4", "--pbrdfs", str(lib),
+           "--out", str(out), *SMALL]  # fmt: skip
+    res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert res.returncode == 0, res.stderr
+    meshes, counts = [], []
+    for i in range(4):
+        sample, meta = dataset.read_sample(out, i)
+        counts.append(len(meta["objects"]))
+        meshes += [o["mesh"] for o in meta["objects"]]
+        ids = set(np.unique(sample["object"]).astype(int).tolist()) - {-1}
+        assert ids <= set(range(len(meta["objects"]))) and ids  # per-object ids for per-object scoring
+    assert all(1 <= c <= 4 for c in counts) and max(counts) >= 2
+    assert all(m.startswith(corpus) or m.startswith("builtin:") for m in meshes)

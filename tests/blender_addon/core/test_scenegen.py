@@ -162,3 +162,18 @@ def test_bad_arguments_raise_one_line(kwargs, message):
     with pytest.raises(ValueError, match=message) as info:
         scenegen.random_scene(RIG, 0, **kwargs)
     assert "\n" not in str(info.value)
+
+
+def test_crop_of_objects_spread_wider_than_the_sensor_height_stays_square():
+    # Multi-object scenes can span more than the sensor's shorter side: the crop must still be
+    # R x R (the camera model's mosaic needs it), centred where it does not fit.
+    from blender_addon.core import mitsuba_scene as ms
+
+    cam = Rig().camera
+    w, h = cam.sensor_width_px, cam.sensor_height_px
+    uv = np.array([[0.1 * w, h / 2], [0.9 * w, h / 2 + 1]])  # 80 % of the width, more than the height
+    win = ms.crop_window(cam, uv, 64)
+    assert win.size == (64, 64) and win.offset[1] < 0 <= win.offset[0]
+    k = win.intrinsics(cam)
+    x = uv[:, 0] / win.binning - win.offset[0]  # sensor pixel -> crop pixel
+    assert np.all((x >= 0) & (x <= 64)) and k[0, 2] == pytest.approx(win.film_size[0] / 2 - win.offset[0], abs=1)

@@ -11,7 +11,7 @@ def test_roles_and_sizes():
     roles = {s.name: s.role for s in splits.SPLITS.values()}
     assert roles["train"] == "train" and roles["val"] == "val"
     tests = splits.test_splits()
-    assert {s.name for s in tests} == {"test-procedural", "test-meshes", "test-pbrdf"}
+    assert {s.name for s in tests} == {"test-procedural", "test-meshes", "test-pbrdf", "test-scenes"}
     assert all(s.count >= 48 and s.keep_raw for s in tests)  # scored through the real-capture path
     assert len({s.seed for s in splits.SPLITS.values()}) == len(splits.SPLITS)
 
@@ -62,3 +62,24 @@ def test_unlabelled_data_is_no_test_split(tmp_path):
     val = _labelled(tmp_path, "val")
     with pytest.raises(ValueError, match="val split 'val'"):
         splits.require_role(val, ("train",), "training")
+
+
+def test_engine_splits_and_their_guards():
+    train, val, test = (splits.get_split(n) for n in ("train-engine", "val-engine", "test-scenes"))
+    assert train.count >= 2000 and train.resolution >= 192 and train.objects[1] >= 2
+    # Training and selection see none of the test scenes' shapes: no corpus, no unseen meshes.
+    assert train.shapes == val.shapes == "train" and train.assets is None and val.assets is None
+    assert test.shapes == "meshes" and test.assets == "assimp-testmodels" and test.keep_raw
+    with pytest.raises(ValueError, match="objects must be"):
+        splits.Split("x", "train", seed=1, count=1, objects=(2, 1))
+    with pytest.raises(ValueError, match="shapes must be one of"):
+        splits.Split("x", "train", seed=1, count=1, shapes="blobs")
+    with pytest.raises(ValueError, match="assets must be one of"):
+        splits.Split("x", "train", seed=1, count=1, assets="objaverse")
+    missing = splits.Split("x", "test", seed=1, count=1, assets="assimp-testmodels")
+    object.__setattr__(missing, "assets", "assimp-testmodels")
+    if not (splits.Path(splits.ASSET_CORPORA["assimp-testmodels"])).is_dir():
+        with pytest.raises(FileNotFoundError, match="make setup"):
+            missing.asset_folder()
+    else:
+        assert missing.asset_folder().is_dir()
