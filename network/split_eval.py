@@ -123,6 +123,8 @@ class ScenePredictions:
         gt: ground-truth ``normal``, ``albedo``, ``roughness``, ``metallic``.
         preds: method -> maps extended over ``region`` (what is scored).
         ours: the model's prediction as a user gets it (on ``auto_mask``, 0 elsewhere), or None.
+        objects: ``(H, W)`` object id per pixel (index into the sidecar's ``objects``, -1 off
+            objects), or None for datasets without the channel.
     """
 
     index: int
@@ -133,6 +135,7 @@ class ScenePredictions:
     gt: dict
     preds: dict
     ours: dict | None
+    objects: np.ndarray | None = None
 
 
 def predict_scene(model, variant: str, root: str | Path, index: int, stats: Mapping[str, Any]) -> ScenePredictions:
@@ -166,7 +169,8 @@ def predict_scene(model, variant: str, root: str | Path, index: int, stats: Mapp
     else:
         preds["ours"] = preds["baseline"] = constant
     gt = {k: sample[k] for k in ("normal", "albedo", "roughness", "metallic")}
-    return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours)
+    objects = np.rint(sample["object"]).astype(np.int64) if "object" in sample else None
+    return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects)
 
 
 def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
@@ -181,6 +185,19 @@ def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
     }
     for m in METHODS:
         row[m] = score(scene.preds[m], scene.gt, scene.region, lpips=lpips)
+    if scene.objects is not None:
+        # One row per object seen (multi-object scenes): its mesh, material and scores, no LPIPS.
+        specs = scene.meta.get("objects") or []
+        mats = scene.meta.get("materials") or {}
+        row["objects"] = []
+        for i in np.unique(scene.objects[scene.region]).tolist():
+            sel = scene.region & (scene.objects == i)
+            spec = specs[i] if 0 <= i < len(specs) else {}
+            obj = {"id": int(i), "pixels": int(sel.sum()), "mesh": spec.get("mesh"),
+                   "material": (mats.get(spec.get("material")) or {}).get("kind")}  # fmt: skip
+            for m in METHODS:
+                obj[m] = score(scene.preds[m], scene.gt, sel, lpips=False)
+            row["objects"].append(obj)
     return row
 
 
@@ -188,7 +205,15 @@ def summarize_rows(rows: list[Mapping[str, Any]]) -> dict[str, Any]:
     """Per method and metric :func:`~network.statistics.summarize` of the rows, and the mask IoU."""
     weights = [r["pixels"] for r in rows]
     methods = {m: {k: summarize([r[m][k] for r in rows], weights) for k, _, _ in METRICS} for m in METHODS}
-    return {"methods": methods, "mask_iou": summarize([r["mask_iou"] for r in rows])}
+    out = {"methods": methods, "mask_iou": summarize([r["mask_iou"] for r in rows])}
+    objs = [o for r in rows for o in r.get("objects") or ()]
+    if objs:  # per-object means: every object counts once, however large it is in the frame
+        w = [o["pixels"] for o in objs]
+        out["objects"] = len(objs)
+        out["per_object"] = {
+            m: {k: summarize([o[m][k] for o in objs], w) for k, _, _ in METRICS if k != "albedo_lpips"} for m in METHODS
+        }
+    return out
 
 
 def evaluate_split(
@@ -328,6 +353,13 @@ def split_markdown(result: Mapping[str, Any]) -> str:
     for title, key in (("Per-scene mean [95 % CI]", "mean"), ("Pixel-weighted mean [95 % CI]", "weighted_mean")):
         header, rows = split_table(result, key)
         lines += [f"{title}:", "", "| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1)]
+        lines += ["| " + " | ".join(r) + " |" for r in rows]
+        lines.append("")
+    if result.get("per_object") and result.get("objects", 0) > result["scenes"]:
+        per = {"methods": result["per_object"], "lpips": False}
+        header, rows = split_table(per, "mean")
+        lines += [f"Per-object mean [95 % CI] ({result['objects']} objects):", ""]
+        lines += ["| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1)]
         lines += ["| " + " | ".join(r) + " |" for r in rows]
         lines.append("")
     iou = result["mask_iou"]

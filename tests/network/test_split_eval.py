@@ -80,3 +80,32 @@ def test_worker_processes_give_the_same_rows(test_split):
             assert b[m]["normal_mae"] == pytest.approx(a[m]["normal_mae"], abs=1e-3)
     with pytest.raises(ValueError, match="checkpoint_path"):
         split_eval.evaluate_split(model, ckpt, test_split, STATS, lpips=False, jobs=2)
+
+
+def test_scores_per_object_of_a_multi_object_scene():
+    # Two objects: "ours" exact on the left one, 90 deg off on the right one. The per-object rows
+    # must separate them, and their mean weigh each object once (not by its pixels).
+    h, w = 8, 12
+    objects = -np.ones((h, w), dtype=np.int64)
+    objects[2:6, 1:3] = 0  # 8 pixels
+    objects[1:7, 5:11] = 1  # 36 pixels
+    region = objects >= 0
+    n_gt = np.zeros((h, w, 3), np.float32)
+    n_gt[..., 2] = 1.0
+    n_ours = n_gt.copy()
+    n_ours[objects == 1] = (1.0, 0.0, 0.0)
+    gt = {"normal": n_gt, "albedo": np.full((h, w, 3), 0.5, np.float32), "roughness": np.full((h, w), 0.3, np.float32),
+          "metallic": np.zeros((h, w), np.float32)}  # fmt: skip
+    preds = {m: dict(gt, normal=n_ours if m == "ours" else n_gt) for m in split_eval.METHODS}
+    meta = {"objects": [{"mesh": "builtin:sphere", "material": "a"}, {"mesh": "x.glb", "material": "b"}],
+            "materials": {"a": {"kind": "pplastic"}, "b": {"kind": "measured"}}}  # fmt: skip
+    scene = split_eval.ScenePredictions(0, meta, np.zeros((h, w, 9)), region, region, gt, preds, None, objects)
+    row = split_eval.score_scene(scene, lpips=False)
+    per = {o["id"]: o for o in row["objects"]}
+    assert per[0]["pixels"] == 8 and per[1]["pixels"] == 36 and per[1]["material"] == "measured"
+    assert per[0]["ours"]["normal_mae"] == pytest.approx(0.0, abs=1e-4)
+    assert per[1]["ours"]["normal_mae"] == pytest.approx(90.0, abs=1e-3)
+    summary = split_eval.summarize_rows([row])
+    assert summary["objects"] == 2
+    assert summary["per_object"]["ours"]["normal_mae"]["mean"] == pytest.approx(45.0, abs=1e-3)
+    assert row["ours"]["normal_mae"] == pytest.approx(90.0 * 36 / 44, abs=1e-3)  # the scene weighs pixels
