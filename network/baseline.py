@@ -133,7 +133,7 @@ def calibrate(rig, intrinsics: ArrayLike, shape: tuple[int, int], depth: float |
 def sample_geometry(meta: Mapping, shape: tuple[int, int], mask: ArrayLike | None = None):
     """Rig, intrinsics and the centre-plane depth ``(H, W)`` of a dataset sample's sidecar.
 
-    Each pixel gets the depth of the centre (``to_world`` translation) of the object whose
+    Each pixel gets the depth of the centre (``centre``, else the ``to_world`` translation) of the object whose
     centre projects nearest to the pixel's connected mask region (or to the pixel, without a
     mask).
 
@@ -155,7 +155,12 @@ def sample_geometry(meta: Mapping, shape: tuple[int, int], mask: ArrayLike | Non
     if "intrinsics" not in meta:
         raise ValueError("sample sidecar has no intrinsics: cannot cast the baseline's pixel rays")
     k = np.asarray(meta["intrinsics"], dtype=np.float64)
-    centres = np.array([np.asarray(o["to_world"], dtype=np.float64)[:3, 3] for o in objects])
+    # The bounding-box centre in the world (sidecars since 2026-11-24); older sidecars have only
+    # the pose, whose translation is the centre for the centred built-in shapes.
+    centres = np.array(
+        [o["centre"] if "centre" in o else np.asarray(o["to_world"], dtype=np.float64)[:3, 3] for o in objects],
+        dtype=np.float64,
+    )
     cam = projection.transform_points(rig.camera.world_to_camera(), centres)
     depths = -cam[:, 2]
     if len(objects) == 1:

@@ -241,7 +241,13 @@ def synthesize_sample(
         "rig": spec.rig.to_dict(),
         "camera_model": model.to_dict(),
         "objects": [
-            {"name": o.name, "mesh": o.mesh, "to_world": np.asarray(o.to_world).tolist(), "material": o.material}
+            {
+                "name": o.name,
+                "mesh": o.mesh,
+                "to_world": np.asarray(o.to_world).tolist(),
+                "material": o.material,
+                "centre": _world_centre(o),
+            }  # fmt: skip
             for o in spec.objects
         ],
         "materials": {
@@ -257,6 +263,15 @@ def synthesize_sample(
         "mask_fraction": float(mask.mean()),
     }
     return sample, meta
+
+
+def _world_centre(obj) -> list[float]:
+    """World position of an object's bounding-box centre (its mesh file need not be centred)."""
+    from . import assets  # noqa: PLC0415
+
+    v = np.asarray(assets.load_mesh(obj.mesh).vertices, dtype=np.float64)
+    m = np.asarray(obj.to_world, dtype=np.float64)
+    return ((v.min(axis=0) + v.max(axis=0)) / 2 @ m[:3, :3].T + m[:3, 3]).tolist()
 
 
 # --------------------------------------------------------------------------- RGB preview

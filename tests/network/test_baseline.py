@@ -188,3 +188,19 @@ def test_beats_a_constant_normal_on_lambertian_procedural_shapes():
         assert ours < 10.0 and ours < 0.3 * const, (seed, albedo, ours, const)
         colour = pred["albedo_rgb"][0] / np.sum(pred["albedo_rgb"][0])
         np.testing.assert_allclose(colour, np.asarray(albedo) / sum(albedo), atol=0.05)
+
+
+def test_lit_points_sit_at_the_mesh_centre_not_the_pose_origin():
+    # An asset file need not be centred: its pose's translation can be far from the object. The
+    # sidecar's "centre" (world bounding-box centre) is the depth the baseline must use.
+    rig = Rig()
+    k = np.array([[100.0, 0, 16], [0, 100.0, 16], [0, 0, 1]])
+    pose = np.eye(4)
+    pose[:3, 3] = rig.camera.camera_to_world()[:3, 3] + rig.camera.camera_to_world()[:3, :3] @ [0, 0, -3.0]
+    centre = rig.camera.camera_to_world()[:3, 3] + rig.camera.camera_to_world()[:3, :3] @ np.array([0, 0, -0.6])
+    meta = {"rig": rig.to_dict(), "intrinsics": k.tolist(), "objects": [{"to_world": pose.tolist()}]}
+    _, _, depth = baseline.sample_geometry(meta, (32, 32))
+    assert np.allclose(depth, 3.0)  # an old sidecar: the pose's translation
+    meta["objects"][0]["centre"] = centre.tolist()
+    _, _, depth = baseline.sample_geometry(meta, (32, 32))
+    assert np.allclose(depth, 0.6)
