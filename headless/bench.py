@@ -1,14 +1,16 @@
 """Benchmarks with JSON output: run time against error, measured side by side in one run.
 
     python headless/bench.py decode [--height 2048 --width 2448] [--repeat 5] [--out FILE] [--quick]
-    python headless/bench.py render [--resolution 384] [--ref-spp 1024] [--spp 4 8 16 32 64] [--out FILE]
+    python headless/bench.py render [--resolution 384] [--ref-spp 1024] [--spp 4 8 16 32 64]
+                                    [--scenes analytic table] [--table FILE] [--out FILE]
     python headless/bench.py pbrdf [--count 40] [--out FILE]
     python headless/bench.py network [--configs toy small] [--paper] [--strides 1 2 4] [--threads 2]
                                      [--device cpu|cuda] [--input CAPTURE] [--out FILE]
 
 decode: a raw IMX250MYR HDR bracket decoded into the nine maps on the half and full grids, next
-to polanalyser's demosaic + Stokes (network.bench.decode). render: error of the rendered maps
-against time for the default and a naive Mitsuba configuration (network.bench.render). pbrdf:
+to polanalyser's demosaic + Stokes (network.bench.decode). render: time per dataset sample to
+2 % map error for the default and two naive Mitsuba configurations, JIT compilation apart, on the
+benchmark blob with an analytic material and with a pBRDF table (network.bench.render). pbrdf:
 PCA error against components, validity-filter throughput, expansion speed
 (network.bench.expansion). network: inference and training time and memory per model config,
 and network.infer.predict on a capture with the shipped model: its time and the error of each
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 from pathlib import Path
 
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
@@ -33,13 +36,50 @@ from headless._cli import add_deprecated  # noqa: E402
 from pbrdf.io.strict_json import dumps_strict  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
+#: The render benchmark's scenes (:func:`render_scenes`).
+RENDER_SCENES = ("analytic", "table")
+#: Seed material (:mod:`pbrdf.brdf.seeds`) tabulated for the table scene when no --table is given.
+TABLE_SEED = "pom"
 #: Sizes of --quick (a smoke test), per benchmark.
 QUICK = {
     "decode": {"height": 128, "width": 160, "repeat": 2},
-    "render": {"resolution": 32, "ref_spp": 64, "spp": [4, 16]},
+    "render": {"resolution": 32, "ref_spp": 64, "spp": [4, 16]},  # naive rows on the analytic scene only
     "pbrdf": {"count": 4, "repeat": 1},
     "network": {"configs": ["toy"], "paper": False, "strides": [1, 2], "checkpoint": None},
 }
+
+
+def render_scenes(names: list[str], table: Path | None, folder: Path) -> dict[str, tuple]:
+    """The render benchmark's scenes by name: ``(spec, description)``.
+
+    ``analytic`` is :func:`blender_addon.core.scenegen.benchmark_scene`; ``table`` the same blob
+    with a pBRDF table: ``table``, or the :data:`TABLE_SEED` seed material tabulated into
+    ``folder``.
+    """
+    import dataclasses  # noqa: PLC0415
+
+    from blender_addon.core.scenegen import benchmark_scene  # noqa: PLC0415
+    from blender_addon.core.spec import MaterialSpec  # noqa: PLC0415
+    from pbrdf.brdf import seeds  # noqa: PLC0415
+    from pbrdf.brdf import table as tables  # noqa: PLC0415
+
+    spec = benchmark_scene()
+    out: dict[str, tuple] = {}
+    if "analytic" in names:
+        out["analytic"] = (spec, "blob, pplastic albedo (0.6, 0.4, 0.2), roughness 0.3, 0.7 m")
+    if "table" in names:
+        seed = next(m for m in seeds.SEED_MATERIALS if m.name == TABLE_SEED)
+        if table is None:
+            table = folder / f"{TABLE_SEED}.pbsdf"
+            tables.save_table(table, seeds.seed_table(seed), for_mitsuba=True)
+            what = f"seed material {TABLE_SEED!r} tabulated on the {seeds.DEFAULT_GRID} grid"
+        else:
+            what = str(table)
+        albedo = (seed.albedo[3], seed.albedo[1], seed.albedo[0])  # 600, 500, 450 nm: about R, G, B
+        name = spec.objects[0].material
+        mat = MaterialSpec.measured(name, str(table), albedo, roughness=seed.roughness, metallic=0.0)
+        out["table"] = (dataclasses.replace(spec, materials=(mat,)), f"blob, pBRDF table ({what}), 0.7 m")
+    return out
 
 
 def _default_checkpoint() -> Path | None:
@@ -73,10 +113,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--height", type=int, default=2048, help="raw height in pixels (default 2048)")
     p.add_argument("--width", type=int, default=2448, help="raw width in pixels (default 2448)")
     _common(p, repeat=5)
-    r = add("render", "rendered nine maps: error against time, default vs naive configuration", "network.bench.render")
+    r = add("render", "time per sample to 2 %% map error, default vs naive configurations", "network.bench.render")
     r.add_argument("--resolution", type=int, default=384, help="sample size (default 384)")
     r.add_argument("--ref-spp", type=int, default=1024, help="reference samples per pixel (default 1024)")
     r.add_argument("--spp", type=int, nargs="+", default=[4, 8, 16, 32, 64], help="spp values to time")
+    r.add_argument("--scenes", nargs="+", choices=list(RENDER_SCENES), default=list(RENDER_SCENES),
+                   help="scenes to render (default: both)")  # fmt: skip
+    r.add_argument("--table", type=Path, help=f"pBRDF tensor file of the table scene (default: the {TABLE_SEED!r} "
+                   "seed material tabulated on the seeds' grid)")  # fmt: skip
     _common(r, repeat=1)
     q = add("pbrdf", "PCA error vs components, validity-filter throughput, expansion speed", "network.bench.expansion")
     q.add_argument("--count", type=int, default=40, help="tables generated to time the expansion (default 40)")
@@ -117,13 +161,17 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
 
         return decode.run(height=args.height, width=args.width, **common)
     if args.what == "render":
+        if sorted(args.spp) != list(args.spp) or min(args.spp) < 1 or args.ref_spp < max(args.spp):
+            parser.error("--spp must be ascending and >= 1, and --ref-spp at least the largest")
         from blender_addon.core import render as renderer  # noqa: PLC0415
-        from blender_addon.core.scenegen import benchmark_scene  # noqa: PLC0415
         from network.bench import render  # noqa: PLC0415
 
-        return render.run(
-            renderer, benchmark_scene(), resolution=args.resolution, ref_spp=args.ref_spp, spp=tuple(args.spp), **common
-        )
+        with tempfile.TemporaryDirectory() as tmp:
+            scenes = render_scenes(args.scenes, args.table, Path(tmp))
+            return render.run(
+                renderer, scenes, resolution=args.resolution, ref_spp=args.ref_spp, spp=tuple(args.spp),
+                naive=["analytic"] if args.quick else None, **common,
+            )  # fmt: skip
     if args.what == "pbrdf":
         from network.bench import expansion  # noqa: PLC0415
 

@@ -84,3 +84,22 @@ def test_bench_quick_and_old_capture_flag(tmp_path):
     assert lines == [
         "bench.py network: deprecated: --capture is now --input (the old form goes away in the next release)"
     ]
+
+
+def test_bench_render_scenes_and_argument_checks(tmp_path):
+    """render's two scenes (the table one with a tabulated seed material), and its spp checks (no rendering)."""
+    from blender_addon.core.spec import SceneSpec
+    from headless.bench import TABLE_SEED, render_scenes
+    from pbrdf.brdf.table import load_table
+
+    scenes = render_scenes(["analytic", "table"], None, tmp_path)
+    assert list(scenes) == ["analytic", "table"]
+    analytic, table = scenes["analytic"][0], scenes["table"][0]
+    assert SceneSpec.from_dict(table.to_dict()) == table  # a valid spec
+    (mat,) = table.materials
+    assert mat.kind == "measured" and load_table(mat.table).M.shape[3] == 5 and TABLE_SEED in scenes["table"][1]
+    assert table.objects == analytic.objects and analytic.materials[0].kind == "pplastic"
+    assert list(render_scenes(["table"], tmp_path / f"{TABLE_SEED}.pbsdf", tmp_path)) == ["table"]
+    for bad in (["--spp", "16", "4"], ["--spp", "4", "--ref-spp", "2"]):
+        proc = _run("headless/bench.py", "render", *bad)
+        assert proc.returncode == 2 and "--spp must be ascending" in proc.stderr
