@@ -62,12 +62,13 @@ def test_photometric_stereo_inverts_its_own_model_with_a_coloured_albedo():
     unpol = _render_unpol(rig, k, normal, depth, mask, albedo)
     calib = baseline.calibrate(rig, k, mask.shape, np.where(mask, depth, 1.0))
     out = baseline.photometric_stereo(unpol, mask, calib)
-    np.testing.assert_allclose(out["albedo_rgb"][0], albedo, rtol=1e-3)
+    # The grey prior of the colour calibration (chosen for real renders) biases exact data by < 0.5 %.
+    np.testing.assert_allclose(out["albedo_rgb"][0], albedo, rtol=5e-3)
     err = _angles(out["normal"], normal)[mask]
-    assert err.mean() < 0.05 and np.percentile(err, 99) < 0.5
+    assert err.mean() < 0.5 and np.percentile(err, 99) < 1.0  # 0.05 / 0.5 without the prior
     lit = _all_regions_lit(rig, k, normal, depth, mask)
     assert lit.sum() < 0.8 * mask.sum()  # the horizon matters for many pixels of a sphere
-    np.testing.assert_allclose(out["albedo"][lit], np.broadcast_to(albedo, (lit.sum(), 3)), atol=1e-3)
+    np.testing.assert_allclose(out["albedo"][lit], np.broadcast_to(albedo, (lit.sum(), 3)), atol=5e-3)
 
 
 def test_the_camera_frame_is_used():
@@ -204,3 +205,38 @@ def test_lit_points_sit_at_the_mesh_centre_not_the_pose_origin():
     meta["objects"][0]["centre"] = centre.tolist()
     _, _, depth = baseline.sample_geometry(meta, (32, 32))
     assert np.allclose(depth, 0.6)
+
+
+@pytest.mark.mitsuba
+@pytest.mark.xfail(
+    strict=True,
+    reason="open (docs/measurements/evaluation.md, test-scenes): on hard-edged boxes the baseline is no better "
+    "than 0.7 x the constant normal (mean 36.7 against 48.9 deg here, one box at 63 deg)",
+)
+def test_beats_a_constant_normal_on_coloured_plastic_boxes(tmp_path):
+    # A box shows at most three normals: its albedo colour is barely identifiable from shading
+    # (the grey prior of the calibration helps on tuning renders, not enough here).
+    pytest.importorskip("mitsuba")
+    trimesh = pytest.importorskip("trimesh")
+    from blender_addon.core import assets
+    from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec
+
+    path = tmp_path / "box.ply"
+    trimesh.creation.box(extents=(1.0, 0.8, 0.6)).export(path)
+    rig = Rig()
+    rng = np.random.default_rng(5)
+    ours, const = [], []
+    for seed in range(4):
+        albedo = tuple(float(v) for v in rng.uniform(0.2, 0.8, 3))
+        pose = assets.place(assets.load_mesh(str(path)), rig, rng, distance=(0.5, 0.7), size=(0.2, 0.3))
+        mat = MaterialSpec.plastic("p", albedo, roughness=float(rng.uniform(0.15, 0.4)))
+        spec = SceneSpec(rig=rig, objects=(ObjectSpec("box", str(path), pose.tolist(), "p"),), materials=(mat,),
+                         seed=seed)  # fmt: skip
+        sample, meta = _render(spec, spp=16)
+        mask = sample["mask"].astype(bool)
+        pred = baseline.predict_sample(sample["maps"], mask, meta)
+        constant = np.zeros_like(sample["normal"])
+        constant[..., 2] = 1.0
+        ours.append(metrics.normal_mae_deg(pred["normal"], sample["normal"], mask))
+        const.append(metrics.normal_mae_deg(constant, sample["normal"], mask))
+    assert np.mean(ours) < 0.7 * np.mean(const), (ours, const)
