@@ -113,7 +113,9 @@ def fit_to_target(points: list[dict], ref_var: float, target: float = TARGET_ERR
         out["spp_for_2pct"] = float(np.exp((np.log(target) - c) / k))
     if len(spp) >= 2 and np.ptp(spp) > 0:
         b, t0 = np.polyfit(spp, sec, 1)
-        b, t0 = (b, t0) if t0 >= 0 else (float(np.sum(sec * spp) / np.sum(spp * spp)), 0.0)
+        # Timing noise on a loaded machine can give a negative intercept or slope: fall back to
+        # seconds proportional to spp, which stays positive.
+        b, t0 = (b, t0) if t0 >= 0 and b > 0 else (float(np.sum(sec * spp) / np.sum(spp * spp)), 0.0)
     else:
         b, t0 = float(sec[0] / spp[0]), 0.0
     out["seconds_fixed"], out["seconds_per_spp"] = float(t0), float(b)
