@@ -359,30 +359,14 @@ def _mesh_arrays(obj: bpy.types.Object, depsgraph: bpy.types.Depsgraph, matrix: 
         vertices are split where corner normals or UVs differ.
     """
     ev = obj.evaluated_get(depsgraph)
-    mesh = ev.to_mesh()
     try:
-        mesh.calc_loop_triangles()
-        nv, nt, nl = len(mesh.vertices), len(mesh.loop_triangles), len(mesh.loops)
-        if nt == 0:
-            return {}
-        co = np.empty(3 * nv, dtype=np.float32)
-        mesh.vertices.foreach_get("co", co)
-        tri = np.empty(3 * nt, dtype=np.int32)
-        mesh.loop_triangles.foreach_get("loops", tri)
-        mat_index = np.empty(nt, dtype=np.int32)
-        mesh.loop_triangles.foreach_get("material_index", mat_index)
-        loop_vert = np.empty(nl, dtype=np.int32)
-        mesh.loops.foreach_get("vertex_index", loop_vert)
-        normals = np.empty(3 * nl, dtype=np.float32)
-        mesh.corner_normals.foreach_get("vector", normals)
-        uv = None
-        if mesh.uv_layers.active is not None:
-            uv = np.empty(2 * nl, dtype=np.float32)
-            mesh.uv_layers.active.data.foreach_get("uv", uv)
-            uv = uv.reshape(-1, 2)
+        c = scene_builder.triangle_corners(ev.to_mesh(), uv=True)
     finally:
         ev.to_mesh_clear()
-    co, tri, normals = co.reshape(-1, 3), tri.reshape(-1, 3), normals.reshape(-1, 3)
+    if c is None:
+        return {}
+    co, tri, normals, uv = c["co"], c["tri"], c["normals"], c["uv"]
+    mat_index, loop_vert = c["material_index"], c["loop_vert"]
     lin = matrix[:3, :3]
     normal_matrix = np.linalg.inv(lin).T
     mirrored = np.linalg.det(lin) < 0

@@ -54,6 +54,7 @@ __all__ = [
     "MAX_OVERLAP_TRIES",
     "blender_mesh",
     "build_scene",
+    "triangle_corners",
     "import_asset",
     "list_asset_files",
 ]
@@ -126,6 +127,38 @@ def _world(obj: bpy.types.Object) -> Matrix:
     return m if obj.parent is None else _world(obj.parent) @ m
 
 
+def triangle_corners(mesh: bpy.types.Mesh, *, uv: bool = False) -> dict[str, NDArray] | None:
+    """A mesh's triangles as arrays, read with ``foreach_get``; None without triangles.
+
+    Returns:
+        ``co (N, 3)`` vertex positions, ``tri (T, 3)`` loop indices of the triangles,
+        ``material_index (T,)``, ``loop_vert (L,)`` vertex of every loop, ``normals (L, 3)``
+        corner normals and, with ``uv``, ``uv (L, 2)`` of the active UV layer (None without one).
+    """
+    mesh.calc_loop_triangles()
+    if len(mesh.loop_triangles) == 0:
+        return None
+    nl = len(mesh.loops)
+    out: dict = {}
+    for key, seq, attr, dtype, width in (
+        ("co", mesh.vertices, "co", np.float32, 3),
+        ("tri", mesh.loop_triangles, "loops", np.int32, 3),
+        ("material_index", mesh.loop_triangles, "material_index", np.int32, 1),
+        ("loop_vert", mesh.loops, "vertex_index", np.int32, 1),
+        ("normals", mesh.corner_normals, "vector", np.float32, 3),
+    ):
+        a = np.empty(width * len(seq), dtype=dtype)
+        seq.foreach_get(attr, a)
+        out[key] = a.reshape(-1, width) if width > 1 else a
+    if uv:
+        out["uv"] = None
+        if mesh.uv_layers.active is not None:
+            a = np.empty(2 * nl, dtype=np.float32)
+            mesh.uv_layers.active.data.foreach_get("uv", a)
+            out["uv"] = a.reshape(-1, 2)
+    return out
+
+
 def _blender_import_parts(path: Path) -> list:
     """Read a file only Blender reads (FBX) into :class:`.core.assets.MeshPart` triangles with corner normals.
 
@@ -148,26 +181,18 @@ def _blender_import_parts(path: Path) -> list:
             tmp = obj.data.copy()
             try:
                 tmp.transform(_world(obj))
-                tmp.calc_loop_triangles()
-                nv, nt, nl = len(tmp.vertices), len(tmp.loop_triangles), len(tmp.loops)
-                if nt == 0:
-                    continue
-                co = np.empty(3 * nv, dtype=np.float32)
-                tmp.vertices.foreach_get("co", co)
-                tri = np.empty(3 * nt, dtype=np.int32)
-                tmp.loop_triangles.foreach_get("loops", tri)
-                loop_vert = np.empty(nl, dtype=np.int32)
-                tmp.loops.foreach_get("vertex_index", loop_vert)
-                normals = np.empty(3 * nl, dtype=np.float32)
-                tmp.corner_normals.foreach_get("vector", normals)
+                c = triangle_corners(tmp)
             finally:
                 bpy.data.meshes.remove(tmp)
+            if c is None:
+                continue
+            tri = c["tri"]
             # One vertex per corner: the shared pipeline welds positions and keeps corner normals.
             parts.append(
                 assets.MeshPart(
-                    vertices=co.reshape(-1, 3)[loop_vert[tri]].astype(np.float64),
-                    faces=np.arange(3 * nt, dtype=np.int64).reshape(-1, 3),
-                    normals=normals.reshape(-1, 3)[tri].astype(np.float64),
+                    vertices=c["co"][c["loop_vert"][tri]].reshape(-1, 3).astype(np.float64),
+                    faces=np.arange(tri.size, dtype=np.int64).reshape(-1, 3),
+                    normals=c["normals"][tri].reshape(-1, 3).astype(np.float64),
                 )
             )
     finally:
@@ -221,12 +246,8 @@ def blender_mesh(name: str, vertices: NDArray, faces: NDArray, normals: NDArray)
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
     n = np.asarray(normals, dtype=np.float64)
-    _, first, weld = np.unique(np.round(v, 9), axis=0, return_index=True, return_inverse=True)
-    order = np.argsort(first, kind="stable")  # welded vertices in order of first use: keeps vertex order
-    rank = np.empty(len(first), dtype=np.int64)
-    rank[order] = np.arange(len(first))
-    first = first[order]
-    loops = rank[weld.reshape(-1)][f].astype(np.int32)
+    first, ids = _core()[0].weld(v)  # in order of first use: keeps the vertex order
+    loops = ids[f].astype(np.int32)
     mesh = bpy.data.meshes.new(name)
     mesh.vertices.add(len(first))
     mesh.vertices.foreach_set("co", v[first].astype(np.float32).ravel())

@@ -50,6 +50,7 @@ __all__ = [
     "MeshPart",
     "build_render_mesh",
     "usable_assets",
+    "weld",
     "ensure_uv",
     "list_assets",
     "load_mesh",
@@ -174,9 +175,22 @@ def _unique_rows(keys: NDArray) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
     return first[order], rank[inverse.reshape(-1)]
 
 
-def _weld(v: NDArray[np.float64], scale: float) -> NDArray[np.int64]:
-    """Id per vertex; vertices within about 1e-7 of ``scale`` of each other share it (UV seams, split normals)."""
-    return _unique_rows(np.round(v / (scale * 1e-7)).astype(np.int64))[1]
+def weld(vertices: ArrayLike, scale: float | None = None) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Merge vertices at one position (UV seams, split normals), keeping the order of first use.
+
+    Args:
+        vertices: ``(N, 3)`` positions.
+        scale: the mesh's size (default: its bounding-box diagonal); positions within about
+            1e-7 of it are one.
+
+    Returns:
+        ``(first, ids)``: index of the first vertex of every welded vertex ``(M,)`` and the
+        welded id of every vertex ``(N,)``, numbered in order of first occurrence.
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    if scale is None:
+        scale = float(np.linalg.norm(v.max(axis=0) - v.min(axis=0))) if len(v) else 1.0
+    return _unique_rows(np.round(v / (max(scale, 1e-300) * 1e-7)).astype(np.int64))
 
 
 def _flipped(before: NDArray[np.int64], after: NDArray[np.int64]) -> NDArray[np.bool_]:
@@ -234,8 +248,8 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
         )
     uv = parts[0].uvs if len(parts) == 1 else None
 
-    weld = _weld(v, diag)
-    wf = weld[faces]
+    weld_first, weld_id = weld(v, diag)
+    wf = weld_id[faces]
     _, area = _mn.face_normals(v, faces)
     ok = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2]) & (area > 1e-14 * diag**2)
     faces, wf = faces[ok], wf[ok]
@@ -257,14 +271,14 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
         )
 
     # Topology on the welded mesh: consistent winding, closed bodies outward.
-    welded = trimesh.Trimesh(vertices=_first_positions(v, weld, int(weld.max()) + 1), faces=wf, process=False)
+    welded = trimesh.Trimesh(vertices=v[weld_first], faces=wf, process=False)
     before = wf.copy()
     trimesh.repair.fix_normals(welded, multibody=True)
     flip = _flipped(before, np.asarray(welded.faces))
     faces = np.where(flip[:, None], faces[:, ::-1], faces)
     two_sided = not welded.is_watertight
 
-    corner = _mn.crease_corner_normals(v, faces, crease_deg=crease, weld=weld)
+    corner = _mn.crease_corner_normals(v, faces, crease_deg=crease, weld=weld_id)
     if authored is not None:
         fn, _ = _mn.face_normals(v, faces)
         a = authored[faces]  # (F, 3, 3)
@@ -275,7 +289,7 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
         valid &= np.einsum("fkj,fj->fk", np.nan_to_num(a), fn) > 0
         corner = np.where(valid[..., None], a, corner)
     # One source vertex per (position, UV): a triangle soup or a file's split normals join again.
-    key = weld[:, None] if uv is None else np.concatenate([weld[:, None], np.round(uv * 1e7)], axis=1)
+    key = weld_id[:, None] if uv is None else np.concatenate([weld_id[:, None], np.round(uv * 1e7)], axis=1)
     canon_first, canon = _unique_rows(key)
     src, rfaces, rnormals = _mn.split_by_corner_normals(canon[faces], corner)
     src = canon_first[src]
@@ -284,12 +298,6 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
     mesh.metadata["two_sided"] = bool(two_sided)
     mesh.metadata["bodies"] = int(welded.body_count)
     return mesh
-
-
-def _first_positions(v: NDArray, weld: NDArray, count: int) -> NDArray:
-    out = np.zeros((count, 3))
-    out[weld[::-1]] = v[::-1]  # the first vertex of each id wins
-    return out
 
 
 def _read_file(path: Path, suffix: str, name: str) -> list[MeshPart]:

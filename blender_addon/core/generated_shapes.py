@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from .procedural import normalize, require_trimesh
+from .procedural import _check_params as _procedural_check_params
+from .procedural import _param, normalize, require_trimesh
 
 try:
     import trimesh
@@ -39,19 +40,7 @@ GENERATED_SHAPES = ("heightfield_slab", "extrusion", "multipart", "bowl")
 
 
 def _check_params(shape: str, params: dict, valid: tuple[str, ...]) -> None:
-    unknown = set(params) - set(valid)
-    if unknown:
-        raise ValueError(f"unknown parameters {sorted(unknown)} for generated shape {shape!r}; valid: {list(valid)}")
-
-
-def _param(params: dict, key: str, default: float, lo: float, hi: float, shape: str) -> float:
-    value = params.get(key, default)
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{shape}: parameter {key} must be a number, got {value!r}")
-    value = float(value)
-    if not lo <= value <= hi:
-        raise ValueError(f"{shape}: parameter {key} must be in [{lo}, {hi}], got {value}")
-    return value
+    _procedural_check_params(shape, params, valid, kind="generated")
 
 
 def _signed_volume(vertices: NDArray, faces: NDArray) -> float:

@@ -132,13 +132,15 @@ def _finish(vertices: NDArray, faces: NDArray) -> trimesh.Trimesh:
     return mesh
 
 
-def _check_params(shape: str, params: dict, valid: tuple[str, ...]) -> None:
+def _check_params(shape: str, params: dict, valid: tuple[str, ...], kind: str = "procedural") -> None:
+    """Refuse parameters a ``kind`` shape (procedural, generated) does not take, naming the valid ones."""
     unknown = set(params) - set(valid)
     if unknown:
-        raise ValueError(f"unknown parameters {sorted(unknown)} for procedural shape {shape!r}; valid: {list(valid)}")
+        raise ValueError(f"unknown parameters {sorted(unknown)} for {kind} shape {shape!r}; valid: {list(valid)}")
 
 
 def _param(params: dict, key: str, default: Any, lo: float, hi: float, shape: str) -> float:
+    """``params[key]`` (else ``default``) as a float in ``[lo, hi]``; one-line errors name the shape."""
     value = params.get(key, default)
     if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
         raise ValueError(f"{shape}: parameter {key} must be a number, got {value!r}")

@@ -120,6 +120,9 @@ class Split:
         return asdict(self)
 
 
+#: What the data engine's train and val splits share (scenes from one distribution).
+_ENGINE = {"resolution": 192, "spp": 16, "shapes": "train", "pbrdfs": True, "objects": (1, 3), "table_fraction": 0.5}
+
 #: Every split of the project. Train and val reproduce the shipped model's data
 #: (``make train-model``); the test seeds are far from both.
 SPLITS: dict[str, Split] = {
@@ -161,27 +164,10 @@ SPLITS: dict[str, Split] = {
             "train",
             seed=30_000,
             count=2000,
-            resolution=192,
-            spp=16,
-            shapes="train",
-            pbrdfs=True,
-            objects=(1, 3),
-            table_fraction=0.5,
             description="1-3 procedural and generated shapes, half pBRDF tables, half analytic",
+            **_ENGINE,
         ),
-        Split(
-            "val-engine",
-            "val",
-            seed=31_000,
-            count=64,
-            resolution=192,
-            spp=16,
-            shapes="train",
-            pbrdfs=True,
-            objects=(1, 3),
-            table_fraction=0.5,
-            description="as train-engine (selection)",
-        ),
+        Split("val-engine", "val", seed=31_000, count=64, description="as train-engine (selection)", **_ENGINE),
         Split(
             "test-scenes",
             "test",
