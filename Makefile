@@ -79,6 +79,19 @@ train-model: setup  ## reproduce models/small/model.pt: render data, train `smal
 	$(PY) headless/evaluate.py --checkpoint $(MODEL_RUN)/model.pt --input $(MODEL_DATA)/val --out $(MODEL_RUN)/eval
 	cp $(MODEL_RUN)/model.pt models/small/model.pt
 
+# The data engine's model (issue 14): `small` at 192 px with a 16 x 16 token grid, calibrated input,
+# trained on train-engine, selected on val-engine only (best.pt). About 7 s per step on 2 CPU cores:
+# run it in chunks, `make train-engine-model` again continues exactly where the last chunk stopped
+# (ENGINE_STOP=N ends a chunk after step N; the schedule always spans ENGINE_STEPS).
+ENGINE_RUN := $(OUT)/runs/engine-small
+ENGINE_STEPS := 3000
+ENGINE_STOP ?= $(ENGINE_STEPS)
+train-engine-model: setup  ## train the data engine's model (resumable chunks; needs `make train-data`)
+	$(PY) headless/train.py --input $(SPLITS_DIR)/train-engine --val $(SPLITS_DIR)/val-engine --config small \
+	    --overrides image_size=192 canonical_size=128 train_pixels=2048 infer_chunk=8192 \
+	    --steps $(ENGINE_STEPS) --stop-after $(ENGINE_STOP) --batch-size 4 --lr 2e-4 --lr-warmup 100 --min-lr-ratio 0.1 \
+	    --seed 0 --input-scale calibrated --checkpoint-every 100 --val-samples 16 --out $(ENGINE_RUN) --resume --quiet
+
 # The fixed test splits (pbrdf/data/splits.py): rendered once, read only by the final evaluation.
 SPLITS_DIR := $(OUT)/splits
 test-sets: setup  ## render the test splits (48 scenes each, raw brackets kept) into $(OUT)/splits

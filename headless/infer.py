@@ -69,7 +69,13 @@ def _load_model(path: Path):
 def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error)."""
     args = build_parser().parse_args(argv)
-    from network.infer import DEFAULT_CHECKPOINT, load_input, predict, write_predictions  # noqa: PLC0415
+    from network.infer import (  # noqa: PLC0415
+        DEFAULT_CHECKPOINT,
+        input_display_radiance,
+        load_input,
+        predict,
+        write_predictions,
+    )
 
     ckpt_path = args.checkpoint or DEFAULT_CHECKPOINT
     # Warnings are held back: on an error only the error line prints.
@@ -77,7 +83,10 @@ def main(argv: list[str] | None = None) -> int:
         try:
             model, ckpt = _load_model(ckpt_path)
             maps, mask = load_input(args.input, require_object=True)
-            pred = predict(model, maps, mask, inputs=ckpt.get("inputs", "full"), stride=args.stride)
+            pred = predict(
+                model, maps, mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
+                radiance=input_display_radiance(args.input), stride=args.stride,
+            )  # fmt: skip
             name = args.input.stem if args.input.is_file() else args.input.name
             write_predictions(args.out, name, pred)
         except (ValueError, OSError) as exc:

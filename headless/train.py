@@ -32,6 +32,7 @@ if not __package__:  # run as a file (python headless/x.py, blender -b -P): the 
 from headless._cli import add_deprecated, require  # noqa: E402
 
 INPUTS = ("white", "spectral", "polar", "full")  # network.inputs.INPUT_VARIANTS (not imported: --help stays fast)
+SCALES = ("calibrated", "exposure-invariant")  # network.data.INPUT_SCALES
 
 
 class _Parser(argparse.ArgumentParser):
@@ -65,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
     )  # fmt: skip
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--steps", type=int, default=100, help="total steps (default 100)")
+    parser.add_argument("--stop-after", type=int, default=None, metavar="N",
+                        help="end this chunk after step N (with a checkpoint); schedules still span --steps, "
+                        "so a later --resume continues the same run")  # fmt: skip
     parser.add_argument("--batch-size", type=int, default=1, help="samples per step and process (default 1)")
     parser.add_argument("--lr", type=float, default=8e-5, help="AdamW peak learning rate (default 8e-5)")
     parser.add_argument("--weight-decay", type=float, default=0.05, help="AdamW weight decay (default 0.05)")
@@ -76,6 +80,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--real-start", type=int, default=0, help="step where the real-loss ramp starts (default 0)")
     parser.add_argument("--real-warmup", type=int, default=0, help="steps of the linear real-weight ramp (default 0)")
     parser.add_argument("--inputs", default="full", choices=INPUTS, help="input variant (Table 3; default full)")
+    parser.add_argument("--input-scale", default="calibrated", choices=SCALES,
+                        help="calibrated (default): absolute brightness, maps / display radiance (albedo absolute); "
+                        "exposure-invariant: per-image level (for uncalibrated captures)")  # fmt: skip
     parser.add_argument("--bf16", action="store_true", help="bf16 autocast for the forward pass (for GPUs)")
     parser.add_argument("--device", default="auto", choices=["cpu", "cuda", "auto"], help="device (default auto)")
     parser.add_argument("--seed", type=int, default=0, help="seed (default 0)")
@@ -101,13 +108,14 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         cfg = TrainConfig(
-            data=args.input, out=args.out, config=args.config, steps=args.steps, batch_size=args.batch_size,
+            data=args.input, out=args.out, config=args.config, steps=args.steps, stop_after=args.stop_after,
+            batch_size=args.batch_size,
             lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.lr_warmup, decay_steps=args.lr_decay_steps,
             min_lr_ratio=args.min_lr_ratio, clip=args.clip, seed=args.seed, resume=args.resume,
             checkpoint_every=args.checkpoint_every, overrides=dict(args.overrides), real=args.real,
             real_weight=args.real_weight, real_start=args.real_start, real_warmup=args.real_warmup,
-            inputs=args.inputs, bf16=args.bf16, device=args.device, val=args.val, val_every=args.val_every,
-            val_samples=args.val_samples, max_skipped=args.max_skipped, workers=args.workers,
+            inputs=args.inputs, input_scale=args.input_scale, bf16=args.bf16, device=args.device, val=args.val,
+            val_every=args.val_every, val_samples=args.val_samples, max_skipped=args.max_skipped, workers=args.workers,
             tensorboard=not args.no_tensorboard,
         )  # fmt: skip
         losses = train(cfg, progress=not args.quiet)

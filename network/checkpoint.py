@@ -3,7 +3,8 @@
 Two files per run, both ``torch.save`` dicts of plain values and tensors (read with ``weights_only=True``):
 
 - ``model.pt``: ``format`` (:data:`CHECKPOINT_FORMAT`), ``config`` (:meth:`network.config.ModelConfig.to_dict`),
-  ``inputs`` (the input variant, :mod:`network.inputs`), ``model`` (the state dict), ``step`` and
+  ``inputs`` (the input variant, :mod:`network.inputs`), ``input_scale`` (``"calibrated"`` or
+  ``"exposure-invariant"``, :mod:`network.data`), ``model`` (the state dict), ``step`` and
   ``params_sha256`` (:func:`params_sha256` of ``model``: which checkpoint it was cut from, see
   :func:`model_file_is_current`);
 - ``checkpoint.pt``: the same plus what resuming needs: ``optimizer``, ``step``, ``losses``, ``skipped``, ``rng``
@@ -22,6 +23,7 @@ import torch
 from pbrdf.io.atomic import atomic_open
 
 from .config import ModelConfig
+from .data import checkpoint_input_scale
 from .inputs import checkpoint_inputs
 from .model.polar_model import PolarInverseModel
 
@@ -39,7 +41,7 @@ __all__ = [
 CHECKPOINT_FORMAT = 2
 
 #: Keys of a checkpoint that ``model.pt`` copies (besides ``step`` and ``params_sha256``).
-MODEL_KEYS = ("format", "config", "inputs", "model")
+MODEL_KEYS = ("format", "config", "inputs", "input_scale", "model")
 
 
 def save_checkpoint(path: Path, state: dict) -> None:
@@ -90,7 +92,8 @@ def model_file_is_current(path: Path, step: int, sha256: str) -> bool:
 def load_checkpoint(path: str | Path) -> tuple[PolarInverseModel, dict]:
     """Model (eval mode) and the checkpoint dict from ``checkpoint.pt`` or ``model.pt`` written by training.
 
-    The dict always has ``"inputs"`` (the input variant; ``"full"`` for files written before variants existed).
+    The dict always has ``"inputs"`` (the input variant; ``"full"`` for files written before variants existed)
+    and ``"input_scale"`` (``"exposure-invariant"`` for files written before calibrated input existed).
 
     Args:
         path: The checkpoint file.
@@ -116,6 +119,7 @@ def load_checkpoint(path: str | Path) -> tuple[PolarInverseModel, dict]:
         model = PolarInverseModel(ModelConfig.from_dict(ckpt["config"]))
         model.load_state_dict(ckpt["model"])
         ckpt["inputs"] = checkpoint_inputs(ckpt)
+        ckpt["input_scale"] = checkpoint_input_scale(ckpt)
     except (KeyError, RuntimeError, TypeError, ValueError, AttributeError) as exc:
         raise ValueError(f"{path}: not a model checkpoint: {exc}") from None
     model.eval()

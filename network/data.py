@@ -1,9 +1,24 @@
 """Dataset samples as tensors for the network (channel-first inside network/).
 
 Reads the renderer's samples (:mod:`pbrdf.data.dataset`) and, for real captures, the decoder's output.
-Input normalisation lives here once (:func:`normalize_maps`), used by training and inference:
-the unpol and LP maps are radiometric and scale with exposure and display brightness, so they
-are divided by one robust scale per capture; CP is already a ratio in [-1, 1].
+Input normalisation lives here once (:func:`normalize_maps`), used by training and inference.
+The unpol and LP maps are radiometric; CP is already a ratio in [-1, 1] and is kept. Two input
+scales (:data:`INPUT_SCALES`; a checkpoint records its own under ``"input_scale"``):
+
+``"calibrated"``
+    The maps are divided by the display's radiance in their units (the rig's
+    ``display.radiance``; decoded captures are already divided by exposure time and the sensor's
+    radiometric scale) and multiplied by :data:`CALIBRATED_GAIN`. Brightness is absolute, so the
+    network can tell a dark object from a dim exposure: albedo is absolute.
+``"exposure-invariant"``
+    The maps are divided by one robust level per image (a quantile of ``unpol + LP``): any
+    exposure or display brightness gives the same input, and albedo can only be relative. Used
+    for captures whose ``radiometry`` is ``"relative"`` (:mod:`pbrdf.data.capture`) and by
+    checkpoints trained before calibrated input existed.
+
+:data:`CALIBRATED_GAIN` puts the median training image's level near the exposure-invariant
+level 1, so a calibrated model given an uncalibrated capture (:func:`input_radiance` falls back
+to the exposure-invariant scale, with a warning) sees inputs of the usual size.
 
 :class:`SampleDataset` checks every item it loads (target ranges, unit normals inside the mask,
 a non-empty mask): a sample whose sidecar hash matches can still hold wrong values, and one bad
@@ -12,6 +27,9 @@ item must stop training with a message naming the file, not train on wrong label
 
 from __future__ import annotations
 
+import math
+import warnings
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -19,11 +37,16 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch.utils.data import Dataset
 
+from pbrdf.data import capture as pcapture
 from pbrdf.data import dataset as pdataset
 
 __all__ = [
+    "CALIBRATED_GAIN",
+    "INPUT_SCALES",
     "MAP_LIMIT",
     "SCALE_FLOOR",
+    "checkpoint_input_scale",
+    "input_radiance",
     "normalize_maps",
     "check_item",
     "sample_to_tensors",
@@ -39,10 +62,66 @@ TARGET_KEYS = ("normal", "albedo", "roughness", "metallic")
 MAP_LIMIT = 1e4
 #: Smallest scale: an image whose ``quantile`` total is below it (all dark) is divided by it.
 SCALE_FLOOR = 1e-8
+#: Input scales a model can be trained with (see the module docs).
+INPUT_SCALES = ("calibrated", "exposure-invariant")
+#: Calibrated maps are ``maps * CALIBRATED_GAIN / radiance``. The 95 % quantile of ``unpol + LP``
+#: (summed over colours) has a median of 0.29 display radiances on the train-engine split (5-95 %:
+#: 0.12-0.84), so 3.5 brings a typical image to the exposure-invariant level 1.
+CALIBRATED_GAIN = 3.5
 
 
-def normalize_maps(maps: torch.Tensor, mask: torch.Tensor, *, quantile: float = 0.95) -> torch.Tensor:
-    """Scale unpol and LP maps by the ``quantile`` of their masked total; CP is kept.
+def checkpoint_input_scale(ckpt: Mapping) -> str:
+    """The input scale a checkpoint was trained with (``"exposure-invariant"`` when it does not say)."""
+    scale = ckpt.get("input_scale", "exposure-invariant")
+    if scale not in INPUT_SCALES:
+        raise ValueError(f"checkpoint has unknown input_scale {scale!r}; expected one of {INPUT_SCALES}")
+    return scale
+
+
+def input_radiance(input_scale: str, radiance: float | None, where: str = "input") -> float | None:
+    """The ``radiance`` argument of :func:`normalize_maps` for a model and a capture.
+
+    Args:
+        input_scale: the model's input scale (:data:`INPUT_SCALES`).
+        radiance: the display radiance in the maps' units
+            (:func:`pbrdf.data.capture.display_radiance`), None for an uncalibrated capture.
+        where: the capture, named in the warning.
+
+    Returns:
+        ``radiance`` for a calibrated model and capture; None (exposure-invariant) otherwise. A
+        calibrated model given an uncalibrated capture warns that albedo will be relative.
+
+    Example:
+        >>> input_radiance("calibrated", 2.0), input_radiance("exposure-invariant", 2.0)
+        (2.0, None)
+    """
+    if input_scale not in INPUT_SCALES:
+        raise ValueError(f"unknown input scale {input_scale!r}; choose one of {INPUT_SCALES}")
+    if input_scale == "exposure-invariant":
+        return None
+    if radiance is None:
+        warnings.warn(
+            f"{where}: radiometry is 'relative' (uncalibrated): the model's calibrated input falls back to the "
+            "exposure-invariant scale, so albedo is relative, not absolute",
+            stacklevel=2,
+        )
+        return None
+    if not (math.isfinite(radiance) and radiance > 0):
+        raise ValueError(f"{where}: display radiance must be positive and finite; got {radiance!r}")
+    return float(radiance)
+
+
+def normalize_maps(
+    maps: torch.Tensor,
+    mask: torch.Tensor,
+    *,
+    radiance: float | torch.Tensor | None = None,
+    quantile: float = 0.95,
+) -> torch.Tensor:
+    """Scale the unpol and LP maps to the network's input level; CP is kept.
+
+    Calibrated (``radiance`` given): ``maps * CALIBRATED_GAIN / radiance``. Exposure-invariant
+    (``radiance`` None): divided by the ``quantile`` of the masked ``unpol + LP`` total.
 
     Finite input gives finite output in every float dtype: float16 and bfloat16 are computed in
     float32 (float64 in float64); finite values beyond an eighth of the working dtype's largest
@@ -55,17 +134,34 @@ def normalize_maps(maps: torch.Tensor, mask: torch.Tensor, *, quantile: float = 
     Args:
         maps: ``(*, 9, H, W)`` nine maps in :data:`pbrdf.sensor.decode.NINE_MAP_NAMES` order.
         mask: ``(*, 1, H, W)`` valid pixels (0/1).
-        quantile: which quantile of ``unpol + LP`` (summed over colours) becomes 1.
+        radiance: the display radiance in the maps' units: a positive number, or a tensor
+            broadcasting to ``(*)`` (one per image); None for the exposure-invariant scale.
+        quantile: exposure-invariant scale: which quantile of ``unpol + LP`` (summed over colours)
+            becomes 1.
 
     Returns:
         ``(*, 9, H, W)`` normalised maps in the dtype of ``maps``, in ``[-MAP_LIMIT, MAP_LIMIT]``
         and 0 outside the mask (for finite input).
+
+    Example:
+        >>> maps = torch.ones(9, 2, 2)
+        >>> normalize_maps(maps, torch.ones(1, 2, 2), radiance=2.0)[:, 0, 0].tolist()
+        [1.75, 1.75, 1.75, 1.75, 1.75, 1.75, 1.0, 1.0, 1.0]
+        >>> round(normalize_maps(maps, torch.ones(1, 2, 2))[0, 0, 0].item(), 6)  # total 6 -> 1
+        0.166667
     """
     dtype = maps.dtype
     work = maps.to(torch.promote_types(dtype, torch.float32))
     big = torch.finfo(work.dtype).max / 8  # six of them still sum without overflow
     work = torch.where(work.isfinite(), work.clamp(-big, big), work)
     m = mask.to(work.dtype)
+    if radiance is not None:
+        r = torch.as_tensor(radiance, dtype=work.dtype, device=work.device)
+        if not bool(torch.all(torch.isfinite(r) & (r > 0))):
+            raise ValueError(f"radiance must be positive and finite; got {radiance!r}")
+        gain = (CALIBRATED_GAIN / r).reshape(*r.shape, 1, 1, 1)
+        out = torch.cat([work[..., :6, :, :] * gain, work[..., 6:, :, :]], dim=-3).clamp(-MAP_LIMIT, MAP_LIMIT)
+        return (out * m).to(dtype)
     total = (work[..., :6, :, :].sum(dim=-3, keepdim=True) * m).flatten(-3)  # (*, H*W)
     scales = []
     for row, mrow in zip(total.reshape(-1, total.shape[-1]), m.reshape(-1, total.shape[-1]), strict=True):
@@ -183,9 +279,21 @@ class SampleDataset(Dataset):
         root: dataset folder written by ``headless/render.py``.
         size: resize every sample to ``size x size`` (None keeps the rendered size).
         indices: which sample indices to use (default: all completed ones, sorted).
+        input_scale: :data:`INPUT_SCALES`; ``"calibrated"`` reads the display radiance from each
+            sample's sidecar rig.
     """
 
-    def __init__(self, root: str | Path, *, size: int | None = None, indices: list[int] | None = None) -> None:
+    def __init__(
+        self,
+        root: str | Path,
+        *,
+        size: int | None = None,
+        indices: list[int] | None = None,
+        input_scale: str = "exposure-invariant",
+    ) -> None:
+        if input_scale not in INPUT_SCALES:
+            raise ValueError(f"unknown input scale {input_scale!r}; choose one of {INPUT_SCALES}")
+        self.input_scale = input_scale
         self.root = Path(root)
         if not self.root.is_dir():
             raise FileNotFoundError(f"{self.root}: dataset folder not found")
@@ -200,10 +308,14 @@ class SampleDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         index = self.indices[i]
-        sample, _ = pdataset.read_sample(self.root, index, keys=("maps", "mask", *TARGET_KEYS))
-        check_item(sample, str(pdataset.sample_paths(self.root, index).exr))
+        sample, meta = pdataset.read_sample(self.root, index, keys=("maps", "mask", *TARGET_KEYS))
+        where = str(pdataset.sample_paths(self.root, index).exr)
+        check_item(sample, where)
         t = sample_to_tensors(sample)
         if self.size is not None and t["maps"].shape[-1] != self.size:
             t = resize_batch(t, self.size)
-        t["maps"] = normalize_maps(t["maps"], t["mask"])
+        radiance = None
+        if self.input_scale == "calibrated":
+            radiance = pcapture.display_radiance(meta, where)
+        t["maps"] = normalize_maps(t["maps"], t["mask"], radiance=radiance)
         return t

@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from pbrdf.data import dataset as pdataset
+from pbrdf.data.capture import display_radiance
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.strict_json import dumps_strict
 
@@ -184,10 +185,12 @@ def _indices(root: Path, limit: int | None) -> list[int]:
 _GT_KEYS = ("maps", "mask", "normal", "albedo", "roughness", "metallic")
 
 
-def _run_model(model, variant: str, maps: np.ndarray, mask: np.ndarray) -> dict[str, np.ndarray]:
+def _run_model(
+    model, variant: str, maps: np.ndarray, mask: np.ndarray, input_scale: str, radiance: float | None
+) -> dict[str, np.ndarray]:
     # apply_inputs keeps unpol + LP per colour, so applying it before predict's normalisation is exact.
     x = apply_inputs(torch.from_numpy(np.ascontiguousarray(maps.transpose(2, 0, 1))), variant)
-    return predict(model, x.permute(1, 2, 0).contiguous().numpy(), mask)
+    return predict(model, x.permute(1, 2, 0).contiguous().numpy(), mask, input_scale=input_scale, radiance=radiance)
 
 
 def evaluate(
@@ -247,7 +250,8 @@ def evaluate(
                     want = "white" if m == "white" else "RGB-pattern"
                     raise ValueError(f"{root}: sample {i} has display pattern {_pattern(meta)!r}; variant {m!r} "
                                      f"needs {want} data")  # fmt: skip
-                pred = _run_model(models[m][1], m, sample["maps"], mask)
+                radiance = display_radiance(meta, str(pdataset.sample_paths(root, i).sidecar))
+                pred = _run_model(models[m][1], m, sample["maps"], mask, models[m][2]["input_scale"], radiance)
             per[m].append({**base, **sample_metrics(pred, sample, mask, lpips=lpips_ok)})
         if bar is not None:
             bar.update()

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import json
 import math
 import os
 import shutil
@@ -24,11 +25,19 @@ from pbrdf.data import dataset as pdataset
 from pbrdf.io.atomic import fsync_path, temporary_path
 from pbrdf.io.exr import write_exr
 
-from .data import normalize_maps
+from .data import input_radiance, normalize_maps
 from .inputs import apply_inputs
 from .model import PolarInverseModel
 
-__all__ = ["OUTPUTS", "load_input", "predict", "mask_bbox", "write_predictions", "DEFAULT_CHECKPOINT"]
+__all__ = [
+    "OUTPUTS",
+    "input_display_radiance",
+    "load_input",
+    "predict",
+    "mask_bbox",
+    "write_predictions",
+    "DEFAULT_CHECKPOINT",
+]
 
 #: The shipped model (``make train-model``; see models/small/MODEL_CARD.md).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "models" / "small" / "model.pt"
@@ -74,6 +83,32 @@ def load_input(path: str | Path, *, require_object: bool = False) -> tuple[np.nd
     raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
 
 
+def input_display_radiance(path: str | Path) -> float | None:
+    """The display radiance in :func:`load_input`'s map units, or None for an uncalibrated capture.
+
+    Reads ``capture.json`` of a capture folder (:func:`pbrdf.data.capture.display_radiance`: its
+    ``radiometry`` and ``rig`` keys) or a rendered sample's sidecar (always calibrated).
+
+    Raises:
+        FileNotFoundError: ``path`` is neither a capture folder nor a sample.
+        ValueError: an unreadable file or invalid ``radiometry``/``rig`` (one line naming the file).
+    """
+    path = Path(path)
+    if path.is_dir() and (path / pcapture.CAPTURE_JSON).is_file():
+        where = path / pcapture.CAPTURE_JSON
+    elif path.suffix in (".exr", ".json") and path.with_suffix(".json").is_file():
+        where = path.with_suffix(".json")
+    else:
+        raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
+    try:
+        meta = json.loads(where.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{where}: unreadable JSON ({exc})") from None
+    if not isinstance(meta, dict):
+        raise ValueError(f"{where}: expected a JSON object")
+    return pcapture.display_radiance(meta, str(where))
+
+
 def mask_bbox(mask: np.ndarray, margin: float = 0.05) -> tuple[int, int, int, int]:
     """Square ``(y0, x0, y1, x1)`` around the mask with a margin, clipped to the image.
 
@@ -107,13 +142,24 @@ def mask_bbox(mask: np.ndarray, margin: float = 0.05) -> tuple[int, int, int, in
 
 @torch.inference_mode()
 def predict(
-    model: PolarInverseModel, maps: np.ndarray, mask: np.ndarray, *, inputs: str = "full", stride: int = 1
+    model: PolarInverseModel,
+    maps: np.ndarray,
+    mask: np.ndarray,
+    *,
+    inputs: str = "full",
+    input_scale: str = "exposure-invariant",
+    radiance: float | None = None,
+    stride: int = 1,
 ) -> dict[str, np.ndarray]:
     """Normal, albedo, roughness, metallic ``(H, W, C)`` for nine maps of any size.
 
     The masked region is cropped (square), resized to the model's input size, decoded (masked
     pixels only, in chunks) and resized back into the full frame. ``inputs`` is the checkpoint's
     input variant (:mod:`network.inputs`): the maps it was not trained on are zeroed here too.
+    ``input_scale`` is the checkpoint's (:mod:`network.data`): a calibrated model reads absolute
+    brightness from ``radiance``, the display radiance in the maps' units
+    (:func:`input_display_radiance`); None (an uncalibrated capture) falls back to the
+    exposure-invariant scale with a warning.
     ``stride`` trades accuracy for speed: s > 1 decodes every s-th row and column of the network's
     input grid and interpolates the rest (:meth:`PolarInverseModel.decode_dense`), about s^2 times
     less decoder work (``headless/bench.py network`` reports time and error per stride).
@@ -125,6 +171,8 @@ def predict(
             normalised; peaks above ``2**64`` are first scaled down by a power of two, exactly).
         mask: ``(H, W)`` bool, the pixels to reconstruct; not empty, and the maps not all zero on it.
         inputs: the checkpoint's input variant.
+        input_scale: the checkpoint's ``"input_scale"``.
+        radiance: the display radiance in the maps' units, or None (relative radiometry).
         stride: 1, 2 or 4.
 
     Returns:
@@ -145,17 +193,20 @@ def predict(
     y0, x0, y1, x1 = mask_bbox(mask)
     if not np.any(maps[mask]):
         raise ValueError("maps are zero on every mask pixel: nothing to reconstruct")
+    radiance = input_radiance(input_scale, radiance)
     peak = float(np.abs(maps[..., :6]).max())
-    if peak > _RADIANCE_PEAK:  # normalize_maps is scale-free, but float32 sums of 3e38 overflow
+    if peak > _RADIANCE_PEAK:  # float32 sums of 3e38 overflow: scale maps and radiance alike
+        factor = 2.0 ** -math.ceil(math.log2(peak))  # exact: a power of two (float64 maps: up to 1e308)
         maps = maps.copy()
-        maps[..., :6] *= 2.0 ** -math.ceil(math.log2(peak))  # exact: a power of two (float64 maps: up to 1e308)
+        maps[..., :6] *= factor
+        radiance = None if radiance is None else radiance * factor
     size = model.config.image_size
     m = torch.from_numpy(np.ascontiguousarray(maps[y0:y1, x0:x1].transpose(2, 0, 1)))[None].float()
     k = torch.from_numpy(mask[y0:y1, x0:x1].astype(np.float32))[None, None]
     m = F.interpolate(m, size=(size, size), mode="bilinear", align_corners=False)
     k = F.interpolate(k, size=(size, size), mode="nearest")
     model.eval()
-    pred = model(apply_inputs(normalize_maps(m, k), inputs), k, stride=stride)
+    pred = model(apply_inputs(normalize_maps(m, k, radiance=radiance), inputs), k, stride=stride)
     for name in OUTPUTS:
         if not bool(torch.isfinite(pred[name]).all()):
             raise ValueError(

@@ -4,7 +4,8 @@
 :func:`pbrdf.data.capture_decode.decode_capture` exactly like the synthetic data) and/or rendered datasets
 (``pdir-dataset/1``; only their nine maps, mask, depth and sidecar geometry are used). Every item
 is cropped to a square around the mask (:func:`network.infer.mask_bbox`, as at inference),
-resized to the model size ``S`` and normalised (:func:`network.data.normalize_maps`); the camera
+resized to the model size ``S`` and normalised (:func:`network.data.normalize_maps`, at the model's
+input scale); the camera
 geometry follows the crop and the resize, so the re-renderer sees the right rays.
 
 Items (all tensors, so ``torch.stack`` collates them):
@@ -56,7 +57,7 @@ from pbrdf.data import dataset as pdataset
 from pbrdf.sensor.projection import crop_intrinsics
 from pbrdf.sensor.rig import Rig
 
-from .data import normalize_maps
+from .data import INPUT_SCALES, input_radiance, normalize_maps
 from .infer import mask_bbox
 from .rerender import DEFAULT_PATCHES, display_patches, points_from_depth
 
@@ -103,14 +104,17 @@ def find_real_inputs(root: str | Path) -> list[Path]:
     return out
 
 
-def load_real_input(
-    path: Path, *, use_depth: bool = True
-) -> tuple[NDArray[np.float32], NDArray[np.bool_], NDArray[np.float64], Rig, NDArray[np.float32] | None, float | None]:
+def load_real_input(path: Path, *, use_depth: bool = True) -> tuple[
+    NDArray[np.float32], NDArray[np.bool_], NDArray[np.float64], Rig, NDArray[np.float32] | None, float | None,
+    float | None,
+]:  # fmt: skip
     """One input at its own resolution.
 
     Returns:
         ``(maps (H, W, 9), mask (H, W), intrinsics (3, 3) of the maps' grid, rig, depth (H, W) or
-        None, distance_m or None)``.
+        None, distance_m or None, radiance)``: ``radiance`` is the display radiance in the maps'
+        units, None for a capture whose radiometry is relative
+        (:func:`pbrdf.data.capture.display_radiance`).
 
     Raises:
         FileNotFoundError, ValueError: unreadable input or bad geometry keys (message names the path).
@@ -120,6 +124,7 @@ def load_real_input(
         dec = pdecode_capture.decode_capture(cap)
         meta = cap.metadata
         try:
+            radiance = pcapture.display_radiance(meta, str(path / pcapture.CAPTURE_JSON))
             rig = Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()
             h, w = cap.raws.shape[1:]
             if "intrinsics" in meta:
@@ -136,7 +141,7 @@ def load_real_input(
             raise ValueError(f"{path / pcapture.CAPTURE_JSON}: {exc}") from None
         k = k.copy()
         k[:2] *= dec.maps.shape[0] / h  # half grid: pixel centres scale with the grid
-        return dec.maps, dec.input_mask, k, rig, None, distance
+        return dec.maps, dec.input_mask, k, rig, None, distance, radiance
     keys = ("maps", "mask", "depth") if use_depth else ("maps", "mask")
     sample, meta = pdataset.read_sample(path, keys=keys)
     try:
@@ -144,7 +149,7 @@ def load_real_input(
         k = np.asarray(meta["intrinsics"], dtype=np.float64)
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: sidecar lacks a valid rig/intrinsics: {exc}") from None
-    return sample["maps"], sample["mask"], k, rig, sample.get("depth"), None
+    return sample["maps"], sample["mask"], k, rig, sample.get("depth"), None, float(rig.display.radiance)
 
 
 class RealDataset(Dataset):
@@ -157,6 +162,8 @@ class RealDataset(Dataset):
         use_depth: use a rendered sample's depth map as the depth prior (False: fixed distance).
         patches: ``(nx, ny)`` display patches per colour region.
         margin: crop margin around the mask (as :func:`network.infer.mask_bbox`).
+        input_scale: the model's input scale (:data:`network.data.INPUT_SCALES`); a relative
+            capture falls back to the exposure-invariant scale (:func:`network.data.input_radiance`).
 
     Raises:
         FileNotFoundError: ``root`` is missing.
@@ -172,7 +179,11 @@ class RealDataset(Dataset):
         use_depth: bool = True,
         patches: tuple[int, int] = DEFAULT_PATCHES,
         margin: float = 0.05,
+        input_scale: str = "exposure-invariant",
     ) -> None:
+        if input_scale not in INPUT_SCALES:
+            raise ValueError(f"unknown input scale {input_scale!r}; choose one of {INPUT_SCALES}")
+        self.input_scale = input_scale
         if int(size) < 1:
             raise ValueError(f"size must be >= 1, got {size}")
         if not distance > 0:
@@ -199,7 +210,7 @@ class RealDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict[str, Any]:
         path = self.paths[i]
-        maps, mask, k, rig, depth, distance = load_real_input(path, use_depth=self.use_depth)
+        maps, mask, k, rig, depth, distance, radiance = load_real_input(path, use_depth=self.use_depth)
         try:
             y0, x0, y1, x1 = mask_bbox(mask, self.margin)
         except ValueError as exc:
@@ -217,7 +228,7 @@ class RealDataset(Dataset):
         else:
             d_t = torch.full((1, s, s), distance or self.distance)
         return {
-            "maps": normalize_maps(m, kmask)[0],
+            "maps": normalize_maps(m, kmask, radiance=input_radiance(self.input_scale, radiance, str(path)))[0],
             "mask": kmask[0],
             "points": points_from_depth(d_t, k_out),
             "patches": self._patches(rig),

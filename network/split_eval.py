@@ -35,8 +35,9 @@ from pbrdf.io.strict_json import dumps_strict
 
 from . import metrics
 from .constant import constant_predict
+from .data import checkpoint_input_scale
 from .evaluate import baseline_predict
-from .infer import load_input, predict
+from .infer import input_display_radiance, load_input, predict
 from .inputs import apply_inputs, checkpoint_inputs
 from .lpips import lpips_status
 from .statistics import summarize
@@ -138,8 +139,19 @@ class ScenePredictions:
     objects: np.ndarray | None = None
 
 
-def predict_scene(model, variant: str, root: str | Path, index: int, stats: Mapping[str, Any]) -> ScenePredictions:
+def predict_scene(
+    model,
+    variant: str,
+    root: str | Path,
+    index: int,
+    stats: Mapping[str, Any],
+    *,
+    input_scale: str = "exposure-invariant",
+) -> ScenePredictions:
     """Run every method on one sample's raw brackets exactly as on a user's capture folder.
+
+    ``variant`` and ``input_scale`` are the checkpoint's; the display radiance comes from the
+    capture's ``capture.json`` (:func:`network.infer.input_display_radiance`), as for a user.
 
     Raises:
         ValueError: the sample has no raw brackets, or its decoded grid differs from the truth.
@@ -161,7 +173,10 @@ def predict_scene(model, variant: str, root: str | Path, index: int, stats: Mapp
     if auto.any():
         x = apply_inputs(torch.from_numpy(np.ascontiguousarray(maps.transpose(2, 0, 1))), variant)
         try:
-            ours = predict(model, x.permute(1, 2, 0).contiguous().numpy(), auto, inputs=variant)
+            ours = predict(
+                model, x.permute(1, 2, 0).contiguous().numpy(), auto, inputs=variant, input_scale=input_scale,
+                radiance=input_display_radiance(raw),
+            )  # fmt: skip
         except ValueError:  # a mask that vanishes at the network's grid: nothing was reconstructed
             ours = None
         preds["ours"] = _fill_nearest(ours, auto, region) if ours is not None else constant
@@ -233,7 +248,7 @@ def evaluate_split(
 
     Args:
         model: the loaded model (:func:`network.checkpoint.load_checkpoint`).
-        checkpoint: its checkpoint dict (for the input variant).
+        checkpoint: its checkpoint dict (for the input variant and scale).
         root: the split's dataset folder (rendered with ``headless/render.py --split``).
         stats: training statistics (:func:`network.constant.load_statistics`).
         limit: score only the first ``limit`` scenes.
@@ -255,6 +270,7 @@ def evaluate_split(
     root = Path(root)
     name = require_role(root, ("test",), "the final evaluation") if require_test else dataset_split(root)
     variant = checkpoint_inputs(checkpoint)
+    scale = checkpoint_input_scale(checkpoint)
     if lpips is None:
         lpips = lpips_status()[0]
     indices = sorted(pdataset.completed_indices(root, verify_hash=False))[:limit]
@@ -282,7 +298,8 @@ def evaluate_split(
                     bar.update()
     else:
         for i in indices:
-            rows.append(score_scene(predict_scene(model, variant, root, i, stats), lpips=lpips))
+            scene = predict_scene(model, variant, root, i, stats, input_scale=scale)
+            rows.append(score_scene(scene, lpips=lpips))
             if bar is not None:
                 bar.update()
     if bar is not None:
@@ -308,13 +325,14 @@ def _worker_init(checkpoint_path: str, variant: str, root: str, stats: dict, lpi
     from .checkpoint import load_checkpoint  # noqa: PLC0415
 
     torch.set_num_threads(1)
-    model, _ = load_checkpoint(checkpoint_path)
-    _WORKER.update(model=model, variant=variant, root=Path(root), stats=stats, lpips=lpips)
+    model, ckpt = load_checkpoint(checkpoint_path)
+    _WORKER.update(model=model, variant=variant, scale=ckpt["input_scale"], root=Path(root), stats=stats, lpips=lpips)
 
 
 def _worker_row(index: int) -> dict[str, Any]:
     w = _WORKER
-    return score_scene(predict_scene(w["model"], w["variant"], w["root"], index, w["stats"]), lpips=w["lpips"])
+    scene = predict_scene(w["model"], w["variant"], w["root"], index, w["stats"], input_scale=w["scale"])
+    return score_scene(scene, lpips=w["lpips"])
 
 
 def _has(root: Path, index: int) -> bool:

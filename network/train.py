@@ -24,12 +24,17 @@ Guards. A batch with NaN/Inf inputs is skipped before the forward pass; a non-fi
 gradient norm skips the optimizer step. Each skip is logged as a warning naming the step, and
 more than ``max_skipped`` skips stop the run with :class:`FloatingPointError`.
 
+Selection. With a validation set, ``best.pt`` (a ``model.pt`` with ``val_normal_mae_deg``) is the
+checkpoint of lowest validation normal MAE among the checkpoints that had a validation (validate at
+checkpoint steps, the default, for it to follow every one); test splits never enter it.
+
 Files. ``checkpoint.pt`` and ``model.pt`` are written atomically (checkpoint first); ``model.pt``
 records the step and parameter hash of the checkpoint it was cut from, and a resume that has no
 steps left rewrites it from the checkpoint when it is missing or stale (a run killed between the two
-writes). ``log.csv``/``val.csv`` are truncated to the checkpoint atomically and always keep their
-header. Every run first removes the temporary files a killed run left in ``out``
-(:func:`pbrdf.io.atomic.remove_leftovers`, for the files named here only).
+writes), and ``best.pt`` likewise when the checkpoint's validation was the best. ``log.csv`` and
+``val.csv`` are truncated to the checkpoint atomically and always keep their header. Every run first
+removes the temporary files a killed run left in ``out`` (:func:`pbrdf.io.atomic.remove_leftovers`,
+for the files named here only).
 
 Distributed. Under ``torchrun`` (``WORLD_SIZE > 1``, :mod:`network.distributed`) the model is
 wrapped in :class:`~torch.nn.parallel.DistributedDataParallel` (gradients averaged over ranks),
@@ -41,6 +46,7 @@ restores every rank (weights, optimizer, its own RNG state).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import logging
@@ -69,7 +75,7 @@ from .checkpoint import (
     save_checkpoint,
 )
 from .config import get_config
-from .data import TARGET_KEYS, SampleDataset, gather_pixels
+from .data import INPUT_SCALES, TARGET_KEYS, SampleDataset, checkpoint_input_scale, gather_pixels
 from .distributed import DistContext, init_distributed, resolve_device, rng_state, set_rng_state
 from .inputs import INPUT_VARIANTS, apply_inputs, checkpoint_inputs
 from .losses import LossWeights, synthetic_loss
@@ -100,7 +106,7 @@ LOG_COLUMNS = (
 VAL_COLUMNS = ("step", "normal_mae_deg", "samples")
 
 #: The files of ``out`` a run writes (atomically: a killed run may leave their temporaries).
-OUT_FILES = ("checkpoint.pt", "model.pt", "log.csv", "val.csv")
+OUT_FILES = ("checkpoint.pt", "model.pt", "best.pt", "log.csv", "val.csv")
 
 
 @dataclass(frozen=True)
@@ -112,6 +118,8 @@ class TrainConfig:
         out: output folder (checkpoint, model, logs).
         config: model preset (``toy``, ``small``, ``paper``); ``overrides`` replace fields of it.
         steps: total optimizer steps of the run (a resumed run continues up to it).
+        stop_after: end this invocation after that many completed steps (with a checkpoint), without
+            changing the schedules, which still span ``steps``: one chunk of a long run (None: ``steps``).
         batch_size: samples per step and process (the global batch is ``batch_size * WORLD_SIZE``).
         lr, weight_decay: AdamW; ``warmup_steps``, ``decay_steps`` (None: ``steps``), ``min_lr_ratio``:
             the learning-rate schedule.
@@ -119,6 +127,8 @@ class TrainConfig:
         real: folder of real captures (None: synthetic only); ``real_weight``, ``real_start``,
             ``real_warmup``: the real-loss weight schedule.
         inputs: input variant (:data:`network.inputs.INPUT_VARIANTS`), applied to every batch.
+        input_scale: ``"calibrated"`` (absolute brightness, the display radiance from each
+            sample's rig) or ``"exposure-invariant"`` (:mod:`network.data`).
         bf16: bf16 autocast for the forward pass (meant for CUDA; allowed on the CPU).
         device: ``"cpu"``, ``"cuda"`` or ``"auto"`` (CUDA when available).
         val: held-out rendered dataset; normal MAE every ``val_every`` steps (0: at checkpoints)
@@ -132,6 +142,7 @@ class TrainConfig:
     out: Path
     config: str = "toy"
     steps: int = 100
+    stop_after: int | None = None
     batch_size: int = 1
     lr: float = 8e-5
     weight_decay: float = 0.05
@@ -149,6 +160,7 @@ class TrainConfig:
     real_start: int = 0
     real_warmup: int = 0
     inputs: str = "full"
+    input_scale: str = "calibrated"
     bf16: bool = False
     device: str = "auto"
     val: Path | None = None
@@ -167,6 +179,8 @@ class TrainConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ValueError(f"{name} must be a non-negative integer. Got {value!r}")
+        if self.stop_after is not None and (not isinstance(self.stop_after, int) or self.stop_after < 1):
+            raise ValueError(f"stop_after must be a positive integer or None. Got {self.stop_after!r}")
         if self.decay_steps is not None and self.decay_steps < 1:
             raise ValueError(f"decay_steps must be a positive integer or None. Got {self.decay_steps!r}")
         for name in ("lr", "clip"):
@@ -179,6 +193,8 @@ class TrainConfig:
             raise ValueError(f"min_lr_ratio must be in [0, 1]. Got {self.min_lr_ratio!r}")
         if self.inputs not in INPUT_VARIANTS:
             raise ValueError(f"unknown input variant {self.inputs!r}; choose one of {INPUT_VARIANTS}")
+        if self.input_scale not in INPUT_SCALES:
+            raise ValueError(f"unknown input scale {self.input_scale!r}; choose one of {INPUT_SCALES}")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ValueError(f"device must be 'cpu', 'cuda' or 'auto'. Got {self.device!r}")
 
@@ -369,14 +385,16 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
         require_role(cfg.val, ("val",), "validation")
     if cfg.real is not None:
         require_role(cfg.real, ("train",), "training (real-data loss)")
-    ds = SampleDataset(cfg.data, size=model_cfg.image_size)
+    ds = SampleDataset(cfg.data, size=model_cfg.image_size, input_scale=cfg.input_scale)
     real_ds, real_loss = None, None
     if cfg.real is not None:
         real_dataset_cls, real_loss = _real_modules()
-        real_ds = real_dataset_cls(cfg.real, size=model_cfg.image_size)
+        real_ds = real_dataset_cls(cfg.real, size=model_cfg.image_size, input_scale=cfg.input_scale)
         if len(real_ds) == 0:
             raise ValueError(f"{cfg.real}: no real captures found")
-    val_ds = SampleDataset(cfg.val, size=model_cfg.image_size) if cfg.val is not None else None
+    val_ds = None
+    if cfg.val is not None:
+        val_ds = SampleDataset(cfg.val, size=model_cfg.image_size, input_scale=cfg.input_scale)
     if device.type == "cuda":
         torch.backends.cuda.matmul.allow_tf32 = True
         torch.backends.cudnn.allow_tf32 = True
@@ -393,6 +411,11 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
         if checkpoint_inputs(ckpt) != cfg.inputs:
             raise ValueError(
                 f"{ckpt_path}: checkpoint was trained with --inputs {checkpoint_inputs(ckpt)}, not {cfg.inputs}"
+            )
+        if checkpoint_input_scale(ckpt) != cfg.input_scale:
+            raise ValueError(
+                f"{ckpt_path}: checkpoint was trained with --input-scale {checkpoint_input_scale(ckpt)}, "
+                f"not {cfg.input_scale}"
             )
         model.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
@@ -423,6 +446,9 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
             log.info("removed %d temporary file(s) of a killed run from %s", len(removed), out)
         if start >= cfg.steps:  # nothing left to train: model.pt must still be the checkpoint's
             _sync_model_file(out / "model.pt", ckpt)
+        if ckpt is not None and cfg.val is not None:
+            _sync_best_file(out, ckpt)
+    best_mae = min((mae for step, mae in _val_rows(out / "val.csv") if step <= start), default=math.inf)
     ckpt = None  # the loaded copy (optimizer state included) is not needed any more
     dd.barrier()
     logs = _Logs(out, start, cfg.resume, main, cfg.tensorboard)
@@ -431,7 +457,8 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
     if dd.active:
         net = nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)
     decay = cfg.decay_steps or cfg.steps
-    steps = list(range(start, cfg.steps))
+    stop = cfg.steps if cfg.stop_after is None else min(cfg.steps, cfg.stop_after)
+    steps = list(range(start, stop))
     syn_sampler = StepBatches(len(ds), cfg.seed, "synthetic", steps, cfg.batch_size, dd.rank, dd.world)
     syn_batches = _loader(ds, syn_sampler, cfg.workers)
     real_sampler = real_batches = None
@@ -527,7 +554,8 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
         if bar is not None:
             bar.set_postfix(loss=f"{total:.4f}")
 
-    def save(done: int) -> None:
+    def save(done: int, val_mae: float | None) -> None:
+        nonlocal best_mae
         state = model.state_dict()
         shas = dd.gather(params_sha256(state))
         rngs = dd.gather(rng_state(device))
@@ -535,7 +563,8 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
             raise RuntimeError(f"step {done}: ranks hold different parameters (sha256 {shas})")
         if main:
             record = {
-                "format": CHECKPOINT_FORMAT, "config": model_cfg.to_dict(), "inputs": cfg.inputs, "model": state,
+                "format": CHECKPOINT_FORMAT, "config": model_cfg.to_dict(), "inputs": cfg.inputs,
+                "input_scale": cfg.input_scale, "model": state,
                 "optimizer": opt.state_dict(), "step": done, "losses": losses, "skipped": skipped_total, "rng": rngs,
                 "rank_params_sha256": shas, "world_size": dd.world,
                 "data": {"synthetic": len(ds), "real": len(real_ds) if real_ds is not None else None},
@@ -543,6 +572,9 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
             }  # fmt: skip
             save_checkpoint(ckpt_path, record)  # first: a kill before model.pt is repaired by the resume
             save_checkpoint(out / "model.pt", model_file_state(record, shas[0]))
+            if val_mae is not None and val_mae < best_mae:  # after the checkpoint: see _sync_best_file
+                best_mae = val_mae
+                save_checkpoint(out / "best.pt", {**model_file_state(record, shas[0]), "val_normal_mae_deg": val_mae})
         dd.barrier()
 
     try:
@@ -551,13 +583,14 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
             if bar is not None:
                 bar.update()
             done = step + 1
+            mae = None
             if val_ds is not None and (done % (cfg.val_every or cfg.checkpoint_every) == 0 or done == cfg.steps):
                 if main:
                     mae = _validate(model, val_ds, cfg.val_samples, cfg.inputs, device)
                     logs.val(done, mae, min(cfg.val_samples, len(val_ds)))
                 dd.barrier()
-            if done % cfg.checkpoint_every == 0 or done == cfg.steps:
-                save(done)
+            if done % cfg.checkpoint_every == 0 or done in (cfg.steps, stop):
+                save(done, mae)
     finally:
         if bar is not None:
             bar.close()
@@ -574,6 +607,40 @@ def _sync_model_file(path: Path, ckpt: dict | None) -> None:
         return
     log.warning("%s: missing or older than the checkpoint (step %d); rewritten from it", path, int(ckpt["step"]))
     save_checkpoint(path, model_file_state(ckpt, sha))
+
+
+def _val_rows(path: Path) -> list[tuple[int, float]]:
+    """``(step, normal MAE)`` of the whole rows of ``val.csv`` (none when it is missing)."""
+    if not path.is_file():
+        return []
+    rows = []
+    for fields in csv.reader(path.read_text(errors="replace").splitlines()):
+        if len(fields) == len(VAL_COLUMNS) and fields[0].isdigit():
+            with contextlib.suppress(ValueError):
+                rows.append((int(fields[0]), float(fields[1])))
+    return rows
+
+
+def _sync_best_file(out: Path, ckpt: dict) -> None:
+    """Rewrite ``best.pt`` from the resumed checkpoint if its validation was the best and ``best.pt`` lacks it.
+
+    A run killed between writing ``checkpoint.pt`` and ``best.pt`` leaves the best validation row
+    in ``val.csv`` without its weights; the checkpoint holds them.
+    """
+    step = int(ckpt["step"])
+    rows = [r for r in _val_rows(out / "val.csv") if r[0] <= step]
+    if not rows:
+        return
+    best_step, mae = min(rows, key=lambda r: (r[1], r[0]))
+    if best_step != step:
+        return
+    path = out / "best.pt"
+    with contextlib.suppress(Exception):
+        stored = torch.load(path, weights_only=True, map_location="cpu", mmap=True)
+        if isinstance(stored, dict) and stored.get("step") == step:
+            return
+    log.warning("%s: missing the best validation (step %d); rewritten from the checkpoint", path, step)
+    save_checkpoint(path, {**model_file_state(ckpt), "val_normal_mae_deg": mae})
 
 
 def _plain(cfg: TrainConfig) -> dict[str, Any]:

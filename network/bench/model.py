@@ -160,11 +160,11 @@ def _sync(device: str):
 def _bench_predict(s: ModelBench) -> dict:
     """:func:`network.infer.predict` with a trained checkpoint on real-path input: time and error per stride."""
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
-    from network.infer import load_input, predict  # noqa: PLC0415
+    from network.infer import input_display_radiance, load_input, predict  # noqa: PLC0415
 
     model, ckpt = load_checkpoint(s.checkpoint)
     maps, mask = load_input(s.capture)
-    inputs = ckpt.get("inputs", "full")
+    inputs, scale, radiance = ckpt["inputs"], ckpt["input_scale"], input_display_radiance(s.capture)
     result: dict = {
         "checkpoint": str(s.checkpoint),
         "capture": str(s.capture),
@@ -175,7 +175,9 @@ def _bench_predict(s: ModelBench) -> dict:
     ref = None
     for stride in sorted(set(s.strides) | {1}):
         timing, pred = time_call(
-            lambda st=stride: predict(model, maps, mask, inputs=inputs, stride=st),
+            lambda st=stride: predict(
+                model, maps, mask, inputs=inputs, input_scale=scale, radiance=radiance, stride=st
+            ),
             f"network.infer.predict of {Path(s.capture).name} at stride {stride} (CPU, checkpoint's input variant)",
             repeat=s.repeat,
             warmup=s.warmup,

@@ -270,7 +270,7 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
         bar = _bar(len(samples), "predict", cfg.progress)
         for s in samples:
             name = f"{s.parent.parent.name}_{s.stem}"
-            scene = predict_scene(model, variant, s.parent.parent, int(s.stem), stats)
+            scene = predict_scene(model, variant, s.parent.parent, int(s.stem), stats, input_scale=ckpt["input_scale"])
             if scene.ours is not None:
                 write_predictions(out / "predictions" / name, name, scene.ours)
             scenes[s], names[s] = scene, name

@@ -16,6 +16,8 @@ A capture folder holds
       "bits": 12,
       "pattern_offset": [0, 0],
       "camera_model": {"qwp_angle": 0.0, "qwp_retardance": [1.5708, 1.5708, 1.5708], ...},
+      "radiometry": "calibrated",
+      "rig": {"display": {"radiance": 1.0}},
       "object": "any further keys are kept as metadata"
     }
 
@@ -28,6 +30,14 @@ LSB-aligned data, so MSB-aligned 16-bit exports (e.g. 12-bit data times 16) must
 right before saving. 8-bit data (an 8-bit PNG/TIFF, mode ``"L"``, or a uint8 ``.npy``; e.g. a
 photo) is refused unless ``bits`` is 8. Every other top-level key is returned as
 :attr:`Capture.metadata`.
+
+Radiometry. ``"radiometry"`` says whether absolute brightness can be trusted:
+``"calibrated"`` (the default when absent) means the camera model's radiometric scale
+(``sensor.electrons_per_unit``, gain) and the rig's display radiance (``rig.display.radiance``,
+default 1.0) were measured, so the decoded maps are in the renderer's radiance units and
+:func:`display_radiance` gives the level a fully lit display channel has in them; the network
+then reads absolute albedo. ``"relative"`` (an uncalibrated camera or display) means only ratios
+are meaningful: inference falls back to the exposure-invariant input scale and albedo is relative.
 
 Decoding a folder, with its object mask (``mask.png`` or automatic): :mod:`pbrdf.data.capture_decode`.
 
@@ -50,10 +60,13 @@ from numpy.typing import ArrayLike, NDArray
 
 from pbrdf.io.atomic import fsync_path, temporary_path
 from pbrdf.sensor.camera import CAMERA_RANGES, CameraModel
+from pbrdf.sensor.rig import Rig
 
 __all__ = [
     "CAPTURE_FORMAT",
     "CAPTURE_JSON",
+    "RADIOMETRY_MODES",
+    "display_radiance",
     "RAW_SUFFIXES",
     "Capture",
     "save_capture",
@@ -65,6 +78,8 @@ __all__ = [
 CAPTURE_FORMAT = "pdir-capture/1"
 #: Name of the sidecar inside a capture folder.
 CAPTURE_JSON = "capture.json"
+#: Values of the optional ``"radiometry"`` key (the first is the default).
+RADIOMETRY_MODES = ("calibrated", "relative")
 #: File name suffixes of raw mosaics understood by :func:`load_capture`.
 RAW_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
 #: Keys of ``capture.json`` written by :func:`save_capture`; ``extra`` may not use them.
@@ -557,3 +572,37 @@ def load_capture(folder: str | os.PathLike) -> Capture:
     _check_order(raws, model, names, jpath)
     metadata = {k: v for k, v in meta.items() if k not in _RESERVED_KEYS}
     return Capture(raws=raws, model=model, folder=root, metadata=metadata, raw_files=tuple(names))
+
+
+def display_radiance(metadata: dict[str, Any], where: str = "capture") -> float | None:
+    """The display's radiance in the decoded maps' units, or None for a ``"relative"`` capture.
+
+    Reads the optional ``"radiometry"`` and ``"rig"`` keys of a capture's metadata (or of a
+    rendered sample's sidecar, which is always calibrated).
+
+    Args:
+        metadata: :attr:`Capture.metadata` or a sample sidecar.
+        where: the file, first in error messages.
+
+    Returns:
+        ``rig.display.radiance`` (1.0 without a rig) for a calibrated capture, None for a relative one.
+
+    Raises:
+        ValueError: an unknown ``"radiometry"`` value or an invalid ``"rig"``.
+
+    Example:
+        >>> display_radiance({}), display_radiance({"rig": {"display": {"radiance": 2.5}}})
+        (1.0, 2.5)
+        >>> display_radiance({"radiometry": "relative"}) is None
+        True
+    """
+    mode = metadata.get("radiometry", RADIOMETRY_MODES[0])
+    if mode not in RADIOMETRY_MODES:
+        raise ValueError(f"{where}: radiometry must be one of {list(RADIOMETRY_MODES)}; got {mode!r}")
+    if mode == "relative":
+        return None
+    try:
+        rig = Rig.from_dict(metadata["rig"]) if "rig" in metadata else Rig()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: invalid rig: {exc}") from None
+    return float(rig.display.radiance)

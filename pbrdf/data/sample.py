@@ -53,6 +53,7 @@ Float channels are stored as float32, so every array reads back bit for bit.
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import re
 from collections.abc import Iterable, Mapping
@@ -376,9 +377,11 @@ def write_sample(
     write_exr(paths.exr, channels, header={"pdir.format": SAMPLE_FORMAT, "pdir.index": str(index)})
     if "raw" in sample:
         model = CameraModel.from_dict(meta["camera_model"])
-        save_capture(
-            paths.raw, sample["raw"], model, file_format=raw_format, extra={"sample_index": index}, overwrite=True
-        )
+        # Rendered raws are radiometrically calibrated by construction; the rig says the display radiance.
+        extra = {"sample_index": index, "radiometry": "calibrated"}
+        if "rig" in meta:
+            extra["rig"] = json.loads(dumps_json({"rig": meta["rig"]}, f"{paths.sidecar}: rig"))["rig"]
+        save_capture(paths.raw, sample["raw"], model, file_format=raw_format, extra=extra, overwrite=True)
     elif paths.raw.exists():
         remove_path(paths.raw)
     sidecar = {

@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from network import data
+from network.data import normalize_maps
 
 
 def test_normalize_maps_is_scale_invariant_and_keeps_cp():
@@ -178,3 +179,90 @@ def test_dataset_refuses_bad_items_with_matching_hash(small_dataset, key, fn, me
     with pytest.raises(ValueError, match=message) as err:
         ds[1]
     assert str(err.value).startswith(f"{exr}: ") and "\n" not in str(err.value)
+
+
+# ------------------------------------------------------------------------------------------------
+# calibrated input scale
+
+
+def _decoded_maps(stokes, exposures):
+    """Noise-free raws of ``stokes`` for an exposure bracket, decoded: what a capture folder gives."""
+    from pbrdf.sensor.camera import CameraModel, simulate_capture
+    from pbrdf.sensor.decode import decode
+
+    model = CameraModel(exposures=exposures)
+    dec = decode(simulate_capture(stokes, model, noise=False), model)
+    return torch.from_numpy(np.ascontiguousarray(dec.maps.transpose(2, 0, 1)))[None], dec.mask
+
+
+def test_calibrated_input_is_exposure_independent_and_keeps_absolute_brightness():
+    """Physics: the decoder divides by exposure, so only the scene's radiance reaches the network.
+
+    A uniformly lit diffuse patch (unpolarized, radiance 0.2 display radiances) captured with two
+    different brackets gives the same calibrated input, and the same patch at half the albedo gives
+    half of it; the exposure-invariant scale maps both albedos to the same input.
+    """
+    from network.data import CALIBRATED_GAIN
+
+    stokes = np.zeros((16, 16, 3, 4))
+    stokes[..., 0] = [0.2, 0.15, 0.1]  # S0 per colour; s1 = s2 = s3 = 0: unpolarized, all "unpol"
+    a, mask = _decoded_maps(stokes, (0.01, 0.02, 0.1, 0.2))
+    b, _ = _decoded_maps(stokes, (0.004, 0.05))
+    half, _ = _decoded_maps(stokes * 0.5, (0.01, 0.02, 0.1, 0.2))
+    k = torch.from_numpy(mask.astype(np.float32))[None, None]
+    cal = {n: normalize_maps(x, k, radiance=1.0)[0, :, mask] for n, x in (("a", a), ("b", b), ("half", half))}
+    # unpol maps = CALIBRATED_GAIN x the patch's radiance per colour, to the 12-bit quantisation
+    np.testing.assert_allclose(cal["a"][:3].mean(1), CALIBRATED_GAIN * np.array([0.2, 0.15, 0.1]), rtol=2e-3)
+    np.testing.assert_allclose(cal["b"][:6], cal["a"][:6], rtol=5e-3, atol=1e-3)
+    np.testing.assert_allclose(cal["half"][:3], 0.5 * cal["a"][:3], rtol=5e-3)
+    # A display twice as bright (radiance 2 in the same units) halves the input as well.
+    np.testing.assert_allclose(normalize_maps(a, k, radiance=2.0)[0, :3, mask], 0.5 * cal["a"][:3], rtol=1e-6)
+    inv = {n: normalize_maps(x, k)[0, :, mask] for n, x in (("a", a), ("half", half))}
+    np.testing.assert_allclose(inv["half"][:3], inv["a"][:3], rtol=5e-3)  # albedo lost
+
+
+def test_calibrated_normalisation_rejects_bad_radiance_and_stays_finite():
+    maps, mask = torch.ones(2, 9, 4, 4), torch.ones(2, 1, 4, 4)
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="radiance must be positive and finite"):
+            normalize_maps(maps, mask, radiance=bad)
+    # One radiance per image of a batch.
+    out = normalize_maps(maps, mask, radiance=torch.tensor([1.0, 3.5]))
+    assert out[0, 0, 0, 0].item() == pytest.approx(3.5) and out[1, 0, 0, 0].item() == pytest.approx(1.0)
+    # Values near the float limits are clamped, never NaN; a half-precision result stays finite.
+    huge = torch.full((1, 9, 2, 2), 3e38)
+    for dtype in (torch.float32, torch.float16, torch.bfloat16):
+        x = normalize_maps(huge.clamp(max=torch.finfo(dtype).max).to(dtype), torch.ones(1, 1, 2, 2), radiance=1e-30)
+        assert torch.isfinite(x).all() and x.dtype == dtype
+
+
+def test_input_radiance_falls_back_for_relative_captures():
+    from network.data import checkpoint_input_scale, input_radiance
+
+    assert input_radiance("calibrated", 2.0) == 2.0
+    assert input_radiance("exposure-invariant", 2.0) is None
+    with pytest.warns(UserWarning, match="albedo is relative"):
+        assert input_radiance("calibrated", None, "cap") is None
+    with pytest.raises(ValueError, match="unknown input scale"):
+        input_radiance("absolute", 1.0)
+    assert checkpoint_input_scale({}) == "exposure-invariant"  # files from before calibrated input
+    with pytest.raises(ValueError, match="unknown input_scale"):
+        checkpoint_input_scale({"input_scale": "linear"})
+
+
+@pytest.mark.mitsuba
+def test_rendered_training_maps_and_decoded_raws_share_units(tmp_path):
+    """The training data and the capture path must put the same number on the same radiance."""
+    from blender_addon.core.generate import GenerateConfig, generate
+    from network.infer import input_display_radiance, load_input
+    from pbrdf.data import dataset as pdataset
+
+    root = tmp_path / "ds"
+    generate(GenerateConfig(out=root, count=1, resolution=64, spp=8, seed=3, keep_raw=True), progress=False)
+    sample, meta = pdataset.read_sample(root, 0, keys=("maps", "mask"))
+    raw = pdataset.sample_paths(root, 0).raw
+    decoded, auto = load_input(raw)
+    assert input_display_radiance(raw) == meta["rig"]["display"]["radiance"] == 1.0
+    inside = sample["mask"].astype(bool) & auto
+    ratio = decoded[..., :6].sum(-1)[inside].sum() / sample["maps"][..., :6].sum(-1)[inside].sum()
+    assert ratio == pytest.approx(1.0, abs=0.03)  # camera noise and demosaicking only

@@ -56,7 +56,8 @@ def test_table1_and_baseline_row(bench, tmp_path):
     result = evaluate.evaluate(bench["ckpt"], bench["data"])
     assert result["ours"] == "full" and set(result["methods"]) == {"full", "baseline"}
     base, ours = result["methods"]["baseline"], result["methods"]["full"]
-    model, _ = load_checkpoint(bench["ckpt"])
+    model, ckpt = load_checkpoint(bench["ckpt"])
+    assert ckpt["input_scale"] == "calibrated"  # the training default
     maes, pix = [], []
     for row_b, row_o in zip(base["per_sample"], ours["per_sample"], strict=True):
         sample, meta = pdataset.read_sample(bench["data"], row_b["index"])
@@ -71,7 +72,8 @@ def test_table1_and_baseline_row(bench, tmp_path):
         assert row_b["pixels"] == int(mask.sum())
         maes.append(mae)
         pix.append(mask.sum())
-        pred = predict(model, sample["maps"], mask)
+        radiance = meta["rig"]["display"]["radiance"]
+        pred = predict(model, sample["maps"], mask, input_scale="calibrated", radiance=radiance)
         assert row_o["normal_mae"] == pytest.approx(metrics.normal_mae_deg(pred["normal"], sample["normal"], mask))
         assert row_o["metallic_rmse"] == pytest.approx(
             metrics.rmse(pred["metallic"], sample["metallic"][..., None], mask)
@@ -113,7 +115,7 @@ def test_table3_ablation_applies_each_variant(bench, tmp_path):
     sample, _ = pdataset.read_sample(bench["data"], result["methods"]["polar"]["per_sample"][0]["index"])
     maps, mask = sample["maps"].copy(), sample["mask"]
     maps[..., 6:] = 0  # no CP: what the 'polar' variant sees (zeroed here independently of apply_inputs)
-    pred = predict(model, maps, mask)
+    pred = predict(model, maps, mask, input_scale="calibrated", radiance=1.0)  # the default rig's display
     want = metrics.normal_mae_deg(pred["normal"], sample["normal"], mask)
     assert result["methods"]["polar"]["mean"]["normal_mae"] == pytest.approx(want, rel=1e-6)
     assert result["methods"]["polar"]["mean"]["normal_mae"] != result["methods"]["full"]["mean"]["normal_mae"]

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from network.config import get_config
-from network.infer import load_input, predict, write_predictions
+from network.infer import input_display_radiance, load_input, predict, write_predictions
 from network.model.polar_model import PolarInverseModel
 from pbrdf.data import capture
 from pbrdf.io import exr
@@ -205,3 +205,61 @@ class TestLoadInputRequireObject:
         path = dataset.sample_paths(tmp_path, 0).exr
         with pytest.raises(ValueError, match="the sample's mask is empty: nothing to reconstruct"):
             load_input(path, require_object=True)
+
+
+# ----------------------------------------------------------------------------------------------------------
+# Input scale: calibrated checkpoints read the display radiance, relative captures fall back
+
+
+def test_calibrated_predict_reads_the_radiance_and_huge_maps_scale_with_it():
+    model = make_model()
+    maps, mask = _maps_and_mask()
+    one = predict(model, maps, mask, input_scale="calibrated", radiance=1.0)
+    two = predict(model, maps, mask, input_scale="calibrated", radiance=2.0)
+    assert not np.allclose(one["albedo"], two["albedo"])  # the network sees absolute brightness
+    # Radiance units scaled by 2^70 (past the float32-safe peak) with the radiance alike: the same input.
+    big = maps.astype(np.float64)
+    big[..., :6] *= 2.0**70
+    same = predict(model, big, mask, input_scale="calibrated", radiance=2.0**70)
+    for key in KEYS:
+        np.testing.assert_allclose(same[key], one[key], rtol=1e-5, atol=1e-6)
+    # An exposure-invariant checkpoint ignores the radiance.
+    inv = predict(model, maps, mask, radiance=2.0)
+    np.testing.assert_array_equal(inv["albedo"], predict(model, maps, mask)["albedo"])
+
+
+def test_relative_capture_falls_back_with_one_warning(tmp_path):
+    root = Path(__file__).resolve().parents[2]
+    torch.manual_seed(0)
+    model = PolarInverseModel(get_config("toy"))
+    ckpt = tmp_path / "model.pt"
+    torch.save({"config": model.config.to_dict(), "model": model.state_dict(), "input_scale": "calibrated"}, ckpt)
+    s = np.zeros((48, 64, 3, 4))
+    s[12:36, 16:48, :, 0] = 0.3
+    s[12:36, 16:48, :, 1] = -0.1
+    m = camera.CameraModel()
+    raws = camera.simulate_capture(s, m, rng=np.random.default_rng(0))
+    rel = capture.save_capture(tmp_path / "rel", raws, m, extra={"radiometry": "relative"})
+    assert input_display_radiance(rel) is None
+    cmd = [
+        sys.executable,
+        "headless/infer.py",
+        "--checkpoint",
+        str(ckpt),
+        "--input",
+        str(rel),
+        "--out",
+        str(tmp_path / "o"),
+    ]
+    proc = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.count("warning:") == 1 and "albedo is relative" in proc.stderr
+    maps, mask = load_input(rel)
+    want = predict(model, maps, mask)  # the exposure-invariant scale
+    got = exr.read_exr(tmp_path / "o" / "rel_albedo.exr")
+    np.testing.assert_allclose(got["albedo.R"], want["albedo"][..., 0], rtol=1e-5, atol=1e-6)
+    bad = capture.save_capture(tmp_path / "bad", raws, m, extra={"radiometry": "absolute"})
+    proc = subprocess.run([*cmd[:5], str(bad), "--out", str(tmp_path / "o2")], cwd=root, capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "radiometry must be one of" in proc.stderr
+    assert not (tmp_path / "o2").exists()

@@ -242,7 +242,7 @@ def test_validation_mae_and_tensorboard(tiny_dataset, tmp_path):
     assert [int(r["step"]) for r in rows] == [2] and int(rows[0]["samples"]) == 2
     # Independent recomputation from model.pt: angle between unit normals over the mask, in degrees.
     model, _ = load_checkpoint(out / "model.pt")
-    ds, errs = SampleDataset(tiny_dataset, size=64), []
+    ds, errs = SampleDataset(tiny_dataset, size=64, input_scale="calibrated"), []  # the training default
     for i in range(2):
         it = ds[i]
         with torch.no_grad():
@@ -436,3 +436,66 @@ def test_resume_of_an_emptied_log_writes_its_header(tiny_dataset, tmp_path):
     with open(out / "log.csv", newline="") as f:
         rows = list(csv.reader(f))
     assert rows[0] == list(LOG_COLUMNS) and [r[0] for r in rows[1:]] == ["1"]
+
+
+# ------------------------------------------------------------------------------------------------
+# input scale, chunks, selection on validation
+
+
+@pytest.mark.mitsuba
+def test_input_scale_is_stored_and_checked_on_resume(tiny_dataset, tmp_path):
+    out = tmp_path / "s"
+    train(_cfg(tiny_dataset, out, steps=2, checkpoint_every=2), progress=False)
+    _, ckpt = load_checkpoint(out / "model.pt")
+    assert ckpt["input_scale"] == "calibrated"
+    with pytest.raises(ValueError, match="--input-scale calibrated, not exposure-invariant"):
+        train(_cfg(tiny_dataset, out, steps=4, resume=True, input_scale="exposure-invariant"), progress=False)
+    with pytest.raises(ValueError, match="unknown input scale"):
+        _cfg(tiny_dataset, out, input_scale="absolute")
+
+
+@pytest.mark.mitsuba
+def test_stop_after_is_one_chunk_of_the_same_run(tiny_dataset, tmp_path):
+    """A run trained in chunks (--stop-after, then --resume) follows the uninterrupted run exactly."""
+    full = train(_cfg(tiny_dataset, tmp_path / "full", steps=8), progress=False)
+    first = train(_cfg(tiny_dataset, tmp_path / "chunks", steps=8, stop_after=3), progress=False)
+    assert len(first) == 3
+    assert torch.load(tmp_path / "chunks" / "checkpoint.pt", weights_only=True)["step"] == 3  # saved at the stop
+    rest = train(_cfg(tiny_dataset, tmp_path / "chunks", steps=8, stop_after=6, resume=True), progress=False)
+    rest = train(_cfg(tiny_dataset, tmp_path / "chunks", steps=8, resume=True), progress=False)
+    np.testing.assert_allclose(rest, full, rtol=1e-6, atol=1e-7)
+    assert [int(r["step"]) for r in _log(tmp_path / "chunks")] == list(range(8))
+
+
+@pytest.mark.mitsuba
+def test_best_checkpoint_is_selected_on_validation_and_repaired_on_resume(tiny_dataset, tmp_path, caplog):
+    out = tmp_path / "b"
+    cfg = {"steps": 6, "checkpoint_every": 2, "val": tiny_dataset, "val_samples": 2}
+    train(_cfg(tiny_dataset, out, **cfg), progress=False)
+    rows = [(int(r["step"]), float(r["normal_mae_deg"])) for r in csv.DictReader(open(out / "val.csv"))]
+    assert [s for s, _ in rows] == [2, 4, 6]
+    step, mae = min(rows, key=lambda r: r[1])
+    best = torch.load(out / "best.pt", weights_only=True)
+    assert best["step"] == step and best["val_normal_mae_deg"] == pytest.approx(mae, rel=1e-12)
+    # best.pt loads like model.pt and its weights reproduce the logged validation error.
+    from network.data import SampleDataset
+    from network.metrics import normal_mae_deg
+
+    model, _ = load_checkpoint(out / "best.pt")
+    ds, errs = SampleDataset(tiny_dataset, size=64, input_scale="calibrated"), []
+    for i in range(2):
+        it = ds[i]
+        with torch.no_grad():
+            n = model(it["maps"][None], it["mask"][None])["normal"][0].permute(1, 2, 0).numpy()
+        errs.append(normal_mae_deg(n, it["normal"].permute(1, 2, 0).numpy(), it["mask"][0].numpy() > 0))
+    assert np.mean(errs) == pytest.approx(mae, rel=1e-4)
+    # Killed after checkpoint.pt of step 6 but before best.pt, with step 6 the best validation: resume repairs it.
+    text = (out / "val.csv").read_text().splitlines()
+    (out / "val.csv").write_text("\n".join([*text[:-1], "6,0.5,2"]) + "\n")
+    (out / "best.pt").unlink()
+    with caplog.at_level(logging.WARNING, logger="network.train"):
+        train(_cfg(tiny_dataset, out, resume=True, **cfg), progress=False)
+    best = torch.load(out / "best.pt", weights_only=True)
+    ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
+    assert best["step"] == 6 and best["val_normal_mae_deg"] == 0.5 and "best.pt: missing the best" in caplog.text
+    assert all(torch.equal(best["model"][k], v) for k, v in ckpt["model"].items())

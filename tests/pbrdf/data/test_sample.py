@@ -66,6 +66,9 @@ def test_round_trip_exact(tmp_path, rng, stokes, raw):
     if raw:
         assert meta["raw_capture"] == "000012_raw"
         assert CameraModel.from_dict(meta["camera_model"]) == CameraModel(exposures=(0.01, 0.04))
+        # The raw folder is a capture a user could have taken: calibrated, with the sample's rig.
+        capture_json = json.loads((paths.raw / "capture.json").read_text())
+        assert capture_json["radiometry"] == "calibrated" and capture_json["rig"] == meta["rig"]
 
     # the same through the EXR or sidecar path, with verification
     for p in (paths.exr, paths.sidecar):
