@@ -276,3 +276,46 @@ class TestTraining:
         loss = out["albedo"].mean() + out["normal"][:, 2].mean()
         loss.backward()
         assert all(bool(torch.isfinite(p.grad).all()) for p in model.parameters() if p.grad is not None)
+
+
+class TestExtremeInputs:
+    """Normalised extreme captures through the model, fp32 and bf16: finite outputs, unit normals."""
+
+    @staticmethod
+    def _cases():
+        from network.data import MAP_LIMIT, normalize_maps
+
+        _, mask = toy_inputs()
+        b, _, h, w = mask.shape
+        full = torch.ones(b, 1, h, w)
+        pixel = torch.zeros(b, 1, h, w)
+        pixel[:, :, h // 2, w // 2] = 1.0
+        glint = torch.full((b, 9, h, w), 0.1)
+        glint[:, :6, :4, :4] = 3e38  # a saturated glint next to a dark object
+        glint[:, 6:] = 1.0  # CP at its bound
+        return {
+            "all dark": normalize_maps(torch.zeros(b, 9, h, w), full),
+            "all dark, calibrated": normalize_maps(torch.zeros(b, 9, h, w), full, radiance=1.0),
+            "saturated glint": normalize_maps(glint, full),
+            "saturated glint, calibrated": normalize_maps(glint, full, radiance=1e-30),
+            "at the clamp": torch.full((b, 9, h, w), MAP_LIMIT),
+            "single pixel": normalize_maps(torch.rand(b, 9, h, w), pixel),
+            "zero mask": (torch.zeros(b, 9, h, w), torch.zeros(b, 1, h, w)),
+        }, full, pixel
+
+    @pytest.mark.parametrize("bf16", [False, True], ids=["fp32", "bf16"])
+    def test_outputs_stay_finite(self, bf16):
+        torch.manual_seed(0)
+        model = toy_model().eval()
+        cases, full, pixel = self._cases()
+        for name, case in cases.items():
+            maps, mask = case if isinstance(case, tuple) else (case, pixel if name == "single pixel" else full)
+            assert torch.isfinite(maps).all(), name
+            with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=bf16):
+                out = model(maps, mask)
+            for key, value in out.items():
+                assert torch.isfinite(value).all(), (name, key)
+            inside = mask[:, 0] > 0
+            if inside.any():
+                norms = out["normal"].norm(dim=1)[inside]
+                torch.testing.assert_close(norms, torch.ones_like(norms), atol=1e-3, rtol=0), name
