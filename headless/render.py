@@ -95,6 +95,9 @@ def _apply_split(args: argparse.Namespace) -> str | None:
     args.shapes = args.shapes or split.shapes
     if args.shapes != split.shapes:
         raise ValueError(f"--split {split.name} uses --shapes {split.shapes}")
+    if args.pattern is not None and args.pattern != split.pattern:
+        raise ValueError(f"--split {split.name} shows the {split.pattern!r} pattern; drop --pattern")
+    args.pattern = split.pattern if split.pattern != "rgb_halves" else None
     args.keep_raw = args.keep_raw or split.keep_raw
     args.objects = f"{split.objects[0]}-{split.objects[1]}"
     args.table_fraction = split.table_fraction
@@ -143,6 +146,8 @@ def build_parser() -> argparse.ArgumentParser:
         "scalar, or a *_polarized variant name",
     )
     parser.add_argument("--rig", type=Path, help="rig JSON overriding the default rig (calibrated rigs)")
+    parser.add_argument("--pattern", help="display pattern: rgb_halves (default), white, or an image file; "
+                        "the scenes stay those of --seed")  # fmt: skip
     parser.add_argument("--scene", type=Path, help="render this scene spec JSON instead of random scenes")
     parser.add_argument("--via-blender", action="store_true", help="lay every scene out in Blender (bpy) first")
     parser.add_argument("--npz", action="store_true", help="also write DIR/arrays/NNNNNN.npz (numpy only)")
@@ -194,6 +199,7 @@ def main(argv: list[str] | None = None) -> int:
             assets=args.assets,
             pbrdfs=args.pbrdfs,
             rig=args.rig,
+            pattern=args.pattern,
             resume=args.resume,
             shard=parse_shard(args.shard),
             keep_stokes=args.keep_stokes,

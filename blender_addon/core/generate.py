@@ -28,7 +28,7 @@ import numpy as np
 
 from pbrdf.data import dataset
 from pbrdf.io.atomic import atomic_write_bytes, remove_leftovers
-from pbrdf.sensor.rig import Rig
+from pbrdf.sensor.rig import BUILTIN_PATTERNS, Rig
 
 from . import assets, passes, render, scenegen
 from .generated_shapes import GENERATED_SHAPES
@@ -81,6 +81,7 @@ class GenerateConfig:
     assets: Path | None = None
     pbrdfs: Path | None = None
     rig: Path | None = None
+    pattern: str | None = None
     resume: bool = False
     shard: tuple[int, int] = (0, 1)
     keep_stokes: bool = False
@@ -102,6 +103,10 @@ class GenerateConfig:
             p = getattr(self, name)
             if p is not None and not Path(p).exists():
                 raise FileNotFoundError(f"--{name} {p}: does not exist")
+        if self.pattern is not None and self.pattern not in BUILTIN_PATTERNS and not Path(self.pattern).is_file():
+            raise ValueError(
+                f"--pattern must be one of {list(BUILTIN_PATTERNS)} or an image file, got {self.pattern!r}"
+            )
         if self.shapes is None:
             object.__setattr__(self, "shapes", "none" if self.assets is not None else "procedural")
         if self.shapes not in SHAPE_SETS:
@@ -255,6 +260,11 @@ def generate(
             sidecar records the spec it returns.
     """
     rig = Rig.load(cfg.rig) if cfg.rig else Rig()
+    if cfg.pattern is not None:  # the display's pattern only: the scenes stay those of the seed
+        try:
+            rig = replace(rig, display=replace(rig.display, pattern=cfg.pattern))
+        except ValueError as e:
+            raise ValueError(f"--pattern {cfg.pattern}: {e}") from None
     fixed = SceneSpec.load(cfg.scene) if cfg.scene else None
     if fixed is not None:
         if cfg.rig:

@@ -15,7 +15,9 @@ Roles:
 Convention:
     Run seeds of different splits differ, and the scene seed of sample ``i`` of a run is a hash
     of ``(run_seed, i)`` (``blender_addon.core.scenegen.sample_seed``), so no scene appears in
-    two splits (checked for the listed counts by the tests).
+    two splits (checked for the listed counts by the tests). The one exception is a *twin*
+    (``twin_of``): the same scenes as another split of the same role, lit by another display
+    pattern (the ablation's uniform white illumination).
 
 Example:
     >>> SPLITS["test-procedural"].role, SPLITS["test-procedural"].count
@@ -73,6 +75,9 @@ class Split:
             (the rest analytic); None: every object a table.
         assets: an asset corpus added to the shape pool: ``"assimp-testmodels"`` (Debian's
             package, :data:`ASSET_CORPORA`) or None.
+        pattern: the display pattern (:data:`pbrdf.sensor.rig.BUILTIN_PATTERNS`).
+        twin_of: the split whose scenes (seed, count and every setting but ``pattern``) this one
+            re-renders; None for an independent split.
     """
 
     name: str
@@ -88,6 +93,8 @@ class Split:
     objects: tuple[int, int] = (1, 1)
     table_fraction: float | None = None
     assets: str | None = None
+    pattern: str = "rgb_halves"
+    twin_of: str | None = None
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
@@ -168,6 +175,17 @@ SPLITS: dict[str, Split] = {
             **_ENGINE,
         ),
         Split("val-engine", "val", seed=31_000, count=64, description="as train-engine (selection)", **_ENGINE),
+        # The ablation's uniform white illumination (Table 3, "white"): the same scenes, white display.
+        Split(
+            "train-engine-white",
+            "train",
+            seed=30_000,
+            count=2000,
+            description="train-engine's scenes under a uniform white display (ablation)",
+            pattern="white",
+            twin_of="train-engine",
+            **_ENGINE,
+        ),
         Split(
             "test-scenes",
             "test",
@@ -180,6 +198,21 @@ SPLITS: dict[str, Split] = {
             table_fraction=0.5,
             assets="assimp-testmodels",
             description="1-4 objects: assimp-testmodels corpus files and unseen meshes, half pBRDF tables",
+        ),
+        Split(
+            "test-scenes-white",
+            "test",
+            seed=23_000,
+            count=48,
+            shapes="meshes",
+            pbrdfs=True,
+            keep_raw=True,
+            objects=(1, 4),
+            table_fraction=0.5,
+            assets="assimp-testmodels",
+            description="test-scenes under a uniform white display (ablation)",
+            pattern="white",
+            twin_of="test-scenes",
         ),
     )
 }
@@ -198,8 +231,24 @@ def get_split(name: str) -> Split:
 
 
 def test_splits() -> list[Split]:
-    """The splits with role ``test``, in definition order."""
-    return [s for s in SPLITS.values() if s.role == "test"]
+    """The test splits every model is scored on, in definition order (twins are the ablation's only)."""
+    return [s for s in SPLITS.values() if s.role == "test" and s.twin_of is None]
+
+
+def _check_twins() -> None:
+    """A twin differs from its split only by name, description and display pattern."""
+    for s in SPLITS.values():
+        if s.twin_of is None:
+            continue
+        base = SPLITS[s.twin_of].to_dict()
+        twin = s.to_dict()
+        for key in ("name", "description", "pattern", "twin_of"):
+            base.pop(key), twin.pop(key)
+        if base != twin:
+            raise AssertionError(f"split {s.name!r} must render the scenes of {s.twin_of!r} (twin_of)")
+
+
+_check_twins()
 
 
 test_splits.__test__ = False  # a library function, not a pytest test

@@ -232,3 +232,24 @@ def test_variant_reaches_the_renderer(tmp_path):
     assert report.written == [0], report.failed
     _, meta = dataset.read_sample(tmp_path, 0)
     assert meta["variant"] == dataset.read_manifest(tmp_path)["variant"] == "scalar_spectral_polarized"
+
+
+def test_white_pattern_renders_the_same_scene_under_a_white_display(tmp_path):
+    """--pattern changes the light, not the scene: the ablation's white twin of a split."""
+    rgb, white = tmp_path / "rgb", tmp_path / "white"
+    for out, pattern in ((rgb, None), (white, "white")):
+        generate(GenerateConfig(out=out, count=1, resolution=32, spp=4, seed=7, pattern=pattern), progress=False)
+    a, meta_a = dataset.read_sample(rgb, 0, keys=("maps", "mask", "normal"))
+    b, meta_b = dataset.read_sample(white, 0, keys=("maps", "mask", "normal"))
+    assert meta_b["rig"]["display"]["pattern"] == "white" and meta_a["rig"]["display"]["pattern"] == "rgb_halves"
+    assert meta_a["spec"]["objects"] == meta_b["spec"]["objects"]
+    np.testing.assert_array_equal(a["normal"], b["normal"])
+    # Physics: a white display lights every colour from the whole panel, the RGB pattern each colour
+    # from half of it (blue: the upper half), so every colour of the object gets brighter.
+    m = a["mask"].astype(bool) & b["mask"].astype(bool)
+    s0_rgb = a["maps"][m][:, :6].reshape(-1, 2, 3).sum(1)
+    s0_white = b["maps"][m][:, :6].reshape(-1, 2, 3).sum(1)
+    assert np.all(s0_white.sum(0) > 1.2 * s0_rgb.sum(0))
+    with pytest.raises(ValueError, match=r"--pattern must be one of \['rgb_halves', 'white'\] or an image file"):
+        generate(GenerateConfig(out=tmp_path / "bad", count=1, resolution=32, spp=4, pattern="checkers"))
+    assert not (tmp_path / "bad").exists()

@@ -293,15 +293,19 @@ class TestExtremeInputs:
         glint = torch.full((b, 9, h, w), 0.1)
         glint[:, :6, :4, :4] = 3e38  # a saturated glint next to a dark object
         glint[:, 6:] = 1.0  # CP at its bound
-        return {
-            "all dark": normalize_maps(torch.zeros(b, 9, h, w), full),
-            "all dark, calibrated": normalize_maps(torch.zeros(b, 9, h, w), full, radiance=1.0),
-            "saturated glint": normalize_maps(glint, full),
-            "saturated glint, calibrated": normalize_maps(glint, full, radiance=1e-30),
-            "at the clamp": torch.full((b, 9, h, w), MAP_LIMIT),
-            "single pixel": normalize_maps(torch.rand(b, 9, h, w), pixel),
-            "zero mask": (torch.zeros(b, 9, h, w), torch.zeros(b, 1, h, w)),
-        }, full, pixel
+        return (
+            {
+                "all dark": normalize_maps(torch.zeros(b, 9, h, w), full),
+                "all dark, calibrated": normalize_maps(torch.zeros(b, 9, h, w), full, radiance=1.0),
+                "saturated glint": normalize_maps(glint, full),
+                "saturated glint, calibrated": normalize_maps(glint, full, radiance=1e-30),
+                "at the clamp": torch.full((b, 9, h, w), MAP_LIMIT),
+                "single pixel": normalize_maps(torch.rand(b, 9, h, w), pixel),
+                "zero mask": (torch.zeros(b, 9, h, w), torch.zeros(b, 1, h, w)),
+            },
+            full,
+            pixel,
+        )
 
     @pytest.mark.parametrize("bf16", [False, True], ids=["fp32", "bf16"])
     def test_outputs_stay_finite(self, bf16):

@@ -13,7 +13,18 @@ def test_roles_and_sizes():
     tests = splits.test_splits()
     assert {s.name for s in tests} == {"test-procedural", "test-meshes", "test-pbrdf", "test-scenes"}
     assert all(s.count >= 48 and s.keep_raw for s in tests)  # scored through the real-capture path
-    assert len({s.seed for s in splits.SPLITS.values()}) == len(splits.SPLITS)
+    independent = [s for s in splits.SPLITS.values() if s.twin_of is None]
+    assert len({s.seed for s in independent}) == len(independent)
+
+
+def test_twins_rerender_their_split_under_another_pattern():
+    twins = {s.name: s for s in splits.SPLITS.values() if s.twin_of is not None}
+    assert set(twins) == {"train-engine-white", "test-scenes-white"}
+    for twin in twins.values():
+        base = splits.get_split(twin.twin_of)
+        assert twin.pattern == "white" != base.pattern and twin.role == base.role
+        assert (twin.seed, twin.count, twin.resolution, twin.objects) == (base.seed, base.count, base.resolution,
+                                                                          base.objects)  # fmt: skip
 
 
 def test_no_scene_in_two_splits():
@@ -21,6 +32,8 @@ def test_no_scene_in_two_splits():
     scenegen = pytest.importorskip("blender_addon.core.scenegen")
     seen: dict[int, str] = {}
     for s in splits.SPLITS.values():
+        if s.twin_of is not None:  # the same scenes as its split, by definition
+            continue
         for i in range(s.count):
             seed = scenegen.sample_seed(s.seed, i)
             assert seed not in seen, f"{s.name} scene {i} repeats a scene of {seen[seed]}"
