@@ -10,7 +10,7 @@ CHROMIUM_STAMP := $(VENV)/.chromium-ok
 MODELS_STAMP := $(VENV)/.testmodels-ok
 OUT ?= out
 
-.PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets train-data
+.PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets train-data train-engine-model ablation-data ablation
 
 help:  ## list targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -91,6 +91,16 @@ train-engine-model: setup  ## train the data engine's model (resumable chunks; n
 	    --overrides image_size=192 canonical_size=128 train_pixels=2048 infer_chunk=8192 \
 	    --steps $(ENGINE_STEPS) --stop-after $(ENGINE_STOP) --batch-size 4 --lr 2e-4 --lr-warmup 100 --min-lr-ratio 0.1 \
 	    --seed 0 --input-scale calibrated --checkpoint-every 100 --val-samples 16 --out $(ENGINE_RUN) --resume --quiet
+
+# The paper's Table 3 at this scale (network/ablation.py): six runs with one budget, scored on
+# test-scenes (white: its white twin). Resumable; ABLATION_SCENES training scenes per run.
+ABLATION_SCENES ?= 500
+ABLATION_OUT := $(OUT)/ablation
+ablation-data: setup  ## render what the ablation needs beyond train-data and test-sets (white twins)
+	$(PY) headless/render.py --split train-engine-white --count $(ABLATION_SCENES) --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/train-engine-white --resume --quiet
+	$(PY) headless/render.py --split test-scenes-white --pbrdfs $(SPLITS_DIR)/pbrdfs-test --out $(SPLITS_DIR)/test-scenes-white --resume --quiet
+ablation: ablation-data  ## train and score the six ablation runs; writes $(OUT)/ablation/ablation.md
+	$(PY) headless/ablation.py --input $(SPLITS_DIR) --out $(ABLATION_OUT) --scenes $(ABLATION_SCENES) --steps 500 --quiet
 
 # The fixed test splits (pbrdf/data/splits.py): rendered once, read only by the final evaluation.
 SPLITS_DIR := $(OUT)/splits

@@ -28,12 +28,29 @@ Example:
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 
-__all__ = ["DEPRECATION", "add_deprecated", "add_deprecated_positional", "require", "script_args"]
+__all__ = ["DEPRECATION", "add_deprecated", "add_deprecated_positional", "model_override", "require", "script_args"]
 
 #: The one deprecation line (``prog``, ``old``, ``new``).
 DEPRECATION = "{prog}: deprecated: {old} is now {new} (the old form goes away in the next release)"
+
+
+def model_override(text: str) -> tuple[str, object]:
+    """One ``--overrides`` item: ``key=value`` with a JSON value (or a plain string).
+
+    Example:
+        >>> model_override("image_size=128"), model_override("cross_observation=token")
+        (('image_size', 128), ('cross_observation', 'token'))
+    """
+    key, sep, value = text.partition("=")
+    if not sep or not key:
+        raise argparse.ArgumentTypeError(f"expected key=value, got {text!r}")
+    try:
+        return key, json.loads(value)
+    except json.JSONDecodeError:
+        return key, value  # a plain string, e.g. cross_observation=token
 
 
 class _Deprecated(argparse.Action):

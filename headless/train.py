@@ -29,7 +29,7 @@ from pathlib import Path
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import add_deprecated, require  # noqa: E402
+from headless._cli import add_deprecated, model_override, require  # noqa: E402
 
 INPUTS = ("white", "spectral", "polar", "full")  # network.inputs.INPUT_VARIANTS (not imported: --help stays fast)
 SCALES = ("calibrated", "exposure-invariant")  # network.data.INPUT_SCALES
@@ -42,17 +42,6 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"error: {message} (see {self.prog} --help)\n")
 
 
-def _override(text: str) -> tuple[str, object]:
-    """One ``--overrides`` item: ``key=value`` with a JSON value (or a plain string)."""
-    key, sep, value = text.partition("=")
-    if not sep or not key:
-        raise argparse.ArgumentTypeError(f"expected key=value, got {text!r}")
-    try:
-        return key, json.loads(value)
-    except json.JSONDecodeError:
-        return key, value  # a plain string, e.g. cross_observation=token
-
-
 def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (see the module docstring)."""
     parser = _Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -61,11 +50,13 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--val", type=Path, help="held-out rendered dataset: normal MAE every --val-every steps")
     parser.add_argument("--config", default="toy", choices=["toy", "small", "paper"], help="model size (default toy)")
     parser.add_argument(
-        "--overrides", nargs="+", type=_override, default=[], metavar="KEY=VALUE",
+        "--overrides", nargs="+", type=model_override, default=[], metavar="KEY=VALUE",
         help="ModelConfig fields to replace, e.g. image_size=128 train_pixels=1024 (JSON values)",
     )  # fmt: skip
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--steps", type=int, default=100, help="total steps (default 100)")
+    parser.add_argument("--indices", type=Path, metavar="FILE",
+                        help="JSON list of the sample indices of --input to train on (default: all)")  # fmt: skip
     parser.add_argument("--stop-after", type=int, default=None, metavar="N",
                         help="end this chunk after step N (with a checkpoint); schedules still span --steps, "
                         "so a later --resume continues the same run")  # fmt: skip
@@ -98,6 +89,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _read_indices(path: Path | None) -> list[int] | None:
+    """The ``--indices`` file: a JSON list of sample indices (ValueError naming the file otherwise)."""
+    if path is None:
+        return None
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"--indices {path}: unreadable ({exc})") from None
+    if not isinstance(data, list) or not all(isinstance(i, int) and not isinstance(i, bool) for i in data):
+        raise ValueError(f"--indices {path}: expected a JSON list of integers")
+    return data
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error)."""
     parser = build_parser()
@@ -108,9 +112,9 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         cfg = TrainConfig(
-            data=args.input, out=args.out, config=args.config, steps=args.steps, stop_after=args.stop_after,
-            batch_size=args.batch_size,
-            lr=args.lr, weight_decay=args.weight_decay, warmup_steps=args.lr_warmup, decay_steps=args.lr_decay_steps,
+            data=args.input, indices=_read_indices(args.indices), out=args.out, config=args.config, steps=args.steps,
+            stop_after=args.stop_after, batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
+            warmup_steps=args.lr_warmup, decay_steps=args.lr_decay_steps,
             min_lr_ratio=args.min_lr_ratio, clip=args.clip, seed=args.seed, resume=args.resume,
             checkpoint_every=args.checkpoint_every, overrides=dict(args.overrides), real=args.real,
             real_weight=args.real_weight, real_start=args.real_start, real_warmup=args.real_warmup,

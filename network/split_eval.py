@@ -180,7 +180,10 @@ def predict_scene(
         except ValueError:  # a mask that vanishes at the network's grid: nothing was reconstructed
             ours = None
         preds["ours"] = _fill_nearest(ours, auto, region) if ours is not None else constant
-        preds["baseline"] = _fill_nearest(baseline_predict(maps, auto, meta), auto, region)
+        if (meta.get("rig") or {}).get("display", {}).get("pattern", "rgb_halves") == "white":
+            preds["baseline"] = {}  # colour photometric stereo needs the colour regions: n/a under white light
+        else:
+            preds["baseline"] = _fill_nearest(baseline_predict(maps, auto, meta), auto, region)
     else:
         preds["ours"] = preds["baseline"] = constant
     gt = {k: sample[k] for k in ("normal", "albedo", "roughness", "metallic")}

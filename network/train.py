@@ -115,6 +115,7 @@ class TrainConfig:
 
     Attributes:
         data: rendered dataset folder (``headless/render.py``).
+        indices: train on these sample indices of ``data`` only (None: every completed sample).
         out: output folder (checkpoint, model, logs).
         config: model preset (``toy``, ``small``, ``paper``); ``overrides`` replace fields of it.
         steps: total optimizer steps of the run (a resumed run continues up to it).
@@ -140,6 +141,7 @@ class TrainConfig:
 
     data: Path
     out: Path
+    indices: tuple[int, ...] | None = None
     config: str = "toy"
     steps: int = 100
     stop_after: int | None = None
@@ -179,6 +181,10 @@ class TrainConfig:
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ValueError(f"{name} must be a non-negative integer. Got {value!r}")
+        if self.indices is not None:
+            object.__setattr__(self, "indices", tuple(int(i) for i in self.indices))
+            if not self.indices or min(self.indices) < 0 or len(set(self.indices)) != len(self.indices):
+                raise ValueError("indices must be a non-empty list of distinct sample indices >= 0")
         if self.stop_after is not None and (not isinstance(self.stop_after, int) or self.stop_after < 1):
             raise ValueError(f"stop_after must be a positive integer or None. Got {self.stop_after!r}")
         if self.decay_steps is not None and self.decay_steps < 1:
@@ -385,7 +391,14 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
         require_role(cfg.val, ("val",), "validation")
     if cfg.real is not None:
         require_role(cfg.real, ("train",), "training (real-data loss)")
-    ds = SampleDataset(cfg.data, size=model_cfg.image_size, input_scale=cfg.input_scale)
+    ds = SampleDataset(
+        cfg.data, size=model_cfg.image_size, input_scale=cfg.input_scale,
+        indices=list(cfg.indices) if cfg.indices is not None else None,
+    )  # fmt: skip
+    if cfg.indices is not None and len(ds) != len(cfg.indices):
+        missing = sorted(set(cfg.indices) - set(ds.indices))
+        raise ValueError(f"{cfg.data}: {len(missing)} of the requested indices are not completed samples "
+                         f"(first: {missing[0]})")  # fmt: skip
     real_ds, real_loss = None, None
     if cfg.real is not None:
         real_dataset_cls, real_loss = _real_modules()

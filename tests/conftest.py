@@ -172,3 +172,21 @@ def torch_one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(threads)
+
+
+@pytest.fixture(scope="session")
+def pbrdf_library(tmp_path_factory):
+    """A two-table pBRDF library (coarse seed tables), as ``--pbrdfs`` reads it."""
+    import json
+
+    from pbrdf.brdf import seeds, table
+
+    folder = tmp_path_factory.mktemp("pbrdfs")
+    entries = []
+    for mat, albedo, metallic in ((seeds.SEED_MATERIALS[3], (0.6, 0.05, 0.04), 0.0),
+                                  (seeds.SEED_MATERIALS[14], (0.9, 0.7, 0.3), 1.0)):  # fmt: skip
+        table.save_table(folder / f"{mat.name}.pbsdf", seeds.seed_table(mat, grid=(4, 4, 6)), for_mitsuba=True)
+        entries.append({"name": mat.name, "table": f"{mat.name}.pbsdf", "albedo": list(albedo),
+                        "roughness": mat.roughness, "metallic": metallic})  # fmt: skip
+    (folder / "materials.json").write_text(json.dumps(entries))
+    return folder

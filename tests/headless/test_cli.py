@@ -21,9 +21,9 @@ from headless._cli import DEPRECATION
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPTS = sorted(p.stem for p in (ROOT / "headless").glob("*.py") if not p.name.startswith("_"))
 #: Scripts that draw random numbers take --seed.
-SEEDED = {"bench", "demo", "expand_pbrdf", "optics_check", "render", "train"}
+SEEDED = {"ablation", "bench", "demo", "expand_pbrdf", "optics_check", "render", "train"}
 #: Scripts that read one input file or folder take --input.
-WITH_INPUT = {"bench", "decode", "evaluate", "expand_pbrdf", "infer", "relight", "train"}
+WITH_INPUT = {"ablation", "bench", "decode", "evaluate", "expand_pbrdf", "infer", "relight", "train"}
 
 
 def _summary(script: str) -> str:
@@ -33,7 +33,7 @@ def _summary(script: str) -> str:
 
 
 def test_every_script_is_found():
-    assert {"bench", "decode", "demo", "evaluate", "expand_pbrdf", "infer", "optics_check", "relight", "render",
+    assert {"ablation", "bench", "decode", "demo", "evaluate", "expand_pbrdf", "infer", "optics_check", "relight", "render",
             "train"} == set(SCRIPTS)  # fmt: skip
     assert not (ROOT / "headless" / "pipeline.py").exists() and not (ROOT / "headless" / "report.py").exists()
 

@@ -136,24 +136,6 @@ def test_runs_remove_temporaries_of_killed_runs_and_nothing_else(tmp_path):
     assert not (out / f"arrays/.000001.npz.{dead}").exists() and (out / "arrays/readme.txt").exists()
 
 
-@pytest.fixture(scope="module")
-def pbrdf_library(tmp_path_factory):
-    """A two-table pBRDF library (coarse seed tables), as ``--pbrdfs`` reads it."""
-    import json
-
-    from pbrdf.brdf import seeds, table
-
-    folder = tmp_path_factory.mktemp("pbrdfs")
-    entries = []
-    for mat, albedo, metallic in ((seeds.SEED_MATERIALS[3], (0.6, 0.05, 0.04), 0.0),
-                                  (seeds.SEED_MATERIALS[14], (0.9, 0.7, 0.3), 1.0)):  # fmt: skip
-        table.save_table(folder / f"{mat.name}.pbsdf", seeds.seed_table(mat, grid=(4, 4, 6)), for_mitsuba=True)
-        entries.append({"name": mat.name, "table": f"{mat.name}.pbsdf", "albedo": list(albedo),
-                        "roughness": mat.roughness, "metallic": metallic})  # fmt: skip
-    (folder / "materials.json").write_text(json.dumps(entries))
-    return folder
-
-
 def test_multi_object_samples_label_every_object_with_its_own_material(tmp_path, pbrdf_library):
     """Run seed 0 draws three objects (a table, a plastic, a metal): each must show up in the object
     channel, and the ground truth on its pixels must be its own material's Disney parameters."""
