@@ -1,0 +1,1 @@
+"""Surface geometry from measured maps: depth from normals."""
