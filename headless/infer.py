@@ -9,7 +9,10 @@ merged, demosaiced and decoded exactly like the synthetic training data (network
 
 Writes DIR/<name>_normal.exr, _albedo.exr, _roughness.exr, _metallic.exr, _mask.exr (float32,
 full input size, zero outside the mask; normals in the camera frame: x right, y up, z toward
-the camera) and a PNG preview of each. With --blend, also DIR/<name>.blend: the maps imported
+the camera), _depth.exr (metres along the viewing axis: the predicted normals integrated over
+the mask, discontinuity-aware, median depth = capture.json's distance_m or 0.75 m; the Blender
+import turns it into a relief mesh; --card leaves it out for a flat card) and a PNG preview of
+each. With --blend, also DIR/<name>.blend: the maps imported
 into Blender as a relightable Principled BSDF asset (headless/relight.py in its own process;
 needs the bpy wheel: pip install bpy).
 
@@ -43,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--blend", action="store_true", help="also save a Blender scene with the relightable asset")
     parser.add_argument("--stride", type=int, default=1, choices=[1, 2, 4],
                         help="decode every s-th pixel, interpolate the rest (faster)")  # fmt: skip
+    parser.add_argument("--card", action="store_true", help="no depth map (the import makes a flat card)")
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
     return parser
 
@@ -72,8 +76,10 @@ def main(argv: list[str] | None = None) -> int:
     from network.infer import (  # noqa: PLC0415
         DEFAULT_CHECKPOINT,
         input_display_radiance,
+        input_geometry,
         load_input,
         predict,
+        relief_depth,
         write_predictions,
     )
 
@@ -87,6 +93,8 @@ def main(argv: list[str] | None = None) -> int:
                 model, maps, mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
                 radiance=input_display_radiance(args.input), stride=args.stride,
             )  # fmt: skip
+            if not args.card:
+                pred["depth"] = relief_depth(pred, *input_geometry(args.input, mask.shape))
             name = args.input.stem if args.input.is_file() else args.input.name
             write_predictions(args.out, name, pred)
         except (ValueError, OSError) as exc:

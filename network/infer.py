@@ -24,6 +24,7 @@ from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import dataset as pdataset
 from pbrdf.io.atomic import fsync_path, temporary_path
 from pbrdf.io.exr import write_exr
+from pbrdf.sensor.rig import Rig
 
 from .data import input_radiance, normalize_maps
 from .inputs import apply_inputs
@@ -31,7 +32,10 @@ from .model import PolarInverseModel
 
 __all__ = [
     "OUTPUTS",
+    "DEFAULT_DISTANCE",
     "input_display_radiance",
+    "input_geometry",
+    "relief_depth",
     "load_input",
     "predict",
     "mask_bbox",
@@ -41,6 +45,9 @@ __all__ = [
 
 #: The shipped model (``make train-model``; see models/small/MODEL_CARD.md).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "models" / "small" / "model.pt"
+
+#: Object distance in m when a capture does not give one: the middle of the rig's 0.5 - 1.0 m.
+DEFAULT_DISTANCE = 0.75
 
 #: Output maps and their channel counts.
 OUTPUTS = {"normal": 3, "albedo": 3, "roughness": 1, "metallic": 1}
@@ -100,13 +107,85 @@ def input_display_radiance(path: str | Path) -> float | None:
         where = path.with_suffix(".json")
     else:
         raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
+    return pcapture.display_radiance(_json_object(where), str(where))
+
+
+def input_geometry(path: str | Path, grid_shape: tuple[int, int]) -> tuple[np.ndarray, float | None]:
+    """Pinhole matrix of :func:`load_input`'s map grid and the object distance, for a capture or sample.
+
+    A capture folder: ``capture.json``'s optional ``intrinsics`` (of the raw mosaic's grid;
+    default the rig camera's focal length with the principal point at the image centre) scaled to
+    the decoded grid, and ``distance_m`` (None without it). A rendered sample: its sidecar's
+    ``intrinsics`` (of the rendered crop, the maps' grid; without them the default camera's field of
+    view across the map) and no distance (the sample's own depth is ground truth, not an input).
+
+    Args:
+        path: the capture folder or sample.
+        grid_shape: ``(H, W)`` of the decoded maps.
+
+    Raises:
+        FileNotFoundError: neither a capture folder nor a sample.
+        ValueError: bad ``rig``, ``intrinsics`` or ``distance_m`` (one line naming the file).
+    """
+    path = Path(path)
+    if path.is_dir() and (path / pcapture.CAPTURE_JSON).is_file():
+        where = path / pcapture.CAPTURE_JSON
+        meta = _json_object(where)
+        try:
+            rig = Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()
+            raw_h = 2 * grid_shape[0]  # the decoder's half grid: one pixel per 2 x 2 raw block
+            if "intrinsics" in meta:
+                k = np.asarray(meta["intrinsics"], dtype=np.float64)
+                if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+                    raise ValueError(f"intrinsics must be a finite 3x3 matrix, got shape {k.shape}")
+            else:
+                f = rig.camera.focal_length_px
+                k = np.array([[f, 0.0, grid_shape[1]], [0.0, f, grid_shape[0]], [0.0, 0.0, 1.0]])
+            distance = float(meta["distance_m"]) if "distance_m" in meta else None
+            if distance is not None and not (math.isfinite(distance) and distance > 0):
+                raise ValueError(f"distance_m must be > 0, got {distance}")
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{where}: {exc}") from None
+        k = k.copy()
+        k[:2] *= grid_shape[0] / raw_h  # pixel centres scale with the grid
+        return k, distance
+    if path.suffix in (".exr", ".json") and path.with_suffix(".json").is_file():
+        where = path.with_suffix(".json")
+        meta = _json_object(where)
+        if "intrinsics" in meta:
+            k = np.asarray(meta["intrinsics"], dtype=np.float64)
+            if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+                raise ValueError(f"{where}: intrinsics must be a finite 3x3 matrix")
+            return k, None
+        # No intrinsics: the default camera's field of view across the map's width.
+        cam = Rig().camera
+        f = cam.focal_length_px * grid_shape[1] / cam.sensor_width_px
+        return np.array([[f, 0.0, grid_shape[1] / 2], [0.0, f, grid_shape[0] / 2], [0.0, 0.0, 1.0]]), None
+    raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
+
+
+def _json_object(where: Path) -> dict:
     try:
         meta = json.loads(where.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ValueError(f"{where}: unreadable JSON ({exc})") from None
     if not isinstance(meta, dict):
         raise ValueError(f"{where}: expected a JSON object")
-    return pcapture.display_radiance(meta, str(where))
+    return meta
+
+
+def relief_depth(pred: dict[str, np.ndarray], intrinsics: np.ndarray, distance: float | None = None) -> np.ndarray:
+    """``(H, W, 1)`` depth in m of the predicted surface: its normals integrated over its mask.
+
+    :func:`pbrdf.geometry.normal_integration.integrate_normals` (discontinuity-aware); the median
+    depth is ``distance`` (the capture's ``distance_m``; default :data:`DEFAULT_DISTANCE`, the
+    middle of the rig's 0.5-1.0 m working range). The Blender import builds a relief mesh from it.
+    """
+    from pbrdf.geometry.normal_integration import integrate_normals  # noqa: PLC0415
+
+    mask = pred["mask"][..., 0] > 0
+    depth = integrate_normals(pred["normal"], mask, intrinsics, DEFAULT_DISTANCE if distance is None else distance)
+    return depth[..., None]
 
 
 def mask_bbox(mask: np.ndarray, margin: float = 0.05) -> tuple[int, int, int, int]:
@@ -281,6 +360,10 @@ def write_predictions(out: str | Path, name: str, pred: dict[str, np.ndarray]) -
         chans = "XYZ" if key == "normal" else ("RGB" if img.shape[-1] == 3 else "Y")
         files.append((f"{name}_{key}.exr", {f"{key}.{c}": img[..., i] for i, c in enumerate(chans)}))
         preview = img * 0.5 + 0.5 if key == "normal" else img
+        if key == "depth":  # near = bright, far = dark, over the mask's range
+            inside = img[..., 0][mask] if mask is not None and mask.any() else img[..., 0].ravel()
+            lo, hi = float(inside.min()), float(inside.max())
+            preview = (hi - img) / (hi - lo) if hi > lo else np.ones_like(img)
         if mask is not None:
             preview = preview * mask[..., None]
         files.append((f"{name}_{key}.png", _png(preview)))

@@ -58,13 +58,10 @@ from pbrdf.sensor.projection import crop_intrinsics
 from pbrdf.sensor.rig import Rig
 
 from .data import INPUT_SCALES, input_radiance, normalize_maps
-from .infer import mask_bbox
+from .infer import DEFAULT_DISTANCE, input_geometry, mask_bbox
 from .rerender import DEFAULT_PATCHES, display_patches, points_from_depth
 
 __all__ = ["DEFAULT_DISTANCE", "RealDataset", "find_real_inputs", "load_real_input"]
-
-#: Default object distance in m without a depth prior: the middle of scenegen's 0.5 - 1.0 m.
-DEFAULT_DISTANCE = 0.75
 
 
 def _is_capture(path: Path) -> bool:
@@ -123,24 +120,9 @@ def load_real_input(path: Path, *, use_depth: bool = True) -> tuple[
         cap = pcapture.load_capture(path)
         dec = pdecode_capture.decode_capture(cap)
         meta = cap.metadata
-        try:
-            radiance = pcapture.display_radiance(meta, str(path / pcapture.CAPTURE_JSON))
-            rig = Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()
-            h, w = cap.raws.shape[1:]
-            if "intrinsics" in meta:
-                k = np.asarray(meta["intrinsics"], dtype=np.float64)
-                if k.shape != (3, 3) or not np.all(np.isfinite(k)):
-                    raise ValueError(f"intrinsics must be a finite 3x3 matrix, got shape {k.shape}")
-            else:
-                f = rig.camera.focal_length_px
-                k = np.array([[f, 0.0, w / 2], [0.0, f, h / 2], [0.0, 0.0, 1.0]])
-            distance = float(meta["distance_m"]) if "distance_m" in meta else None
-            if distance is not None and not distance > 0:
-                raise ValueError(f"distance_m must be > 0, got {distance}")
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{path / pcapture.CAPTURE_JSON}: {exc}") from None
-        k = k.copy()
-        k[:2] *= dec.maps.shape[0] / h  # half grid: pixel centres scale with the grid
+        k, distance = input_geometry(path, dec.maps.shape[:2])  # checks rig, intrinsics, distance_m
+        radiance = pcapture.display_radiance(meta, str(path / pcapture.CAPTURE_JSON))
+        rig = Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()
         return dec.maps, dec.input_mask, k, rig, None, distance, radiance
     keys = ("maps", "mask", "depth") if use_depth else ("maps", "mask")
     sample, meta = pdataset.read_sample(path, keys=keys)
