@@ -22,6 +22,8 @@ Example:
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -35,6 +37,7 @@ __all__ = [
     "si_mse",
     "ls_scale",
     "normal_mae_deg",
+    "si_depth_error",
     "lpips",
     "si_lpips",
 ]
@@ -104,6 +107,29 @@ def normal_mae_deg(pred: NDArray, target: NDArray, mask: NDArray) -> float:
     """Mean angular error in degrees (:func:`normal_angle_deg`) between normal maps ``(H, W, 3)`` on the mask."""
     x, y = _masked(pred, target, mask)
     return float(normal_angle_deg(x, y).mean())
+
+
+def si_depth_error(pred: NDArray, target: NDArray, mask: NDArray) -> float:
+    """Scale-invariant depth error in percent: mean ``|ln(pred / target) - median(ln(pred / target))|``.
+
+    Normals fix a surface's shape, not its distance: the median log ratio (the overall scale) is
+    removed first. Pixels where either depth is not positive count as the largest error seen.
+
+    Example:
+        >>> t = np.array([[1.0, 2.0], [4.0, 8.0]])
+        >>> si_depth_error(3 * t, t, np.ones((2, 2), bool))  # a scaled copy is exact
+        0.0
+        >>> round(si_depth_error(np.ones((2, 2)), t, np.ones((2, 2), bool)), 2)  # flat vs steep
+        69.31
+    """
+    x, y = _masked(pred, target, mask)
+    ok = (x > 0) & (y > 0)
+    if not ok.any():
+        return math.inf
+    r = np.log(x[ok] / y[ok])
+    err = np.abs(r - np.median(r))
+    worst = float(err.max()) if err.size else 0.0
+    return float(100.0 * np.concatenate([err, np.full(int((~ok).sum()), worst)]).mean())
 
 
 def mse(pred: NDArray, target: NDArray, mask: NDArray) -> float:

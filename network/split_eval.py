@@ -13,7 +13,9 @@ Scores are taken on the object coverage of the ground truth (``object >= 0``: da
 decoder could not measure count), never on the automatic mask; where the automatic mask missed
 object pixels a method's prediction is extended from its nearest predicted pixel (what a user
 gets at the border of the asset); an empty automatic mask leaves only the constant answer. The
-mask's IoU against the coverage is reported beside. Per metric: the per-scene mean and the
+mask's IoU against the coverage is reported beside. Depth: each method's normals are integrated over the
+coverage (:mod:`pbrdf.geometry.normal_integration`, what the relief mesh is built from) and
+compared with the true depth up to scale (``depth_si_error``, percent). Per metric: the per-scene mean and the
 pixel-weighted mean, each with a 95 % bootstrap interval over scenes (:mod:`network.statistics`).
 """
 
@@ -30,6 +32,7 @@ import torch
 
 from pbrdf.data import dataset as pdataset
 from pbrdf.data.splits import SPLITS, dataset_split, require_role
+from pbrdf.geometry.normal_integration import integrate_normals
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.strict_json import dumps_strict
 
@@ -37,7 +40,7 @@ from . import metrics
 from .constant import constant_predict
 from .data import checkpoint_input_scale
 from .evaluate import baseline_predict
-from .infer import input_display_radiance, load_input, predict
+from .infer import DEFAULT_DISTANCE, input_display_radiance, load_input, predict
 from .inputs import apply_inputs, checkpoint_inputs
 from .lpips import lpips_status
 from .statistics import summarize
@@ -70,6 +73,7 @@ METRICS = (
     ("albedo_lpips", "Albedo LPIPS", False),
     ("roughness_rmse", "Roughness RMSE", False),
     ("metallic_rmse", "Metallic RMSE", False),
+    ("depth_si_error", "Depth si-error (%)", False),
 )
 _GT_KEYS = ("normal", "albedo", "roughness", "metallic", "mask")
 
@@ -91,8 +95,20 @@ def _fill_nearest(pred: Mapping[str, np.ndarray], have: np.ndarray, region: np.n
     return out
 
 
-def score(pred: Mapping[str, np.ndarray], gt: Mapping[str, np.ndarray], region: np.ndarray, *, lpips: bool) -> dict:
-    """Every :data:`METRICS` value of one prediction on ``region`` (None for maps it does not predict)."""
+def score(
+    pred: Mapping[str, np.ndarray],
+    gt: Mapping[str, np.ndarray],
+    region: np.ndarray,
+    *,
+    lpips: bool,
+    intrinsics: np.ndarray | None = None,
+) -> dict:
+    """Every :data:`METRICS` value of one prediction on ``region`` (None for maps it does not predict).
+
+    With ``intrinsics`` and a ground-truth ``depth``, the predicted normals are integrated over
+    ``region`` (:func:`network.infer.relief_depth`'s integration, what the relief mesh is made of)
+    and compared with the true depth up to scale (:func:`network.metrics.si_depth_error`).
+    """
 
     def chan(a: np.ndarray) -> np.ndarray:
         return a[..., None] if a.ndim == 2 else a
@@ -108,6 +124,11 @@ def score(pred: Mapping[str, np.ndarray], gt: Mapping[str, np.ndarray], region: 
     for k in ("roughness", "metallic"):
         if k in pred:
             out[f"{k}_rmse"] = metrics.rmse(chan(pred[k]), chan(gt[k]), region)
+    if intrinsics is not None and "depth" in gt and "normal" in pred and region.any():
+        valid = region & (gt["depth"] > 0)
+        if valid.any():
+            depth = integrate_normals(pred["normal"], region, intrinsics, DEFAULT_DISTANCE)
+            out["depth_si_error"] = metrics.si_depth_error(depth, gt["depth"], valid)
     return out
 
 
@@ -126,6 +147,7 @@ class ScenePredictions:
         ours: the model's prediction as a user gets it (on ``auto_mask``, 0 elsewhere), or None.
         objects: ``(H, W)`` object id per pixel (index into the sidecar's ``objects``, -1 off
             objects), or None for datasets without the channel.
+        intrinsics: ``K (3, 3)`` of the maps' grid (the capture's calibration), or None (no depth score).
     """
 
     index: int
@@ -137,6 +159,7 @@ class ScenePredictions:
     preds: dict
     ours: dict | None
     objects: np.ndarray | None = None
+    intrinsics: np.ndarray | None = None
 
 
 def predict_scene(
@@ -187,8 +210,12 @@ def predict_scene(
     else:
         preds["ours"] = preds["baseline"] = constant
     gt = {k: sample[k] for k in ("normal", "albedo", "roughness", "metallic")}
+    k = None
+    if "depth" in meta.get("channels", ()) or "depth.Z" in meta.get("channels", ()):
+        gt["depth"] = pdataset.read_sample(root, index, keys=("depth",))[0]["depth"]
+        k = np.asarray(meta["intrinsics"], dtype=np.float64) if "intrinsics" in meta else None
     objects = np.rint(sample["object"]).astype(np.int64) if "object" in sample else None
-    return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects)
+    return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects, k)
 
 
 def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
@@ -202,7 +229,7 @@ def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
         "materials": sorted({m.get("kind", "?") for m in (scene.meta.get("materials") or {}).values()}),
     }
     for m in METHODS:
-        row[m] = score(scene.preds[m], scene.gt, scene.region, lpips=lpips)
+        row[m] = score(scene.preds[m], scene.gt, scene.region, lpips=lpips, intrinsics=scene.intrinsics)
     if scene.objects is not None:
         # One row per object seen (multi-object scenes): its mesh, material and scores, no LPIPS.
         specs = scene.meta.get("objects") or []

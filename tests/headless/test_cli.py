@@ -33,8 +33,8 @@ def _summary(script: str) -> str:
 
 
 def test_every_script_is_found():
-    assert {"ablation", "bench", "decode", "demo", "evaluate", "expand_pbrdf", "infer", "optics_check", "relight", "render",
-            "train"} == set(SCRIPTS)  # fmt: skip
+    assert {"ablation", "bench", "decode", "demo", "evaluate", "expand_pbrdf", "infer", "optics_check", "relight",
+            "render", "train"} == set(SCRIPTS)  # fmt: skip
     assert not (ROOT / "headless" / "pipeline.py").exists() and not (ROOT / "headless" / "report.py").exists()
 
 

@@ -109,3 +109,24 @@ def test_scores_per_object_of_a_multi_object_scene():
     assert summary["objects"] == 2
     assert summary["per_object"]["ours"]["normal_mae"]["mean"] == pytest.approx(45.0, abs=1e-3)
     assert row["ours"]["normal_mae"] == pytest.approx(90.0 * 36 / 44, abs=1e-3)  # the scene weighs pixels
+
+
+def test_depth_is_scored_from_the_integrated_normals():
+    """Exact normals of a sphere integrate to its depth (up to scale); a flat answer does not."""
+    from pbrdf.sensor.projection import pinhole_intrinsics, pixel_rays
+
+    k = pinhole_intrinsics(200.0, 48, 48)
+    rays = pixel_rays(k, 48, 48)
+    c, radius = np.array([0.0, 0.0, -0.7]), 0.1
+    b, rr = rays @ c, np.sum(rays * rays, -1)
+    disc = b * b - rr * (c @ c - radius**2)
+    region = disc > 0
+    t = np.where(region, (b - np.sqrt(np.where(region, disc, 0))) / rr, 0.0)
+    normal = ((t[..., None] * rays - c) / radius).astype(np.float32)
+    gt = {"normal": normal, "depth": t.astype(np.float32)}
+    exact = split_eval.score({"normal": normal}, gt, region, lpips=False, intrinsics=k)["depth_si_error"]
+    flat = np.zeros_like(normal)
+    flat[..., 2] = 1.0
+    plane = split_eval.score({"normal": flat}, gt, region, lpips=False, intrinsics=k)["depth_si_error"]
+    assert exact < 0.2 < 1.0 < plane, (exact, plane)
+    assert split_eval.score({"normal": normal}, gt, region, lpips=False)["depth_si_error"] is None  # no camera
