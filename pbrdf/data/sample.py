@@ -381,6 +381,10 @@ def write_sample(
         extra = {"sample_index": index, "radiometry": "calibrated"}
         if "rig" in meta:
             extra["rig"] = json.loads(dumps_json({"rig": meta["rig"]}, f"{paths.sidecar}: rig"))["rig"]
+        if "intrinsics" in meta:  # calibration a real capture carries: of the raw grid, twice the maps'
+            k = np.array(meta["intrinsics"], dtype=np.float64)
+            k[:2] *= sample["raw"].shape[-2] / hw[0]
+            extra["intrinsics"] = k.tolist()
         save_capture(paths.raw, sample["raw"], model, file_format=raw_format, extra=extra, overwrite=True)
     elif paths.raw.exists():
         remove_path(paths.raw)

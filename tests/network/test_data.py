@@ -263,6 +263,10 @@ def test_rendered_training_maps_and_decoded_raws_share_units(tmp_path):
     raw = pdataset.sample_paths(root, 0).raw
     decoded, auto = load_input(raw)
     assert input_display_radiance(raw) == meta["rig"]["display"]["radiance"] == 1.0
+    # The capture carries the crop's calibration: input_geometry gives back the maps' intrinsics.
+    from network.infer import input_geometry
+
+    np.testing.assert_allclose(input_geometry(raw, decoded.shape[:2])[0], meta["intrinsics"], rtol=1e-12)
     inside = sample["mask"].astype(bool) & auto
     ratio = decoded[..., :6].sum(-1)[inside].sum() / sample["maps"][..., :6].sum(-1)[inside].sum()
     assert ratio == pytest.approx(1.0, abs=0.03)  # camera noise and demosaicking only
