@@ -91,6 +91,7 @@ train-engine-model: setup  ## train the data engine's model (resumable chunks; n
 	    --overrides image_size=192 canonical_size=128 train_pixels=2048 infer_chunk=8192 \
 	    --steps $(ENGINE_STEPS) --stop-after $(ENGINE_STOP) --batch-size 4 --lr 2e-4 --lr-warmup 100 --min-lr-ratio 0.1 \
 	    --seed 0 --input-scale calibrated --checkpoint-every 100 --val-samples 16 --out $(ENGINE_RUN) --resume --quiet
+	$(PY) tools/plot_training.py $(ENGINE_RUN) --out docs/measurements/curves/engine-small
 
 # The paper's Table 3 at this scale (network/ablation.py): six runs with one budget, scored on
 # test-scenes (white: its white twin). Resumable; ABLATION_SCENES training scenes per run.
