@@ -180,7 +180,8 @@ def predict_scene(
         ValueError: the sample has no raw brackets, or its decoded grid differs from the truth.
     """
     root = Path(root)
-    keys = _GT_KEYS + (("object",) if _has(root, index) else ())
+    stored = _stored(root, index)
+    keys = _GT_KEYS + tuple(k for k in ("object", "depth") if k in stored)
     sample, meta = pdataset.read_sample(root, index, keys=keys)
     region = sample["object"] >= 0 if "object" in sample else sample["mask"]
     raw = pdataset.sample_paths(root, index).raw
@@ -211,8 +212,8 @@ def predict_scene(
         preds["ours"] = preds["baseline"] = constant
     gt = {k: sample[k] for k in ("normal", "albedo", "roughness", "metallic")}
     k = None
-    if "depth" in meta.get("channels", ()) or "depth.Z" in meta.get("channels", ()):
-        gt["depth"] = pdataset.read_sample(root, index, keys=("depth",))[0]["depth"]
+    if "depth" in sample:
+        gt["depth"] = sample["depth"]
         k = np.asarray(meta["intrinsics"], dtype=np.float64) if "intrinsics" in meta else None
     objects = np.rint(sample["object"]).astype(np.int64) if "object" in sample else None
     return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects, k)
@@ -365,10 +366,10 @@ def _worker_row(index: int) -> dict[str, Any]:
     return score_scene(scene, lpips=w["lpips"])
 
 
-def _has(root: Path, index: int) -> bool:
-    """Whether the sample stores the object channel (datasets rendered before it existed do not)."""
+def _stored(root: Path, index: int) -> set[str]:
+    """The optional maps a sample stores (``object``: not in datasets rendered before it existed)."""
     meta = pdataset.check_complete(root, index, verify_hash=False)
-    return any(c.startswith("object.") for c in meta.get("channels", []))
+    return {c.split(".")[0] for c in meta.get("channels", [])}
 
 
 def _cell(s: Mapping[str, Any], key: str, digits: int) -> str:
