@@ -5,7 +5,7 @@
 :func:`.core.assets.build_render_mesh`), so both accept and refuse the same files and shade them
 with the same normals (custom split normals here). A refused file is skipped with a warning. Each
 asset becomes one object, normalised (centred on its bounding box, unit bounding-box diagonal), placed with
-:func:`.core.assets.place` 50-100 cm from the camera with every corner of its bounding box inside
+:func:`.core.placement.place` 50-100 cm from the camera with every corner of its bounding box inside
 the view (so every vertex is), and assigns a material: an entry of a pBRDF library
 (``materials.json`` read by :func:`.core.scenegen.load_material_library`) or, without one, a
 random analytic material exactly as :func:`.core.scenegen.random_scene` draws it
@@ -44,6 +44,7 @@ from numpy.typing import NDArray
 from pbrdf.sensor.rig import Rig
 
 from . import rig_bpy
+from .core.placement import place
 
 if TYPE_CHECKING:
     from .core.spec import MaterialSpec
@@ -403,7 +404,7 @@ def build_scene(
                     refused[str(path)] = str(e)
             corners = SimpleNamespace(vertices=_bbox_corners(meshes[path]))
             for _ in range(MAX_OVERLAP_TRIES):
-                pose = assets.place(corners, rig, rng, distance=distance, size=size)
+                pose = place(corners, rig, rng, distance=distance, size=size)
                 centre, radius = pose[:3, 3], float(np.cbrt(abs(np.linalg.det(pose[:3, :3])))) / 2
                 if not _overlaps(centre, radius, placed):
                     break

@@ -1,6 +1,7 @@
 """Predict normal, albedo, roughness and metallic maps from a capture or a rendered sample.
 
-    python headless/infer.py --input (capture folder | sample.exr) --out DIR [--checkpoint model.pt] [--blend] [--quiet]
+    python headless/infer.py --input (capture folder | sample.exr | folder of capture folders) --out DIR
+        [--checkpoint model.pt] [--resolution full|network] [--blend] [--quiet]
 
 Without --checkpoint the shipped model (models/small/model.pt, see its MODEL_CARD.md) is used,
 so a real capture folder gives maps without training anything. A capture folder is raw HDR
@@ -16,6 +17,15 @@ each. With --blend, also DIR/<name>.blend: the maps imported
 into Blender as a relightable Principled BSDF asset (headless/relight.py in its own process;
 needs the bpy wheel: pip install bpy).
 
+Maps are predicted at the input's own resolution (--resolution full: the encoder sees the object
+resized to the network's input size, and the per-pixel decoder reads every pixel of the capture);
+--resolution network decodes at the input size and upsamples (faster on large captures, blurrier).
+
+Sequences: a folder whose sub-folders are capture folders (frames, in name order) gives
+DIR/<name>_NNNN_<map>.exr per frame (NNNN from 0001; Blender reads each map as an image
+sequence) and DIR/<name>_sequence.json (frames, their capture folders, and the frames per
+second of decode + prediction). The model is loaded once; each frame's files are written whole.
+
 Bad input (an unreadable checkpoint or sample, a capture with nothing usable: all dark, all
 saturated, no object found) prints one line "error: <message>" on stderr, exits with status 2
 and writes nothing: every map is predicted and checked before the first file is written.
@@ -26,8 +36,10 @@ a successful run.
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
+import time
 import warnings
 from pathlib import Path
 
@@ -46,9 +58,45 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--blend", action="store_true", help="also save a Blender scene with the relightable asset")
     parser.add_argument("--stride", type=int, default=1, choices=[1, 2, 4],
                         help="decode every s-th pixel, interpolate the rest (faster)")  # fmt: skip
+    parser.add_argument("--resolution", choices=["full", "network"], default="full",
+                        help="decode at the capture's resolution (default) or at the network's input size")  # fmt: skip
     parser.add_argument("--card", action="store_true", help="no depth map (the import makes a flat card)")
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
     return parser
+
+
+def sequence_frames(path: Path) -> list[Path] | None:
+    """The frames of a sequence folder (sub-folders that are capture folders, in name order), or None.
+
+    A capture folder, a file or a folder without capture sub-folders is not a sequence (None);
+    a sequence folder that also holds other sub-folders is refused on one line naming one.
+    """
+    from pbrdf.data.capture import CAPTURE_JSON  # noqa: PLC0415
+
+    if not path.is_dir() or (path / CAPTURE_JSON).exists():
+        return None
+    subs = sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
+    frames = [p for p in subs if (p / CAPTURE_JSON).is_file()]
+    if not frames:
+        return None
+    stray = [p for p in subs if p not in frames]
+    if stray:
+        raise ValueError(f"{path}: a sequence folder holds only capture folders; {stray[0].name} has no {CAPTURE_JSON}")
+    return frames
+
+
+def write_sequence_json(path: Path, name: str, frames: list[Path], seconds: list[float]) -> None:
+    """``<name>_sequence.json``: the frames, their capture folders and the prediction speed."""
+    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
+
+    doc = {
+        "name": name,
+        "frames": [{"frame": i, "prefix": f"{name}_{i:04d}", "capture": str(f.resolve()), "seconds": round(t, 4)}
+                   for i, (f, t) in enumerate(zip(frames, seconds, strict=True), start=1)],  # fmt: skip
+        "frames_per_second": round(len(seconds) / sum(seconds), 4),
+        "timed": "decode + prediction (+ depth integration) per frame, model loaded once",
+    }
+    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
 
 
 def _one_line(e: BaseException | Warning | str, limit: int = 500) -> str:
@@ -82,26 +130,52 @@ def main(argv: list[str] | None = None) -> int:
         relief_depth,
         write_predictions,
     )
+    from tqdm import tqdm  # noqa: PLC0415
 
     ckpt_path = args.checkpoint or DEFAULT_CHECKPOINT
+    name = args.input.stem if args.input.is_file() else args.input.name
+
+    def reconstruct(source: Path) -> dict:
+        maps, mask = load_input(source, require_object=True)
+        pred = predict(
+            model, maps, mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
+            radiance=input_display_radiance(source), stride=args.stride, resolution=args.resolution,
+        )  # fmt: skip
+        if not args.card:
+            pred["depth"] = relief_depth(pred, *input_geometry(source, mask.shape))
+        return pred
+
     # Warnings are held back: on an error only the error line prints.
     with warnings.catch_warnings(record=True) as caught:
         try:
+            frames = sequence_frames(args.input)
+            if frames is not None and args.blend:
+                raise ValueError("--blend saves one capture's asset; import a sequence with the add-on's Import PBR maps")
             model, ckpt = _load_model(ckpt_path)
-            maps, mask = load_input(args.input, require_object=True)
-            pred = predict(
-                model, maps, mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
-                radiance=input_display_radiance(args.input), stride=args.stride,
-            )  # fmt: skip
-            if not args.card:
-                pred["depth"] = relief_depth(pred, *input_geometry(args.input, mask.shape))
-            name = args.input.stem if args.input.is_file() else args.input.name
-            write_predictions(args.out, name, pred)
+            if frames is None:
+                pred = reconstruct(args.input)
+                write_predictions(args.out, name, pred)
+            else:
+                seconds = []
+                for i, frame in enumerate(tqdm(frames, desc="frames", unit="frame", disable=args.quiet), start=1):
+                    start = time.perf_counter()
+                    try:
+                        pred = reconstruct(frame)
+                    except (ValueError, OSError) as exc:
+                        raise ValueError(f"frame {i} ({frame.name}): {exc}") from None
+                    seconds.append(time.perf_counter() - start)
+                    write_predictions(args.out, f"{name}_{i:04d}", pred)
+                fps = len(seconds) / sum(seconds)
+                write_sequence_json(args.out / f"{name}_sequence.json", name, frames, seconds)
         except (ValueError, OSError) as exc:
             print(f"error: {_one_line(exc)}", file=sys.stderr)
             return 2
     for message in dict.fromkeys(_one_line(w.message) for w in caught):
         print(f"warning: {message}", file=sys.stderr)
+    if frames is not None:
+        print(f"wrote {len(frames)} frames ({name}_NNNN_*.exr/.png, {name}_sequence.json) to {args.out.resolve()}; "
+              f"{fps:.2f} frames/s (decode + prediction)")  # fmt: skip
+        return 0
     print(f"wrote {len(pred)} maps ({name}_*.exr/.png) to {args.out.resolve()}")
     if args.blend:
         script = Path(__file__).resolve().parent / "relight.py"

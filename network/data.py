@@ -46,6 +46,7 @@ __all__ = [
     "MAP_LIMIT",
     "SCALE_FLOOR",
     "checkpoint_input_scale",
+    "exposure_radiance",
     "input_radiance",
     "normalize_maps",
     "check_item",
@@ -162,14 +163,47 @@ def normalize_maps(
         gain = (CALIBRATED_GAIN / r).reshape(*r.shape, 1, 1, 1)
         out = torch.cat([work[..., :6, :, :] * gain, work[..., 6:, :, :]], dim=-3).clamp(-MAP_LIMIT, MAP_LIMIT)
         return (out * m).to(dtype)
+    scale = _quantile_scale(work, m, quantile).reshape(*work.shape[:-3], 1, 1, 1)
+    out = torch.cat([work[..., :6, :, :] / scale, work[..., 6:, :, :]], dim=-3).clamp(-MAP_LIMIT, MAP_LIMIT)
+    return (out * m).to(dtype)
+
+
+def _quantile_scale(work: torch.Tensor, m: torch.Tensor, quantile: float) -> torch.Tensor:
     total = (work[..., :6, :, :].sum(dim=-3, keepdim=True) * m).flatten(-3)  # (*, H*W)
     scales = []
     for row, mrow in zip(total.reshape(-1, total.shape[-1]), m.reshape(-1, total.shape[-1]), strict=True):
         vals = row[mrow > 0]
         scales.append(torch.quantile(vals, quantile) if vals.numel() else row.new_tensor(1.0))
-    scale = torch.stack(scales).reshape(*total.shape[:-1], 1, 1, 1).clamp_min(SCALE_FLOOR)
-    out = torch.cat([work[..., :6, :, :] / scale, work[..., 6:, :, :]], dim=-3).clamp(-MAP_LIMIT, MAP_LIMIT)
-    return (out * m).to(dtype)
+    return torch.stack(scales).reshape(total.shape[:-1]).clamp_min(SCALE_FLOOR)
+
+
+def exposure_radiance(maps: torch.Tensor, mask: torch.Tensor, *, quantile: float = 0.95) -> torch.Tensor:
+    """The radiance that makes the calibrated scale equal the exposure-invariant one.
+
+    ``normalize_maps(x, k, radiance=exposure_radiance(maps, mask))`` scales any ``x`` exactly as
+    ``normalize_maps(maps, mask)`` scales ``maps`` (to float rounding), e.g. full-resolution maps
+    by the scale measured on their resized copy.
+
+    Args:
+        maps: ``(*, 9, H, W)`` finite nine maps.
+        mask: ``(*, 1, H, W)`` valid pixels (0/1).
+        quantile: as in :func:`normalize_maps`.
+
+    Returns:
+        ``(*)`` positive radiances, float32 or float64.
+
+    Example:
+        >>> maps = torch.ones(9, 2, 2)
+        >>> x = torch.rand(9, 4, 4)
+        >>> k = torch.ones(1, 2, 2)
+        >>> r = exposure_radiance(maps, k)
+        >>> bool(torch.allclose(normalize_maps(x, torch.ones(1, 4, 4), radiance=r)[:6], x[:6] / 6))
+        True
+    """
+    work = maps.to(torch.promote_types(maps.dtype, torch.float32))
+    big = torch.finfo(work.dtype).max / 8
+    work = work.clamp(-big, big)
+    return CALIBRATED_GAIN * _quantile_scale(work, mask.to(work.dtype), quantile)
 
 
 def _first_pixel(bad: np.ndarray) -> str:

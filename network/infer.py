@@ -26,12 +26,13 @@ from pbrdf.io.atomic import fsync_path, temporary_path
 from pbrdf.io.exr import write_exr
 from pbrdf.sensor.rig import Rig
 
-from .data import input_radiance, normalize_maps
+from .data import exposure_radiance, input_radiance, normalize_maps
 from .inputs import apply_inputs
 from .model import PolarInverseModel
 
 __all__ = [
     "OUTPUTS",
+    "RESOLUTIONS",
     "DEFAULT_DISTANCE",
     "input_display_radiance",
     "input_geometry",
@@ -51,6 +52,8 @@ DEFAULT_DISTANCE = 0.75
 
 #: Output maps and their channel counts.
 OUTPUTS = {"normal": 3, "albedo": 3, "roughness": 1, "metallic": 1}
+#: :func:`predict`'s decoding resolutions: the maps' own (default), or the network's input size.
+RESOLUTIONS = ("full", "network")
 
 # |CP| may exceed 1 by float rounding in someone else's resampling; beyond this it is not CP.
 _CP_SLACK = 1e-3
@@ -229,11 +232,16 @@ def predict(
     input_scale: str = "exposure-invariant",
     radiance: float | None = None,
     stride: int = 1,
+    resolution: str = "full",
 ) -> dict[str, np.ndarray]:
     """Normal, albedo, roughness, metallic ``(H, W, C)`` for nine maps of any size.
 
-    The masked region is cropped (square), resized to the model's input size, decoded (masked
-    pixels only, in chunks) and resized back into the full frame. ``inputs`` is the checkpoint's
+    The masked region is cropped (square). The encoder sees the crop resized to the model's input
+    size, as in training. With ``resolution="full"`` the per-pixel decoder then reads every masked
+    pixel of the crop at its own resolution (its map values, and the encoder's features sampled
+    at its position), so the maps keep the capture's detail; with ``"network"`` it decodes the
+    resized crop and the result is resized back (faster for crops much larger than the input
+    size, blurrier). ``inputs`` is the checkpoint's
     input variant (:mod:`network.inputs`): the maps it was not trained on are zeroed here too.
     ``input_scale`` is the checkpoint's (:mod:`network.data`): a calibrated model reads absolute
     brightness from ``radiance``, the display radiance in the maps' units
@@ -253,6 +261,7 @@ def predict(
         input_scale: the checkpoint's ``"input_scale"``.
         radiance: the display radiance in the maps' units, or None (relative radiometry).
         stride: 1, 2 or 4.
+        resolution: ``"full"`` (decode at the maps' resolution) or ``"network"`` (at the input size).
 
     Returns:
         ``{"normal": (H, W, 3), "albedo": (H, W, 3), "roughness": (H, W, 1), "metallic": (H, W, 1),
@@ -279,19 +288,36 @@ def predict(
         maps = maps.copy()
         maps[..., :6] *= factor
         radiance = None if radiance is None else radiance * factor
+    if resolution not in RESOLUTIONS:
+        raise ValueError(f"resolution must be one of {', '.join(RESOLUTIONS)}; got {resolution!r}")
     size = model.config.image_size
-    m = torch.from_numpy(np.ascontiguousarray(maps[y0:y1, x0:x1].transpose(2, 0, 1)))[None].float()
-    k = torch.from_numpy(mask[y0:y1, x0:x1].astype(np.float32))[None, None]
-    m = F.interpolate(m, size=(size, size), mode="bilinear", align_corners=False)
-    k = F.interpolate(k, size=(size, size), mode="nearest")
+    m_crop = torch.from_numpy(np.ascontiguousarray(maps[y0:y1, x0:x1].transpose(2, 0, 1)))[None].float()
+    k_crop = torch.from_numpy(mask[y0:y1, x0:x1].astype(np.float32))[None, None]
+    m = F.interpolate(m_crop, size=(size, size), mode="bilinear", align_corners=False)
+    k = F.interpolate(k_crop, size=(size, size), mode="nearest")
     model.eval()
-    pred = model(apply_inputs(normalize_maps(m, k, radiance=radiance), inputs), k, stride=stride)
-    for name in OUTPUTS:
-        if not bool(torch.isfinite(pred[name]).all()):
-            raise ValueError(
-                f"the network predicted NaN or Inf {name} for this input (broken checkpoint weights, or maps far "
-                "outside the training range)"
-            )
+    if resolution == "full":
+        if not bool(k.any()):
+            raise ValueError("the mask vanishes at the network's input size: nothing to reconstruct")
+        # One scale at both resolutions: the one the encoder's (resized) input defines.
+        scale = radiance if radiance is not None else exposure_radiance(m, k)
+        with torch.no_grad():
+            features = model.encode(apply_inputs(normalize_maps(m, k, radiance=scale), inputs), k)
+            pixel_maps = apply_inputs(normalize_maps(m_crop, k_crop, radiance=scale), inputs)
+            pred = model.decode_dense(features, pixel_maps, k_crop, stride=stride)
+        _check_finite(pred)
+        h, w = mask.shape
+        out = {}
+        for name, c in OUTPUTS.items():
+            full = np.zeros((h, w, c), np.float32)
+            full[y0:y1, x0:x1] = pred[name][0].permute(1, 2, 0).numpy()
+            full[~mask] = 0.0
+            out[name] = full
+        out["mask"] = mask.astype(np.float32)[..., None]
+        return out
+    with torch.no_grad():
+        pred = model(apply_inputs(normalize_maps(m, k, radiance=radiance), inputs), k, stride=stride)
+    _check_finite(pred)
     # Extend the predictions past the (downsampled) mask with their nearest valid value, so that
     # upsampling never blends in the zeros outside it: thin parts of the full-size mask that the
     # network's grid lost still get a prediction (and normals stay unit length).
@@ -315,6 +341,15 @@ def predict(
         out[name] = full
     out["mask"] = mask.astype(np.float32)[..., None]
     return out
+
+
+def _check_finite(pred: dict[str, torch.Tensor]) -> None:
+    for name in OUTPUTS:
+        if not bool(torch.isfinite(pred[name]).all()):
+            raise ValueError(
+                f"the network predicted NaN or Inf {name} for this input (broken checkpoint weights, or maps far "
+                "outside the training range)"
+            )
 
 
 def _png(img: np.ndarray) -> bytes:

@@ -32,9 +32,9 @@ Files. ``checkpoint.pt`` and ``model.pt`` are written atomically (checkpoint fir
 records the step and parameter hash of the checkpoint it was cut from, and a resume that has no
 steps left rewrites it from the checkpoint when it is missing or stale (a run killed between the two
 writes), and ``best.pt`` likewise when the checkpoint's validation was the best. ``log.csv`` and
-``val.csv`` are truncated to the checkpoint atomically and always keep their header. Every run first
-removes the temporary files a killed run left in ``out`` (:func:`pbrdf.io.atomic.remove_leftovers`,
-for the files named here only).
+``val.csv`` are truncated to the checkpoint atomically and always keep their header (these files and
+their repairs: :mod:`network.train_files`). Every run first removes the temporary files a killed run
+left in ``out`` (:func:`pbrdf.io.atomic.remove_leftovers`, for the files named here only).
 
 Distributed. Under ``torchrun`` (``WORLD_SIZE > 1``, :mod:`network.distributed`) the model is
 wrapped in :class:`~torch.nn.parallel.DistributedDataParallel` (gradients averaged over ranks),
@@ -46,13 +46,9 @@ restores every rank (weights, optimizer, its own RNG state).
 
 from __future__ import annotations
 
-import contextlib
-import csv
-import io
 import logging
 import math
 import time
-import warnings
 from collections.abc import Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -64,16 +60,9 @@ from torch import nn
 from torch.utils.data import DataLoader, Dataset
 
 from pbrdf.data.splits import require_role
-from pbrdf.io.atomic import atomic_write_text, remove_leftovers
+from pbrdf.io.atomic import remove_leftovers
 
-from .checkpoint import (
-    CHECKPOINT_FORMAT,
-    load_checkpoint,
-    model_file_is_current,
-    model_file_state,
-    params_sha256,
-    save_checkpoint,
-)
+from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, model_file_state, params_sha256, save_checkpoint
 from .config import get_config
 from .data import INPUT_SCALES, TARGET_KEYS, SampleDataset, checkpoint_input_scale, gather_pixels
 from .distributed import DistContext, init_distributed, resolve_device, rng_state, set_rng_state
@@ -82,31 +71,11 @@ from .losses import LossWeights, synthetic_loss
 from .metrics import normal_mae_deg
 from .model.polar_model import PolarInverseModel
 from .schedules import StepBatches, learning_rate, pixel_seed, real_loss_weight, sample_batch_pixels
+from .train_files import LOG_COLUMNS, OUT_FILES, Logs, sync_best_file, sync_model_file, val_rows
 
 __all__ = ["LOG_COLUMNS", "TrainConfig", "load_checkpoint", "train"]
 
 log = logging.getLogger(__name__)
-
-#: Columns of ``log.csv`` (one row per step; a skipped step has ``skipped`` = its reason).
-LOG_COLUMNS = (
-    "step",
-    "loss",
-    "synthetic",
-    "real",
-    "real_weight",
-    "lr",
-    "grad_norm",
-    "seconds",
-    *TARGET_KEYS,
-    "chromaticity",
-    "skipped",
-)
-
-#: Columns of ``val.csv`` (one row per validation; ``step`` counts completed steps).
-VAL_COLUMNS = ("step", "normal_mae_deg", "samples")
-
-#: The files of ``out`` a run writes (atomically: a killed run may leave their temporaries).
-OUT_FILES = ("checkpoint.pt", "model.pt", "best.pt", "log.csv", "val.csv")
 
 
 @dataclass(frozen=True)
@@ -236,84 +205,6 @@ class _PixelModel(nn.Module):
     def forward(self, maps: torch.Tensor, mask: torch.Tensor, pixels: torch.Tensor, valid: torch.Tensor) -> dict:
         features = self.model.encode(maps, mask)
         return self.model.decode_pixels(features, maps, pixels, valid)
-
-
-# ------------------------------------------------------------------------------------------------
-# Logging
-
-
-class _Logs:
-    """``log.csv``, ``val.csv`` and TensorBoard; only rank 0 writes."""
-
-    def __init__(self, out: Path, start: int, resume: bool, enabled: bool, tensorboard: bool) -> None:
-        self.enabled = enabled
-        self.tb = None
-        self.file = None
-        if not enabled:
-            return
-        self.path = out / "log.csv"
-        self.val_path = out / "val.csv"
-        if resume and self.path.is_file():
-            _truncate_log(self.path, start, LOG_COLUMNS)
-        else:
-            atomic_write_text(self.path, ",".join(LOG_COLUMNS) + "\n")
-        if resume and self.val_path.is_file():
-            _truncate_log(self.val_path, start + 1, VAL_COLUMNS)  # val rows are numbered by completed steps
-        elif self.val_path.is_file():
-            self.val_path.unlink()
-        self.file = open(self.path, "a", newline="")  # closed in close()
-        self.writer = csv.writer(self.file)
-        if tensorboard:
-            try:
-                from torch.utils.tensorboard import SummaryWriter  # noqa: PLC0415
-
-                self.tb = SummaryWriter(log_dir=str(out / "tb"), purge_step=start if resume else None)
-            except ImportError as exc:
-                warnings.warn(f"TensorBoard logging off ({exc}); `pip install tensorboard` to enable it", stacklevel=3)
-
-    def step(self, row: dict[str, Any], scalars: dict[str, float]) -> None:
-        if not self.enabled:
-            return
-        self.writer.writerow(["" if row.get(k) is None else row[k] for k in LOG_COLUMNS])
-        self.file.flush()
-        if self.tb is not None:
-            for k, v in scalars.items():
-                self.tb.add_scalar(k, v, row["step"])
-
-    def val(self, step: int, mae: float, count: int) -> None:
-        if not self.enabled:
-            return
-        new = not self.val_path.is_file()
-        with open(self.val_path, "a", newline="") as f:
-            if new:
-                f.write(",".join(VAL_COLUMNS) + "\n")
-            csv.writer(f).writerow([step, mae, count])
-        if self.tb is not None:
-            self.tb.add_scalar("val/normal_mae_deg", mae, step)
-
-    def close(self) -> None:
-        if self.file is not None:
-            self.file.close()
-        if self.tb is not None:
-            self.tb.close()
-
-
-def _truncate_log(path: Path, start: int, columns: tuple[str, ...]) -> None:
-    """Keep the rows of steps < ``start`` under a fresh header; replace ``path`` atomically.
-
-    Rows of later steps (written after the checkpoint by a killed run), a cut-off last row, the old
-    header and anything else that is not a row of ``len(columns)`` fields with an integer step are
-    dropped, so an emptied or half-written log resumes with its header and whole rows only.
-    """
-    rows = []
-    for fields in csv.reader(path.read_text(errors="replace").splitlines()):
-        if len(fields) == len(columns) and fields[0].isdigit() and int(fields[0]) < start:
-            rows.append(fields)
-    buf = io.StringIO()
-    writer = csv.writer(buf)
-    writer.writerow(columns)
-    writer.writerows(rows)
-    atomic_write_text(path, buf.getvalue())
 
 
 # ------------------------------------------------------------------------------------------------
@@ -458,13 +349,13 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
         if removed:
             log.info("removed %d temporary file(s) of a killed run from %s", len(removed), out)
         if start >= cfg.steps:  # nothing left to train: model.pt must still be the checkpoint's
-            _sync_model_file(out / "model.pt", ckpt)
+            sync_model_file(out / "model.pt", ckpt)
         if ckpt is not None and cfg.val is not None:
-            _sync_best_file(out, ckpt)
-    best_mae = min((mae for step, mae in _val_rows(out / "val.csv") if step <= start), default=math.inf)
+            sync_best_file(out, ckpt)
+    best_mae = min((mae for step, mae in val_rows(out / "val.csv") if step <= start), default=math.inf)
     ckpt = None  # the loaded copy (optimizer state included) is not needed any more
     dd.barrier()
-    logs = _Logs(out, start, cfg.resume, main, cfg.tensorboard)
+    logs = Logs(out, start, cfg.resume, main, cfg.tensorboard)
 
     net: nn.Module = _PixelModel(model)
     if dd.active:
@@ -585,7 +476,7 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
             }  # fmt: skip
             save_checkpoint(ckpt_path, record)  # first: a kill before model.pt is repaired by the resume
             save_checkpoint(out / "model.pt", model_file_state(record, shas[0]))
-            if val_mae is not None and val_mae < best_mae:  # after the checkpoint: see _sync_best_file
+            if val_mae is not None and val_mae < best_mae:  # after the checkpoint: see sync_best_file
                 best_mae = val_mae
                 save_checkpoint(out / "best.pt", {**model_file_state(record, shas[0]), "val_normal_mae_deg": val_mae})
         dd.barrier()
@@ -609,51 +500,6 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
             bar.close()
         logs.close()
     return losses
-
-
-def _sync_model_file(path: Path, ckpt: dict | None) -> None:
-    """(Re)write ``model.pt`` from ``ckpt`` unless it already holds that checkpoint's step and parameters."""
-    if ckpt is None:
-        return
-    sha = params_sha256(ckpt["model"])
-    if model_file_is_current(path, int(ckpt["step"]), sha):
-        return
-    log.warning("%s: missing or older than the checkpoint (step %d); rewritten from it", path, int(ckpt["step"]))
-    save_checkpoint(path, model_file_state(ckpt, sha))
-
-
-def _val_rows(path: Path) -> list[tuple[int, float]]:
-    """``(step, normal MAE)`` of the whole rows of ``val.csv`` (none when it is missing)."""
-    if not path.is_file():
-        return []
-    rows = []
-    for fields in csv.reader(path.read_text(errors="replace").splitlines()):
-        if len(fields) == len(VAL_COLUMNS) and fields[0].isdigit():
-            with contextlib.suppress(ValueError):
-                rows.append((int(fields[0]), float(fields[1])))
-    return rows
-
-
-def _sync_best_file(out: Path, ckpt: dict) -> None:
-    """Rewrite ``best.pt`` from the resumed checkpoint if its validation was the best and ``best.pt`` lacks it.
-
-    A run killed between writing ``checkpoint.pt`` and ``best.pt`` leaves the best validation row
-    in ``val.csv`` without its weights; the checkpoint holds them.
-    """
-    step = int(ckpt["step"])
-    rows = [r for r in _val_rows(out / "val.csv") if r[0] <= step]
-    if not rows:
-        return
-    best_step, mae = min(rows, key=lambda r: (r[1], r[0]))
-    if best_step != step:
-        return
-    path = out / "best.pt"
-    with contextlib.suppress(Exception):
-        stored = torch.load(path, weights_only=True, map_location="cpu", mmap=True)
-        if isinstance(stored, dict) and stored.get("step") == step:
-            return
-    log.warning("%s: missing the best validation (step %d); rewritten from the checkpoint", path, step)
-    save_checkpoint(path, {**model_file_state(ckpt), "val_normal_mae_deg": mae})
 
 
 def _plain(cfg: TrainConfig) -> dict[str, Any]:

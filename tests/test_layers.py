@@ -1,13 +1,15 @@
-"""The import graph of the four packages: one direction, no cycles, bpy only in the add-on.
+"""The import graph of the four packages: one direction, no cycles, bpy only in the add-on; module sizes.
 
 Layers: ``pbrdf`` at the bottom; ``blender_addon.core`` (the scene side) and ``network`` (learning)
 beside each other on it, neither importing the other; the bpy half of ``blender_addon`` on
 ``core``; ``headless`` on top, the only place that joins the scene side and the network.
 Every ``import`` statement counts, including those deferred into functions or behind
-``TYPE_CHECKING``: a deferred import is still a dependency.
+``TYPE_CHECKING``: a deferred import is still a dependency. No module grows past
+:data:`MAX_LINES` lines unless its docstring says why (``Kept in one module:`` and the reason).
 """
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -15,6 +17,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("pbrdf", "blender_addon", "network", "headless")
 BPY_MODULES = {"bpy", "bmesh", "mathutils", "bpy_extras", "bl_math", "gpu", "idprop"}
+#: Longest module (lines) without a stated reason; split a longer one along its seams.
+MAX_LINES = 630
+#: How a longer module states why it stays whole: this phrase, then the reason (a few words at least).
+KEPT_WHOLE = re.compile(r"Kept in one module:\s*(\S+\s+){2,}\S")
 
 
 def layer(module: str) -> str:
@@ -173,3 +179,40 @@ def test_cycle_finder_finds_a_planted_cycle():
     g = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}
     assert find_cycle(g) == ["a", "b", "c", "a"]
     assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def oversized_modules(paths: list[Path], max_lines: int = MAX_LINES, root: Path = ROOT) -> list[str]:
+    """Files longer than ``max_lines`` whose module docstring does not say why they are kept in one module."""
+    bad = []
+    for path in paths:
+        text = path.read_text()
+        lines = len(text.splitlines())
+        if lines <= max_lines:
+            continue
+        doc = ast.get_docstring(ast.parse(text, filename=str(path))) or ""
+        if not KEPT_WHOLE.search(doc):
+            bad.append(f"{path.relative_to(root)}: {lines} lines")
+    return sorted(bad)
+
+
+def test_modules_stay_small(graph):
+    _, modules = graph
+    bad = oversized_modules(list(modules.values()))
+    assert not bad, (
+        f"modules over {MAX_LINES} lines (split them along their seams, or say why in the docstring: "
+        f"'Kept in one module: <reason>'):\n" + "\n".join(bad)
+    )
+
+
+def test_size_check_accepts_a_stated_reason_only(tmp_path):
+    body = "".join(f"x{i} = {i}\n" for i in range(20))
+    files = {
+        "plain.py": body,
+        "kept.py": '"""Big.\n\nKept in one module: the five classes are one document."""\n' + body,
+        "no_reason.py": '"""Big.\n\nKept in one module:\n"""\n' + body,
+        "short.py": "x = 1\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    bad = oversized_modules([tmp_path / name for name in files], max_lines=10, root=tmp_path)
+    assert [b.split(":")[0] for b in bad] == ["no_reason.py", "plain.py"]

@@ -1,9 +1,10 @@
 """Bpy-free core of the scene side (the rig itself is :mod:`pbrdf.sensor.rig`).
 
 Modules:
-    - ``spec``: scene spec (objects, materials, lights, world; JSON).
+    - ``spec``, ``spec_lights``: scene spec (objects, materials; lights, world; JSON).
     - ``procedural``: seeded procedural shapes and the mesh size convention.
-    - ``assets``: mesh references, loading, cleaning, UVs, placement in view, PLY output.
+    - ``assets``: mesh references, loading, cleaning, UVs, PLY output.
+    - ``placement``: random poses in view.
     - ``scenegen``: random Objaverse-like scenes.
     - ``mitsuba_scene``: spec -> polarized Mitsuba scene per colour channel.
     - ``mitsuba_preview``: spec -> RGB preview scene of an exported Blender scene, and its XML.

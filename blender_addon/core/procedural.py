@@ -7,7 +7,7 @@ the objects of synthetic scenes when no asset folder is given. A scene spec refe
 
 Convention (size):
     A mesh's *diameter* is twice the largest distance of a vertex from the centre of its
-    axis-aligned bounding box (:func:`diameter`); :func:`normalize` and :func:`.assets.place` use
+    axis-aligned bounding box (:func:`diameter`); :func:`normalize` and :func:`.placement.place` use
     it. It bounds the minimal enclosing sphere from above, so a normalised mesh fits in a unit
     sphere. Example: the unit cube ``[0, 1]^3`` has diameter ``sqrt(3) = 1.732``.
 

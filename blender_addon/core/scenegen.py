@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from pbrdf.sensor.rig import Rig
 
 from . import assets
+from .placement import place
 from .procedural import PROCEDURAL_SHAPES
 from .spec import MaterialSpec, ObjectSpec, SceneSpec
 from .unseen_shapes import UNSEEN_SHAPES
@@ -168,7 +169,7 @@ def random_scene(
 
     Raises:
         ValueError: an empty pool, a bad ``objects`` range, a ``table_fraction`` outside [0, 1] or
-            above 0 without ``materials``, or no pose in view (:func:`.assets.place`).
+            above 0 without ``materials``, or no pose in view (:func:`.placement.place`).
     """
     lo, hi = _object_range(objects)
     if table_fraction is None:
@@ -198,7 +199,7 @@ def random_scene(
                 mesh_ref = f"{mesh_ref}?seed={shape_seed}"
         mesh = assets.load_mesh(mesh_ref)
         for _ in range(pose_tries):
-            to_world = assets.place(mesh, rig, rng, distance=distance, size=size)
+            to_world = place(mesh, rig, rng, distance=distance, size=size)
             centre, radius = _bounding_sphere(mesh, to_world)
             if all(np.linalg.norm(centre - c) >= radius + r for c, r in placed):
                 break

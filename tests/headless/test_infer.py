@@ -130,3 +130,28 @@ def test_shipped_model_relief_depth_matches_the_example_truth(tmp_path):
     assert np.isfinite(depth).all() and inside.sum() > 0.9 * (depth > 0).sum()
     rel = np.abs(depth[inside] / truth[inside] - 1)
     assert np.median(rel) < 0.03, np.median(rel)  # measured 1.4 % (2026-11-24)
+
+
+def test_sequence_writes_numbered_frames_and_its_speed(tmp_path, toy):
+    import json
+    import shutil
+
+    seq = tmp_path / "face"
+    for frame in ("t000", "t001", "t002"):
+        shutil.copytree(ROOT / "examples" / "capture", seq / frame)
+    proc = _infer("--checkpoint", str(toy[0]), "--input", str(seq), "--out", str(tmp_path / "o"), "--card")
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    assert "3 frames" in proc.stdout and "frames/s" in proc.stdout
+    for i in (1, 2, 3):
+        assert len(list((tmp_path / "o").glob(f"face_{i:04d}_*.exr"))) == 5
+    doc = json.loads((tmp_path / "o" / "face_sequence.json").read_text())
+    assert [f["capture"] for f in doc["frames"]] == [str((seq / f).resolve()) for f in ("t000", "t001", "t002")]
+    assert doc["frames_per_second"] > 0
+    # a stray folder, and --blend (one asset), are refused on one line before anything is written
+    (seq / "notes").mkdir()
+    proc = _infer("--checkpoint", str(toy[0]), "--input", str(seq), "--out", str(tmp_path / "bad"))
+    _assert_one_error_line(proc, f"{seq}: a sequence folder holds only capture folders; notes has no capture.json")
+    (seq / "notes").rmdir()
+    proc = _infer("--checkpoint", str(toy[0]), "--input", str(seq), "--out", str(tmp_path / "bad"), "--blend")
+    _assert_one_error_line(proc, "--blend saves one capture's asset")
+    assert not (tmp_path / "bad").exists()

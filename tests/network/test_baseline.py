@@ -218,7 +218,7 @@ def test_beats_a_constant_normal_on_coloured_plastic_boxes(tmp_path):
     # (the grey prior of the calibration helps on tuning renders, not enough here).
     pytest.importorskip("mitsuba")
     trimesh = pytest.importorskip("trimesh")
-    from blender_addon.core import assets
+    from blender_addon.core import assets, placement
     from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec
 
     path = tmp_path / "box.ply"
@@ -228,7 +228,7 @@ def test_beats_a_constant_normal_on_coloured_plastic_boxes(tmp_path):
     ours, const = [], []
     for seed in range(4):
         albedo = tuple(float(v) for v in rng.uniform(0.2, 0.8, 3))
-        pose = assets.place(assets.load_mesh(str(path)), rig, rng, distance=(0.5, 0.7), size=(0.2, 0.3))
+        pose = placement.place(assets.load_mesh(str(path)), rig, rng, distance=(0.5, 0.7), size=(0.2, 0.3))
         mat = MaterialSpec.plastic("p", albedo, roughness=float(rng.uniform(0.15, 0.4)))
         spec = SceneSpec(rig=rig, objects=(ObjectSpec("box", str(path), pose.tolist(), "p"),), materials=(mat,),
                          seed=seed)  # fmt: skip

@@ -17,7 +17,7 @@ import pytest
 
 trimesh = pytest.importorskip("trimesh")
 
-from blender_addon.core import assets  # noqa: E402
+from blender_addon.core import assets, placement  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
 from pbrdf.sensor.rig import Rig  # noqa: E402
 
@@ -134,7 +134,7 @@ def _render(rel: str, seed: int, resolution: int = 64, spp: int = 4):
 
     rig = Rig()
     mesh = assets.load_mesh(CORPUS / rel)
-    pose = assets.place(mesh, rig, np.random.default_rng(seed), distance=(0.5, 0.7), size=(0.2, 0.3))
+    pose = placement.place(mesh, rig, np.random.default_rng(seed), distance=(0.5, 0.7), size=(0.2, 0.3))
     mat = MaterialSpec.plastic("grey", (0.5, 0.5, 0.5), roughness=0.3)
     spec = SceneSpec(rig=rig, objects=(ObjectSpec("o", str(CORPUS / rel), tuple(map(tuple, pose)), "grey"),),
                      materials=(mat,), seed=seed)  # fmt: skip

@@ -181,7 +181,7 @@ def test_bad_names_and_parameters_raise_one_line(call, message):
 def test_heightfield_slab_renders_finite_stokes(tmp_path, seed):
     """The slab's sharp edges once produced NaN Stokes vectors: it must render and make a valid sample."""
     pytest.importorskip("mitsuba")
-    from blender_addon.core import assets, render, scenegen
+    from blender_addon.core import assets, placement, render, scenegen
     from blender_addon.core.spec import ObjectSpec, SceneSpec
     from pbrdf.data import dataset
     from pbrdf.sensor.rig import Rig
@@ -190,7 +190,7 @@ def test_heightfield_slab_renders_finite_stokes(tmp_path, seed):
     assets.write_ply(generated_shape("heightfield_slab", seed=seed), ply)
     rng = np.random.default_rng(seed)
     rig = Rig()
-    to_world = assets.place(assets.load_mesh(str(ply)), rig, rng)
+    to_world = placement.place(assets.load_mesh(str(ply)), rig, rng)
     material = scenegen.random_material(rng, metal_fraction=float(seed))  # a plastic, then a metal
     obj = ObjectSpec("slab", str(ply), tuple(map(tuple, to_world)), material.name)
     spec = SceneSpec(rig=rig, objects=(obj,), materials=(material,), seed=seed)
