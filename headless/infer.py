@@ -91,8 +91,10 @@ def write_sequence_json(path: Path, name: str, frames: list[Path], seconds: list
 
     doc = {
         "name": name,
-        "frames": [{"frame": i, "prefix": f"{name}_{i:04d}", "capture": str(f.resolve()), "seconds": round(t, 4)}
-                   for i, (f, t) in enumerate(zip(frames, seconds, strict=True), start=1)],  # fmt: skip
+        "frames": [
+            {"frame": i, "prefix": f"{name}_{i:04d}", "capture": str(f.resolve()), "seconds": round(t, 4)}
+            for i, (f, t) in enumerate(zip(frames, seconds, strict=True), start=1)
+        ],  # fmt: skip
         "frames_per_second": round(len(seconds) / sum(seconds), 4),
         "timed": "decode + prediction (+ depth integration) per frame, model loaded once",
     }
@@ -121,6 +123,8 @@ def _load_model(path: Path):
 def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error)."""
     args = build_parser().parse_args(argv)
+    from tqdm import tqdm  # noqa: PLC0415
+
     from network.infer import (  # noqa: PLC0415
         DEFAULT_CHECKPOINT,
         input_display_radiance,
@@ -130,7 +134,6 @@ def main(argv: list[str] | None = None) -> int:
         relief_depth,
         write_predictions,
     )
-    from tqdm import tqdm  # noqa: PLC0415
 
     ckpt_path = args.checkpoint or DEFAULT_CHECKPOINT
     name = args.input.stem if args.input.is_file() else args.input.name
@@ -150,7 +153,9 @@ def main(argv: list[str] | None = None) -> int:
         try:
             frames = sequence_frames(args.input)
             if frames is not None and args.blend:
-                raise ValueError("--blend saves one capture's asset; import a sequence with the add-on's Import PBR maps")
+                raise ValueError(
+                    "--blend saves one capture's asset; import a sequence with the add-on's Import PBR maps"
+                )  # noqa: E501
             model, ckpt = _load_model(ckpt_path)
             if frames is None:
                 pred = reconstruct(args.input)
