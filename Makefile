@@ -8,6 +8,7 @@ STAMP := $(VENV)/.installed
 LLVM_STAMP := $(VENV)/.llvm-ok
 CHROMIUM_STAMP := $(VENV)/.chromium-ok
 MODELS_STAMP := $(VENV)/.testmodels-ok
+BLENDER_STAMP := $(VENV)/.blender-ok
 OUT ?= out
 
 .PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets train-data train-engine-model ablation-data ablation
@@ -37,7 +38,11 @@ $(MODELS_STAMP): $(STAMP) tools/ensure_testmodels.sh tools/apt_install.sh
 	bash tools/ensure_testmodels.sh
 	@touch $@
 
-setup: $(STAMP) $(LLVM_STAMP) $(CHROMIUM_STAMP) $(MODELS_STAMP)  ## create .venv with all extras; libllvm19, chromium, assimp-testmodels if missing
+$(BLENDER_STAMP): $(STAMP) tools/ensure_blender.sh tools/apt_install.sh
+	bash tools/ensure_blender.sh
+	@touch $@
+
+setup: $(STAMP) $(LLVM_STAMP) $(CHROMIUM_STAMP) $(MODELS_STAMP) $(BLENDER_STAMP)  ## create .venv with all extras; libllvm19, chromium, assimp-testmodels, blender if missing
 
 demo: setup  ## set-up, then the main job on built-in defaults (writes $(OUT)/demo)
 	$(PY) headless/demo.py --out $(OUT)/demo

@@ -6,11 +6,17 @@ baking. Everything bpy lives in the modules beside this file; ``core/`` stays bp
 
 Packaging:
     - Extension (Blender 4.2 and later, including 5.0): ``blender_manifest.toml`` sits beside this
-      file; Blender installs the zip built by ``make addon`` (``tools/build_addon.py``) as
+      file; Blender installs the zip built by ``make addon`` (``tools/build_addon.py``; its files
+      lie in one top-level folder ``polarimetric_inverse_rendering/``) as
       ``bl_ext.<repository>.polarimetric_inverse_rendering``. Every import inside the add-on is
       relative and module names come from ``__package__``, so the package works under any name.
-    - Legacy add-on: copy this folder into ``scripts/addons/`` (any folder name); ``bl_info``
-      below describes it. Blender 4.2+ ignores ``bl_info`` when the manifest is present.
+    - Legacy add-on (Blender 4.2+): the same zip installs with Preferences > Add-ons > Install
+      legacy Add-on (it unpacks into ``scripts/addons/polarimetric_inverse_rendering/``), or unpack
+      it there by hand (any folder name); ``bl_info`` below describes it (an extension install
+      ignores ``bl_info``). The repository's folder alone lacks ``_vendor/pbrdf`` (see below).
+    - Minimum version: :data:`compat.MIN_BLENDER` (``bl_info["blender"]`` and the manifest's
+      ``blender_version_min`` repeat it). On an older Blender :func:`register` refuses with one
+      line ("needs Blender 4.2 or later, this is 3.4.1") and registers nothing.
     - ``pbrdf`` (the project's bottom layer, imported by ``core``) is not part of this folder in
       the repository. The zip vendors it as ``_vendor/pbrdf``; importing this package prepends
       ``_vendor`` to ``sys.path`` when ``pbrdf`` is not importable otherwise (a source checkout
@@ -56,6 +62,7 @@ MODULES = (
     "scene_builder",
     "render_operator",
     "pbr_import",
+    "reconstruct",
     "relight",
     "bake",
 )
@@ -109,9 +116,19 @@ def _modules() -> list[ModuleType]:
 
 
 def register() -> None:
-    """Register every module's classes and extras (idempotent: re-registers cleanly)."""
+    """Register every module's classes and extras (idempotent: re-registers cleanly).
+
+    Raises:
+        RuntimeError: Blender older than :data:`compat.MIN_BLENDER` (one line that Blender shows,
+            e.g. "needs Blender 4.2 or later, this is 3.4.1"); nothing is registered then.
+    """
     import bpy  # noqa: PLC0415 - the package itself must import without bpy
 
+    from .compat import blender_refusal, running_blender  # noqa: PLC0415
+
+    problem = blender_refusal(running_blender())
+    if problem:
+        raise RuntimeError(f"{bl_info['name']} {problem}")
     if _registered:
         unregister()
     if not ensure_vendor_path():

@@ -3,7 +3,8 @@
 Blender's bundled Python has numpy but not mitsuba/drjit. Rendering with Mitsuba works either in
 Blender's own Python (after ``<blender python> -m pip install mitsuba``) or through an external
 Python that has mitsuba (the project's ``.venv/bin/python``), set in the add-on preferences and
-run as a subprocess by :mod:`.render_operator`.
+run as a subprocess by :mod:`.render_operator`. The same Python runs the network for "Reconstruct
+Capture" (:mod:`.reconstruct`).
 """
 
 from __future__ import annotations
@@ -34,7 +35,8 @@ class PDIR_AddonPreferences(bpy.types.AddonPreferences):
         name="Python with Mitsuba",
         description=(
             "Optional: a Python interpreter that has mitsuba and drjit installed (e.g. the project's "
-            ".venv/bin/python); used for Mitsuba renders when Blender's own Python lacks them"
+            ".venv/bin/python); used for Mitsuba renders when Blender's own Python lacks them, and "
+            "for Reconstruct Capture (the network, torch)"
         ),
         subtype="FILE_PATH",
         default="",

@@ -172,7 +172,8 @@ def add_environment(
         tex.image = image
     else:
         tex = nodes.new("ShaderNodeTexSky")
-        tex.sky_type = "MULTIPLE_SCATTERING"
+        kinds = {item.identifier for item in tex.bl_rna.properties["sky_type"].enum_items}
+        tex.sky_type = "MULTIPLE_SCATTERING" if "MULTIPLE_SCATTERING" in kinds else "NISHITA"  # 5.0 / 4.2-4.5
         tex.sun_elevation = sun_elevation
         tex.sun_rotation = sun_rotation
     tex.location = (-300, 0)
@@ -231,8 +232,11 @@ def render_relit(
 ) -> list[Path]:
     """Render frames with Cycles into ``out_dir/<prefix><frame:04d>.png|.exr``.
 
-    Each frame renders to a temporary sibling that is renamed over the target (a crash never
-    leaves a half-written frame). The scene's output path and format are restored afterwards.
+    Each frame is rendered, saved with the scene's output settings (``Image.save_render``) to a
+    temporary sibling and renamed over the target: a crash never leaves a half-written frame, and
+    the temporary name never reaches the log (``render(write_still=True)`` prints
+    ``Saved: '<path>'``; ``save_render`` prints nothing). The scene's output format and frame are
+    restored afterwards.
 
     Args:
         scene: the scene (its camera renders).
@@ -263,22 +267,23 @@ def render_relit(
     scene.cycles.use_denoising = denoise
     r = scene.render
     fmt = r.image_settings
-    saved = (r.filepath, r.use_file_extension, fmt.media_type, fmt.file_format, fmt.color_depth, scene.frame_current)
+    has_media = hasattr(fmt, "media_type")  # Blender 5.0; 4.2-4.5 have file formats only
+    saved = (fmt.media_type if has_media else None, fmt.file_format, fmt.color_depth, scene.frame_current)
     suffix = RELIT_FORMATS[file_format]
     written: list[Path] = []
     try:
-        fmt.media_type = "IMAGE"
+        if has_media:
+            fmt.media_type = "IMAGE"
         fmt.file_format = file_format
         fmt.color_mode = "RGBA"
         fmt.color_depth = "32" if file_format == "OPEN_EXR" else "8"
-        r.use_file_extension = False
         for frame in frames:
             scene.frame_set(int(frame))
             target = out / f"{prefix}{int(frame):04d}{suffix}"
-            tmp = target.with_name(temporary_path(target).name + suffix)  # Blender picks the writer by suffix
-            r.filepath = str(tmp)
+            tmp = temporary_path(target)  # save_render writes the scene's format under any name
             try:
-                bpy.ops.render.render(write_still=True, scene=scene.name)
+                bpy.ops.render.render(scene=scene.name)
+                _render_result().save_render(filepath=str(tmp), scene=scene)
                 if not tmp.is_file():
                     raise OSError(f"{target}: Blender did not write the frame")
                 os.replace(tmp, target)
@@ -286,10 +291,19 @@ def render_relit(
                 tmp.unlink(missing_ok=True)
             written.append(target)
     finally:
-        r.filepath, r.use_file_extension = saved[0], saved[1]
-        fmt.media_type, fmt.file_format, fmt.color_depth = saved[2], saved[3], saved[4]
-        scene.frame_set(saved[5])
+        if has_media:
+            fmt.media_type = saved[0]
+        fmt.file_format, fmt.color_depth = saved[1], saved[2]
+        scene.frame_set(saved[3])
     return written
+
+
+def _render_result():
+    """The "Render Result" image (found by type: its name is translated in localized Blender builds)."""
+    image = next((img for img in bpy.data.images if img.type == "RENDER_RESULT"), None)
+    if image is None:
+        raise RuntimeError("Blender rendered no image (no Render Result)")
+    return image
 
 
 # --------------------------------------------------------------------------- settings, operators, panel

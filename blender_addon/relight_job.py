@@ -12,9 +12,12 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 from pathlib import Path
 
 import bpy
+
+from pbrdf.io.atomic import temporary_path
 
 from . import pbr_import
 from . import relight as brelight
@@ -104,9 +107,23 @@ def relight_maps(
                                          frames=[scene.frame_start], prefix="env_")  # fmt: skip
         light.hide_render = False
     if save_blend:
-        path = out / f"{name or obj.name}.blend"
-        tmp = path.with_name(path.stem + ".tmp.blend")
-        bpy.ops.wm.save_as_mainfile(filepath=str(tmp), compress=True, copy=True)
-        os.replace(tmp, path)
-        written.append(path)
+        written.append(_save_blend(out / f"{name or obj.name}.blend"))
     return written
+
+
+def _save_blend(path: Path) -> Path:
+    """Save a copy of the session as ``path`` atomically; returns ``path``.
+
+    The copy is saved under its final name into a temporary folder beside ``path`` and renamed
+    into place: Blender logs ``Saved copy as "<file name>"``, which thus names the final file and
+    never a temporary one. A killed save leaves only that folder (``pbrdf.io.atomic``'s
+    ``remove_leftovers`` recognises it).
+    """
+    staging = temporary_path(path)
+    staging.mkdir()
+    try:
+        bpy.ops.wm.save_as_mainfile(filepath=str(staging / path.name), compress=True, copy=True)
+        os.replace(staging / path.name, path)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return path

@@ -1,7 +1,7 @@
 """Sidebar tab "Polarimetric" in the 3D view: the main panel and the rig and scene-builder sub-panels.
 
 Other modules add their sub-panels with ``bl_parent_id = "PDIR_PT_main"`` and ``bl_order``
-2 (export/render), 3 (import/relight) and 4 (bake).
+2 (export/render), 3 (reconstruct capture, then import/relight: registration order) and 4 (bake).
 """
 
 from __future__ import annotations

@@ -8,10 +8,18 @@ them hidden from ``--help``; using one prints exactly one line to stderr naming 
 
 Every script is a thin ``main(argv=None) -> int`` over a ``build_parser()`` and starts with the
 same bootstrap, so that it runs as ``python headless/x.py``, as ``python -m headless.x`` and
-(``render.py``) as ``blender -b -P headless/render.py -- ...``::
+(``render.py``, ``relight.py``) as ``blender -b -P headless/render.py -- ...``::
 
     if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
         sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+The scripts that run inside the Blender binary also call :func:`refuse_old_blender` right after
+that bootstrap (one ``error:`` line and status 2 on a Blender older than the add-on's minimum,
+before anything else is imported) and end with :func:`run_main` instead of ``raise
+SystemExit(main())``: ``blender -b -P`` prints an uncaught exception's traceback and exits with
+status 0 (unless ``--python-exit-code N`` comes before ``-P``), so there an uncaught exception
+becomes one ``error:`` line and status 1, and the script's own status reaches the shell through
+``sys.exit`` (which does exit Blender with that code).
 
 Example:
     >>> import argparse, contextlib, io
@@ -30,8 +38,21 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
+from typing import NoReturn
 
-__all__ = ["DEPRECATION", "add_deprecated", "add_deprecated_positional", "model_override", "require", "script_args"]
+__all__ = [
+    "DEPRECATION",
+    "add_deprecated",
+    "add_deprecated_positional",
+    "in_blender_binary",
+    "model_override",
+    "one_line",
+    "refuse_old_blender",
+    "require",
+    "run_main",
+    "script_args",
+]
 
 #: The one deprecation line (``prog``, ``old``, ``new``).
 DEPRECATION = "{prog}: deprecated: {old} is now {new} (the old form goes away in the next release)"
@@ -130,3 +151,67 @@ def script_args(argv: list[str]) -> list[str]:
         ['--input', 'pred']
     """
     return argv[argv.index("--") + 1 :] if "--" in argv else argv[1:]
+
+
+def one_line(exc: BaseException | Warning | str, limit: int = 500) -> str:
+    """An exception (or warning) as one line: its message with whitespace collapsed, else its type name.
+
+    Example:
+        >>> one_line(ValueError("bad\\n  value")), one_line(KeyError())
+        ('bad value', 'KeyError')
+    """
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def in_blender_binary() -> bool:
+    """True inside the Blender binary (``blender -b -P``); False with the bpy wheel or without bpy."""
+    bpy = sys.modules.get("bpy")
+    return bpy is not None and bool(getattr(getattr(bpy, "app", None), "binary_path", ""))
+
+
+def refuse_old_blender(prog: str) -> None:
+    """Inside a Blender older than the add-on's minimum: print one ``error:`` line and exit with status 2.
+
+    A no-op outside the Blender binary (the bpy wheel's route checks the version where it imports
+    bpy). Call it right after the script's bootstrap, before the project's other imports, so that
+    an old Blender says why it is refused instead of failing somewhere inside them.
+
+    Args:
+        prog: the script's name in the message, e.g. ``"render.py"``.
+    """
+    if not in_blender_binary():
+        return
+    from blender_addon.compat import blender_refusal, running_blender  # noqa: PLC0415
+
+    problem = blender_refusal(running_blender())
+    if problem:
+        print(f"error: {prog} {problem}", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        sys.exit(2)
+
+
+def run_main(main: Callable[[], int]) -> NoReturn:
+    """Run a script's ``main()`` and exit with its status, also inside the Blender binary.
+
+    Outside Blender this is ``raise SystemExit(main())``. Inside ``blender -b -P`` an uncaught
+    exception becomes one line ``error: <message>`` on stderr and status 1 (Blender itself would
+    print the traceback and exit with status 0); ``sys.exit`` then ends Blender with the status.
+    ``SystemExit`` (argparse's usage errors, ``--help``) passes through unchanged.
+    """
+    if not in_blender_binary():
+        raise SystemExit(main())
+    try:
+        code = main()
+    except SystemExit:
+        raise
+    except KeyboardInterrupt:
+        print("error: interrupted", file=sys.stderr)
+        code = 130
+    except Exception as exc:  # noqa: BLE001 - the one place that turns any failure into one line
+        print(f"error: {one_line(exc)}", file=sys.stderr)
+        code = 1
+    sys.stdout.flush()
+    sys.stderr.flush()
+    sys.exit(code)

@@ -12,9 +12,9 @@ Writes DIR/<name>_normal.exr, _albedo.exr, _roughness.exr, _metallic.exr, _mask.
 full input size, zero outside the mask; normals in the camera frame: x right, y up, z toward
 the camera), _depth.exr (metres along the viewing axis: the predicted normals integrated over
 the mask, discontinuity-aware, median depth = capture.json's distance_m or 0.75 m; the Blender
-import turns it into a relief mesh; --card leaves it out for a flat card) and a PNG preview of
-each. With --blend, also DIR/<name>.blend: the maps imported
-into Blender as a relightable Principled BSDF asset (headless/relight.py in its own process;
+import turns it into a relief mesh; --card leaves it out for a flat card), a PNG preview of
+each, and _camera.json (the maps' intrinsics and distance, so the Blender camera matches the
+capture's). With --blend, also DIR/<name>.blend: the maps imported into Blender as a relightable Principled BSDF asset (headless/relight.py in its own process;
 needs the bpy wheel: pip install bpy).
 
 Maps are predicted at the input's own resolution (--resolution full: the encoder sees the object
@@ -62,6 +62,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="decode at the capture's resolution (default) or at the network's input size")  # fmt: skip
     parser.add_argument("--card", action="store_true", help="no depth map (the import makes a flat card)")
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
+    parser.add_argument("--progress-lines", action="store_true",
+                        help="print 'progress: FRACTION STAGE' lines on stdout (for the Blender add-on)")  # fmt: skip
     return parser
 
 
@@ -123,10 +125,17 @@ def _load_model(path: Path):
 def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error)."""
     args = build_parser().parse_args(argv)
+
+    def progress(fraction: float, stage: str) -> None:
+        if args.progress_lines:
+            print(f"progress: {fraction:.3f} {stage}", flush=True)
+
+    progress(0.0, "starting Python and torch")
     from tqdm import tqdm  # noqa: PLC0415
 
     from network.infer import (  # noqa: PLC0415
         DEFAULT_CHECKPOINT,
+        camera_record,
         input_display_radiance,
         input_geometry,
         load_input,
@@ -138,15 +147,19 @@ def main(argv: list[str] | None = None) -> int:
     ckpt_path = args.checkpoint or DEFAULT_CHECKPOINT
     name = args.input.stem if args.input.is_file() else args.input.name
 
-    def reconstruct(source: Path) -> dict:
+    def reconstruct(source: Path, start: float = 0.3, span: float = 0.65) -> tuple[dict, dict]:
+        progress(start, "decoding the capture")
         maps, mask = load_input(source, require_object=True)
+        progress(start + 0.05 * span, "predicting the maps")
         pred = predict(
             model, maps, mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
             radiance=input_display_radiance(source), stride=args.stride, resolution=args.resolution,
         )  # fmt: skip
+        intrinsics, distance = input_geometry(source, mask.shape)
         if not args.card:
-            pred["depth"] = relief_depth(pred, *input_geometry(source, mask.shape))
-        return pred
+            progress(start + 0.6 * span, "integrating the relief")
+            pred["depth"] = relief_depth(pred, intrinsics, distance)
+        return pred, camera_record(intrinsics, mask.shape, distance)
 
     # Warnings are held back: on an error only the error line prints.
     with warnings.catch_warnings(record=True) as caught:
@@ -156,20 +169,22 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError(
                     "--blend saves one capture's asset; import a sequence with the add-on's Import PBR maps"
                 )  # noqa: E501
+            progress(0.25, "loading the model")
             model, ckpt = _load_model(ckpt_path)
             if frames is None:
-                pred = reconstruct(args.input)
-                write_predictions(args.out, name, pred)
+                pred, camera = reconstruct(args.input)
+                progress(0.95, "writing the maps")
+                write_predictions(args.out, name, pred, camera)
             else:
                 seconds = []
                 for i, frame in enumerate(tqdm(frames, desc="frames", unit="frame", disable=args.quiet), start=1):
                     start = time.perf_counter()
                     try:
-                        pred = reconstruct(frame)
+                        pred, camera = reconstruct(frame, 0.3 + 0.7 * (i - 1) / len(frames), 0.7 / len(frames))
                     except (ValueError, OSError) as exc:
                         raise ValueError(f"frame {i} ({frame.name}): {exc}") from None
                     seconds.append(time.perf_counter() - start)
-                    write_predictions(args.out, f"{name}_{i:04d}", pred)
+                    write_predictions(args.out, f"{name}_{i:04d}", pred, camera)
                 fps = len(seconds) / sum(seconds)
                 write_sequence_json(args.out / f"{name}_sequence.json", name, frames, seconds)
         except (ValueError, OSError) as exc:

@@ -8,8 +8,10 @@ any names the add-on's "Import PBR maps" recognises), builds the camera-parented
 renders OUT/point_NNNN.png: a point light orbiting the asset (--frames frames) and
 OUT/env_NNNN.png: a procedural sky or --hdr environment map. With --save-blend the scene (asset,
 orbit animation, environment) is saved as OUT/<NAME>.blend for artists
-(blender_addon.relight_job). Runs with the bpy wheel (`pip install bpy`) or inside Blender:
-`blender -b -P headless/relight.py -- <args>`. --maps still works for one release (use --input).
+(blender_addon.relight_job). Runs with the bpy wheel (`pip install bpy`) or inside Blender 4.2+:
+`blender -b --python-exit-code 1 -P headless/relight.py -- <args>` (an older Blender is refused
+with one line and status 2; inside the binary an uncaught error is one "error: ..." line with
+status 1). --maps still works for one release (use --input).
 """
 
 from __future__ import annotations
@@ -21,7 +23,10 @@ from pathlib import Path
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import add_deprecated, require, script_args  # noqa: E402
+from headless._cli import add_deprecated, refuse_old_blender, require, run_main, script_args  # noqa: E402
+
+if __name__ == "__main__":
+    refuse_old_blender("relight.py")  # inside the Blender binary: an old Blender is refused first
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -60,6 +65,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: bpy is not importable ({exc}): `pip install bpy` (Python 3.11) or run inside Blender",
               file=sys.stderr)  # fmt: skip
         return 2
+    from blender_addon.compat import blender_refusal, running_blender  # noqa: PLC0415
+
+    problem = blender_refusal(running_blender())
+    if problem:  # the bpy wheel's route (the binary's was refused at start-up)
+        print(f"error: relight.py {problem}", file=sys.stderr)
+        return 2
     try:
         written = relight_maps(
             args.input, args.out, name=args.name, frames=args.frames, size=args.size, samples=args.samples,
@@ -74,4 +85,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    run_main(main)  # inside `blender -b -P` too: the exit status reaches the shell, any failure is one line

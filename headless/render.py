@@ -41,12 +41,16 @@ Two routes, same arguments, same files for the same seeds:
   - bpy-free (default): python headless/render.py ...
   - Blender: every scene is laid out in Blender (rig, objects, materials, lights) and exported
     back to a spec before rendering (blender_addon.build_spec.roundtrip_spec). Either
-        blender -b -P headless/render.py -- --out DIR --count N ...   (Blender 4.2+; the
-            arguments follow "--"; Blender's Python needs mitsuba, scipy, trimesh, OpenEXR,
-            tqdm: <blender python> -m pip install ...)
+        blender -b --python-exit-code 1 -P headless/render.py -- --out DIR --count N ...
+            (Blender 4.2+; the arguments follow "--"; Blender's Python needs mitsuba, scipy,
+            trimesh, OpenEXR, tqdm: <blender python> -m pip install ...)
     or, with the bpy wheel (pip install bpy, Python 3.11):
         python headless/render.py --via-blender --out DIR --count N ...
-    Inside the Blender binary the Blender route is always taken.
+    Inside the Blender binary the Blender route is always taken. An older Blender (or bpy) is
+    refused with one line "error: render.py needs Blender 4.2 or later, this is X.Y.Z" and
+    status 2. Inside the binary the exit status is the script's own, and an uncaught error is
+    one "error: ..." line with status 1 (Blender alone would exit 0 after a Python error:
+    --python-exit-code 1, before -P, also covers errors before this script runs).
 One process renders a whole batch (start one process per shard) through
 blender_addon.core.generate.
 """
@@ -61,14 +65,12 @@ from pathlib import Path
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import script_args  # noqa: E402
+from headless._cli import in_blender_binary, refuse_old_blender, run_main, script_args  # noqa: E402
+
+if __name__ == "__main__":
+    refuse_old_blender("render.py")  # the Blender binary's route: an old Blender is refused before other imports
+
 from pbrdf.data.splits import SPLITS, get_split  # noqa: E402
-
-
-def _in_blender_binary() -> bool:
-    """True inside the Blender binary (``blender -b -P``), False with the bpy wheel or without bpy."""
-    bpy = sys.modules.get("bpy")
-    return bpy is not None and bool(getattr(bpy.app, "binary_path", ""))
 
 
 def _apply_split(args: argparse.Namespace) -> str | None:
@@ -176,7 +178,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.count is None and args.scene is None:
             raise ValueError("--count is required (unless --scene or --split is given)")
         spec_hook = None
-        if args.via_blender or _in_blender_binary():
+        if args.via_blender or in_blender_binary():
+            from blender_addon.compat import blender_refusal, running_blender  # noqa: PLC0415
+
             try:
                 from blender_addon.build_spec import roundtrip_spec  # noqa: PLC0415 - imports bpy
             except ImportError as e:
@@ -184,6 +188,9 @@ def main(argv: list[str] | None = None) -> int:
                     f"--via-blender needs bpy ({e}): run under 'blender -b -P headless/render.py -- ...' "
                     "or pip install bpy (Python 3.11)"
                 ) from None
+            problem = blender_refusal(running_blender())
+            if problem:  # the bpy wheel's route (the binary's was refused at start-up)
+                raise ValueError(f"render.py --via-blender {problem}")
             spec_hook = roundtrip_spec
         cfg = GenerateConfig(
             out=args.out,
@@ -217,11 +224,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    code = main()
-    if _in_blender_binary():
-        # `blender -b -P` ignores the script's exit status; quit Blender with it instead.
-        sys.stdout.flush()
-        import os  # noqa: PLC0415
-
-        os._exit(code)
-    raise SystemExit(code)
+    run_main(main)  # inside `blender -b -P` too: the exit status reaches the shell, any failure is one line

@@ -41,6 +41,7 @@ __all__ = [
     "predict",
     "mask_bbox",
     "write_predictions",
+    "camera_record",
     "DEFAULT_CHECKPOINT",
 ]
 
@@ -362,7 +363,27 @@ def _png(img: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def write_predictions(out: str | Path, name: str, pred: dict[str, np.ndarray]) -> list[Path]:
+def camera_record(intrinsics: np.ndarray, shape: tuple[int, int], distance: float | None) -> dict:
+    """The ``<name>_camera.json`` content: the maps' pinhole camera, for a matching Blender camera.
+
+    Args:
+        intrinsics: ``K (3, 3)`` of the maps' grid, pixel centres at integer + 0.5 (OpenCV convention).
+        shape: ``(H, W)`` of the maps.
+        distance: the capture's ``distance_m``, or None.
+
+    Returns:
+        ``{"intrinsics": K as nested lists, "width": W, "height": H, "distance_m": d or null}``.
+    """
+    k = np.asarray(intrinsics, dtype=np.float64)
+    if k.shape != (3, 3) or not np.all(np.isfinite(k)) or not (k[0, 0] > 0 and k[1, 1] > 0):
+        raise ValueError(f"intrinsics must be a finite 3x3 matrix with positive focal lengths; got {k.tolist()}")
+    return {"intrinsics": k.tolist(), "width": int(shape[1]), "height": int(shape[0]),
+            "distance_m": None if distance is None else float(distance)}  # fmt: skip
+
+
+def write_predictions(
+    out: str | Path, name: str, pred: dict[str, np.ndarray], camera: dict | None = None
+) -> list[Path]:
     """Write ``<name>_<map>.exr`` (float32) and ``.png`` previews for every predicted map.
 
     File names follow the Blender import's token rules (``_normal``, ``_albedo``, ``_roughness``,
@@ -377,6 +398,8 @@ def write_predictions(out: str | Path, name: str, pred: dict[str, np.ndarray]) -
         out: the output folder (created if missing).
         name: the file name prefix.
         pred: ``{map: (H, W, C) float32}`` as :func:`predict` returns, all finite.
+        camera: :func:`camera_record` of the maps, written as ``<name>_camera.json`` (the Blender
+            import gives its camera these intrinsics, so a relief mesh keeps the capture's shape).
 
     Returns:
         The written paths (EXR then PNG per map).
@@ -402,6 +425,8 @@ def write_predictions(out: str | Path, name: str, pred: dict[str, np.ndarray]) -
         if mask is not None:
             preview = preview * mask[..., None]
         files.append((f"{name}_{key}.png", _png(preview)))
+    if camera is not None:
+        files.append((f"{name}_camera.json", (json.dumps(camera, indent=1) + "\n").encode()))
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out}: output path exists and is not a folder")
     created = not out.exists()

@@ -5,13 +5,17 @@ Usage::
     python tools/build_addon.py --out DIR
 
 Writes ``DIR/<id>-<version>.zip`` (id and version from ``blender_addon/blender_manifest.toml``,
-e.g. ``polarimetric_inverse_rendering-0.1.0.zip``) and prints its path. The zip holds the
-contents of ``blender_addon/`` at its root (``blender_manifest.toml``, ``__init__.py``, the add-on
-modules, ``core/``) plus the project's bottom layer ``pbrdf/`` as ``_vendor/pbrdf/``, which the
-add-on puts on ``sys.path`` when Blender has no ``pbrdf`` of its own. Caches (``__pycache__``,
-``*.pyc``), hidden files and zips are left out. The build is reproducible: sorted entries with a
-fixed timestamp, so the same sources give the same bytes. Install it in Blender 4.2+ with
-Edit > Preferences > Get Extensions > Install from Disk (or drag and drop the zip).
+e.g. ``polarimetric_inverse_rendering-0.1.0.zip``) and prints its path. The zip holds one
+top-level folder named ``<id>/`` with the contents of ``blender_addon/`` (``blender_manifest.toml``,
+``__init__.py``, the add-on modules, ``core/``) plus the project's bottom layer ``pbrdf/`` as
+``<id>/_vendor/pbrdf/``, which the add-on puts on ``sys.path`` when Blender has no ``pbrdf`` of its
+own. Caches (``__pycache__``, ``*.pyc``), hidden files and zips are left out. The build is
+reproducible: sorted entries with a fixed timestamp, so the same sources give the same bytes.
+
+Install it in Blender 4.2+ with Edit > Preferences > Get Extensions > Install from Disk (or drag
+and drop the zip): extensions may keep the manifest in one top-level folder. The one folder also
+makes the same zip a legacy add-on (Preferences > Add-ons > Install legacy Add-on, which refuses
+an ``__init__.py`` at the zip's root and would scatter root files into ``scripts/addons/``).
 
 Bad input (missing or invalid manifest, ``bl_info`` version different from the manifest's)
 prints ``error: <message>`` on stderr and exits with status 2.
@@ -103,13 +107,17 @@ def _files(folder: Path) -> list[Path]:
 
 
 def build_zip(out_dir: str | Path, addon_dir: Path = ADDON_DIR) -> Path:
-    """Write the extension zip into ``out_dir`` (created if needed) and return its path."""
+    """Write the extension zip into ``out_dir`` (created if needed) and return its path.
+
+    Every entry lies in the top-level folder ``<id>/`` (see the module docstring).
+    """
     manifest = read_manifest(addon_dir)
-    entries = [(p.relative_to(addon_dir).as_posix(), p) for p in _files(addon_dir)]
+    top = manifest["id"]
+    entries = [(f"{top}/{p.relative_to(addon_dir).as_posix()}", p) for p in _files(addon_dir)]
     for name, src in VENDORED.items():
         if not (src / "__init__.py").is_file():
             raise FileNotFoundError(f"{src}: vendored package {name!r} not found")
-        entries += [(f"_vendor/{name}/{p.relative_to(src).as_posix()}", p) for p in _files(src)]
+        entries += [(f"{top}/_vendor/{name}/{p.relative_to(src).as_posix()}", p) for p in _files(src)]
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", compression=zipfile.ZIP_DEFLATED) as zf:
         for arcname, path in sorted(entries):

@@ -12,4 +12,6 @@ Modules:
     - ``generate``: datasets.
     - ``map_names``, ``map_io``, ``frustum``: predicted PBR map files (matching, loading,
       validation) and the Blender camera frustum the add-on imports them with.
+    - ``reconstruction``: the add-on's "Reconstruct Capture" job (``headless/infer.py`` in a
+      subprocess: command line, progress, cancel, outputs).
 """

@@ -4,12 +4,16 @@ The installation test runs Blender (the bpy 5.0 wheel) in a subprocess with a te
 directory and a site-packages view WITHOUT the project's editable install and without the
 optional packages Blender's Python lacks (mitsuba, drjit, trimesh, xatlas, OpenEXR, scipy,
 Pillow, torch): the zip must install through Blender's own extension operator, find ``pbrdf`` in
-its ``_vendor`` folder, register, build a rig, and say how to get Mitsuba. The import without
-bpy and the build errors need no bpy and run without it.
+its ``_vendor`` folder, register, build a rig, and say how to get Mitsuba; the same zip must
+install as a legacy add-on (one folder in ``scripts/addons``). The import without bpy and the
+build errors need no bpy and run without it. On a Blender older than 4.2 (faked with the wheel,
+and a real ``blender`` binary where one is installed, e.g. Debian's 3.4) ``register()`` refuses
+with one line and registers nothing.
 """
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -73,6 +77,65 @@ def test_register_unregister_twice():
 
 @pytest.mark.bpy
 @needs_bpy
+def test_register_refuses_blender_older_than_4_2(monkeypatch):
+    """bpy.app.version is read-only: the version the add-on reads (compat.running_blender) is faked."""
+    from blender_addon import compat
+
+    bpy.ops.wm.read_factory_settings(use_empty=True)
+    blender_addon.unregister()
+    monkeypatch.setattr(compat, "running_blender", lambda: (3, 4, 1))
+    with pytest.raises(RuntimeError) as exc:
+        blender_addon.register()
+    assert str(exc.value) == "Polarimetric Inverse Rendering needs Blender 4.2 or later, this is 3.4.1"
+    assert not any(_registered().values()) and not blender_addon._registered  # nothing half-registered
+    monkeypatch.setattr(compat, "running_blender", lambda: (4, 2, 0))
+    blender_addon.register()
+    assert all(_registered().values())
+    blender_addon.unregister()
+
+
+@pytest.mark.skipif(shutil.which("blender") is None, reason="no `blender` binary on PATH")
+def test_legacy_zip_in_the_blender_binary(zip_path, tmp_path):
+    """The zip installed with Install legacy Add-on in a real Blender: refused in one line before 4.2, else enabled."""
+    script = tmp_path / "legacy.py"
+    script.write_text(_LEGACY_BINARY_SCRIPT)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PYTHON")}
+    env["BLENDER_USER_SCRIPTS"] = str(tmp_path / "scripts")
+    cmd = [shutil.which("blender"), "-b", "--factory-startup", "--python-exit-code", "1", "-P", str(script), "--",
+           str(zip_path), str(tmp_path / "result.json")]  # fmt: skip
+    proc = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    res = json.loads((tmp_path / "result.json").read_text())
+    assert res["install"] == ["FINISHED"]
+    assert sorted(p.name for p in (tmp_path / "scripts" / "addons").iterdir() if p.name != "__pycache__") == [EXT_ID]
+    version = tuple(res["version"])
+    if version < (4, 2, 0):
+        assert res["error"] == (
+            f"Polarimetric Inverse Rendering needs Blender 4.2 or later, this is {'.'.join(map(str, version))}"
+        )
+        assert not res["registered"]
+    else:
+        assert res["error"] is None and res["registered"]
+
+
+_LEGACY_BINARY_SCRIPT = textwrap.dedent(
+    """
+    import json, sys
+    import bpy, addon_utils
+    zip_path, out = sys.argv[sys.argv.index("--") + 1:]
+    res = {"version": list(bpy.app.version), "error": None}
+    res["install"] = sorted(bpy.ops.preferences.addon_install(filepath=zip_path))
+    errors = []
+    addon_utils.enable("polarimetric_inverse_rendering", default_set=True, handle_error=errors.append)
+    res["error"] = str(errors[0]) if errors else None
+    res["registered"] = hasattr(bpy.types, "PDIR_PT_main")
+    json.dump(res, open(out, "w"))
+    """
+)
+
+
+@pytest.mark.bpy
+@needs_bpy
 def test_legacy_addon_enable_and_preferences(tmp_path):
     """Enabled through addon_utils (the legacy add-on route, bl_info): preferences are reachable."""
     import addon_utils
@@ -103,8 +166,10 @@ def test_zip_layout_and_manifest(zip_path, tmp_path):
     assert zip_path.name == f"{EXT_ID}-{manifest_src['version']}.zip"
     with zipfile.ZipFile(zip_path) as zf:
         names = zf.namelist()
-        manifest = tomllib.loads(zf.read("blender_manifest.toml").decode())
-        init = zf.read("__init__.py").decode()
+        manifest = tomllib.loads(zf.read(f"{EXT_ID}/blender_manifest.toml").decode())
+        init = zf.read(f"{EXT_ID}/__init__.py").decode()
+    # One top-level folder: an extension (manifest in a single folder) and a legacy add-on alike.
+    assert all(n.startswith(f"{EXT_ID}/") for n in names)
     assert manifest == manifest_src
     assert manifest["id"] == EXT_ID and manifest["type"] == "add-on"
     assert tuple(int(v) for v in manifest["blender_version_min"].split(".")) == (4, 2, 0)
@@ -117,7 +182,7 @@ def test_zip_layout_and_manifest(zip_path, tmp_path):
         "_vendor/pbrdf/sensor/rig.py",
         "_vendor/pbrdf/sensor/camera.py",
     ):
-        assert required in names
+        assert f"{EXT_ID}/{required}" in names
     assert not any("__pycache__" in n or n.endswith(".pyc") for n in names)
     assert "bl_info" in init and blender_addon.bl_info["version"] == tuple(
         int(v) for v in manifest["version"].split(".")
@@ -182,11 +247,12 @@ _INSTALL_SCRIPT = textwrap.dedent(
         res["build_scene"] = str(e)
     addon_utils.disable(name, default_set=True)
     res["disabled"] = not hasattr(bpy.types, "PDIR_PT_main")
-    # The same folder as a legacy add-on under another module name.
-    legacy = addon_utils.enable("pdir_legacy_copy", default_set=True, handle_error=None)
+    # The same zip as a legacy add-on (Install legacy Add-on): one folder in scripts/addons.
+    res["legacy_install"] = sorted(bpy.ops.preferences.addon_install(filepath=zip_path))
+    legacy = addon_utils.enable("polarimetric_inverse_rendering", default_set=True, handle_error=None)
     res["legacy"] = legacy is not None and hasattr(bpy.types, "PDIR_PT_main")
     res["legacy_add_rig"] = sorted(bpy.ops.pdir.add_rig())
-    addon_utils.disable("pdir_legacy_copy", default_set=True)
+    addon_utils.disable("polarimetric_inverse_rendering", default_set=True)
     json.dump(res, open(out + "/result.json", "w"))
     """
 )
@@ -204,10 +270,6 @@ def test_zip_installs_as_extension_without_optional_packages(zip_path, tmp_path)
             continue
         (site / entry.name).symlink_to(entry)
     user = tmp_path / "user"
-    legacy = user / "scripts" / "addons" / "pdir_legacy_copy"
-    legacy.mkdir(parents=True)
-    with zipfile.ZipFile(zip_path) as zf:
-        zf.extractall(legacy)
     assets = tmp_path / "assets"
     assets.mkdir()
     (assets / "tri.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4\n")
@@ -235,6 +297,9 @@ def test_zip_installs_as_extension_without_optional_packages(zip_path, tmp_path)
     assert res["prefs"] == f"bl_ext.user_default.{EXT_ID}"
     # Without trimesh the scene builder either works (core imports trimesh lazily) or says what is missing.
     assert res["build_scene"] == ["FINISHED"] or "trimesh" in res["build_scene"]
-    assert res["disabled"] and res["legacy"] and res["legacy_add_rig"] == ["FINISHED"]
+    assert res["disabled"] and res["legacy_install"] == ["FINISHED"]
+    installed = sorted(p.name for p in (user / "scripts" / "addons").iterdir() if p.name != "__pycache__")
+    assert installed == [EXT_ID]  # one folder, nothing scattered into scripts/addons
+    assert res["legacy"] and res["legacy_add_rig"] == ["FINISHED"]
     # Every module registers in a Blender without the optional packages.
     assert res["unavailable"] == {}, f"modules left out without optional packages: {res['unavailable']}"

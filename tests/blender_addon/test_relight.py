@@ -153,3 +153,15 @@ def test_gpu_request_falls_back_or_uses_gpu(clean_file, tmp_path):
         relight.render_relit(scene, tmp_path / "x")
     with pytest.raises(ValueError, match="device must be"):
         relight.select_device(scene, "TPU")
+
+
+def test_log_names_no_temporary_file(clean_file, tmp_path, capfd):
+    """Frames are written through temporary siblings, but Blender's log never names one (no `Saved: '.x.tmp-...'`)."""
+    scene = clean_file
+    _flat_plane(scene, tmp_path)
+    capfd.readouterr()
+    files = relight.render_relit(scene, tmp_path / "frames", samples=1, frames=[1, 2], prefix="point_")
+    out, err = capfd.readouterr()
+    assert ".tmp-" not in out + err
+    assert [f.name for f in files] == ["point_0001.png", "point_0002.png"]
+    assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["point_0001.png", "point_0002.png"]

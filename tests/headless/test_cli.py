@@ -121,3 +121,54 @@ def test_bootstrap_is_identical_everywhere():
         text = (ROOT / "headless" / f"{script}.py").read_text()
         assert text.count(lines) == 1, script
         assert text.count("sys.path") == 1, script
+
+
+#: Scripts documented to run inside the Blender binary (`blender -b -P headless/x.py -- ...`).
+IN_BLENDER = {"relight", "render"}
+
+
+def test_blender_scripts_refuse_old_blender_and_exit_with_their_status():
+    """The scripts that run under `blender -b -P` check the version first and end with run_main."""
+    for script in SCRIPTS:
+        text = (ROOT / "headless" / f"{script}.py").read_text()
+        uses = "refuse_old_blender(" in text and text.rstrip().splitlines()[-1].lstrip().startswith("run_main(main)")
+        assert uses == (script in IN_BLENDER), script
+
+
+def _fake_blender(monkeypatch, version):
+    """Pretend to run inside a Blender binary of ``version`` (bpy.app.version is read-only)."""
+    from blender_addon import compat
+    from headless import _cli
+
+    monkeypatch.setattr(_cli, "in_blender_binary", lambda: True)
+    monkeypatch.setattr(compat, "running_blender", lambda: version)
+
+
+def test_refuse_old_blender_exits_with_one_line(monkeypatch, capsys):
+    from headless._cli import refuse_old_blender
+
+    refuse_old_blender("render.py")  # outside the Blender binary: nothing happens
+    _fake_blender(monkeypatch, (4, 2, 0))
+    refuse_old_blender("render.py")
+    assert capsys.readouterr().err == ""
+    _fake_blender(monkeypatch, (3, 4, 1))
+    with pytest.raises(SystemExit) as exc:
+        refuse_old_blender("render.py")
+    assert exc.value.code == 2
+    assert capsys.readouterr().err.splitlines() == ["error: render.py needs Blender 4.2 or later, this is 3.4.1"]
+
+
+def test_run_main_turns_any_failure_into_one_line_inside_blender(monkeypatch, capsys):
+    """`blender -b -P` exits 0 after an uncaught exception: run_main exits 1 with one `error:` line instead."""
+    from headless._cli import run_main
+
+    def fails():
+        raise RuntimeError("Cycles\n  went away")
+
+    with pytest.raises(RuntimeError):  # outside Blender: the traceback as usual
+        run_main(fails)
+    _fake_blender(monkeypatch, (5, 0, 1))
+    for main, code, err in ((fails, 1, ["error: Cycles went away"]), (lambda: 3, 3, []), (lambda: 0, 0, [])):
+        with pytest.raises(SystemExit) as exc:
+            run_main(main)
+        assert exc.value.code == code and capsys.readouterr().err.splitlines() == err

@@ -130,6 +130,13 @@ def test_shipped_model_relief_depth_matches_the_example_truth(tmp_path):
     assert np.isfinite(depth).all() and inside.sum() > 0.9 * (depth > 0).sum()
     rel = np.abs(depth[inside] / truth[inside] - 1)
     assert np.median(rel) < 0.03, np.median(rel)  # measured 1.4 % (2026-11-24)
+    import json
+
+    cam = json.loads((tmp_path / "o" / "capture_camera.json").read_text())
+    meta = json.loads((ROOT / "examples" / "capture" / "capture.json").read_text())
+    assert (cam["height"], cam["width"]) == depth.shape and cam["distance_m"] == meta["distance_m"]
+    # the depth is the pinhole of these intrinsics: its median matches the anchor
+    assert abs(np.median(depth[depth > 0]) - meta["distance_m"]) < 1e-3
 
 
 def test_sequence_writes_numbered_frames_and_its_speed(tmp_path, toy):
@@ -144,6 +151,7 @@ def test_sequence_writes_numbered_frames_and_its_speed(tmp_path, toy):
     assert "3 frames" in proc.stdout and "frames/s" in proc.stdout
     for i in (1, 2, 3):
         assert len(list((tmp_path / "o").glob(f"face_{i:04d}_*.exr"))) == 5
+        assert (tmp_path / "o" / f"face_{i:04d}_camera.json").is_file()
     doc = json.loads((tmp_path / "o" / "face_sequence.json").read_text())
     assert [f["capture"] for f in doc["frames"]] == [str((seq / f).resolve()) for f in ("t000", "t001", "t002")]
     assert doc["frames_per_second"] > 0

@@ -46,7 +46,8 @@ def test_relight_writes_frames_and_blend(maps, tmp_path):
     assert proc.returncode == 0, proc.stderr[-2000:]
     assert len(list(out.glob("point_*.png"))) == 2 and len(list(out.glob("env_*.png"))) == 1
     assert (out / "blob.blend").is_file()
-    assert not list(out.glob("*.tmp*"))
+    assert not list(out.glob("*.tmp*")) and not list(out.glob(".*"))
+    assert ".tmp" not in proc.stdout + proc.stderr  # the log names the final files only
     assert "deprecated" not in proc.stderr
 
 
@@ -72,3 +73,16 @@ def test_missing_maps_are_one_error_line(tmp_path):
 def test_bad_sizes_are_usage_errors(tmp_path):
     proc = _run("--input", tmp_path, "--out", tmp_path / "o", "--size", "4")
     assert proc.returncode == 2 and "--size >= 8" in proc.stderr
+
+
+@pytest.mark.bpy
+def test_refuses_blender_older_than_4_2(tmp_path, monkeypatch, capsys):
+    """The bpy wheel's route with the Blender version faked (bpy.app.version is read-only): one line, status 2."""
+    pytest.importorskip("bpy")
+    from blender_addon import compat
+    from headless import relight
+
+    monkeypatch.setattr(compat, "running_blender", lambda: (3, 4, 1))
+    assert relight.main(["--input", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err.splitlines() == ["error: relight.py needs Blender 4.2 or later, this is 3.4.1"]
+    assert not (tmp_path / "o").exists()

@@ -8,6 +8,7 @@ byte-level fingerprint, which follows from the maps).
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -125,17 +126,55 @@ def test_scene_flag_errors_are_one_line(tmp_path):
         assert proc.returncode == 2 and len(lines) == 1 and lines[0].startswith("error:") and message in lines[0]
 
 
-@pytest.mark.mitsuba
-@pytest.mark.skipif(shutil.which("blender") is None, reason="no `blender` binary on PATH (route documented only)")
-def test_blender_binary_route(tmp_path):  # pragma: no cover - needs a Blender 4.2+ install with mitsuba
+def _blender_version(binary: str) -> tuple[int, ...]:
+    """The version of a Blender binary from the first line of ``blender --version`` ("Blender 3.4.1")."""
+    proc = subprocess.run([binary, "--version"], capture_output=True, text=True, timeout=120)
+    first = proc.stdout.strip().splitlines()[0] if proc.stdout.strip() else ""
+    match = re.match(r"Blender (\d+)\.(\d+)(?:\.(\d+))?", first)
+    assert match, f"`{binary} --version` printed {first!r}"
+    return tuple(int(v or 0) for v in match.groups())
+
+
+@pytest.mark.skipif(shutil.which("blender") is None, reason="no `blender` binary on PATH")
+def test_blender_binary_route(tmp_path):
+    """`blender -b -P headless/render.py`: one-line refusal before 4.2 (Debian's 3.4), else the bpy-free files."""
+    from blender_addon.compat import MIN_BLENDER, version_text
+
+    binary = shutil.which("blender")
+    version = _blender_version(binary)
+    cmd = [binary, "-b", "--factory-startup", "-P", "headless/render.py", "--", "--out", str(tmp_path / "bl"),
+           "--count", "1", "--seed", "2", *SMALL]  # fmt: skip
+    if version < MIN_BLENDER:
+        proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 2, proc.stdout[-2000:] + proc.stderr[-2000:]
+        assert proc.stderr.strip().splitlines() == [
+            f"error: render.py needs Blender 4.2 or later, this is {version_text(version)}"
+        ]
+        assert not (tmp_path / "bl").exists()
+        return
+    pytest.importorskip("mitsuba")  # the bpy-free reference render (Blender's own Python needs it too)
     from blender_addon.core.generate import GenerateConfig, generate
 
-    cmd = ["blender", "-b", "--factory-startup", "-P", "headless/render.py", "--", "--out", str(tmp_path / "bl"),
-           "--count", "1", "--seed", "2", *SMALL]  # fmt: skip
     proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-2000:]
     generate(GenerateConfig(out=tmp_path / "plain", count=1, seed=2, resolution=32, spp=4), progress=False)
     _assert_same_dataset(tmp_path / "plain", tmp_path / "bl", [0])
+
+
+@pytest.mark.bpy
+def test_via_blender_refuses_blender_older_than_4_2(tmp_path, monkeypatch, capsys):
+    """The bpy wheel's route with the Blender version faked (bpy.app.version is read-only): one line, status 2."""
+    pytest.importorskip("bpy")
+    from blender_addon import compat
+    from headless import render
+
+    monkeypatch.setattr(compat, "running_blender", lambda: (3, 4, 1))
+    code = render.main(["--via-blender", "--out", str(tmp_path / "bl"), "--count", "1", *SMALL])
+    assert code == 2
+    assert capsys.readouterr().err.splitlines() == [
+        "error: render.py --via-blender needs Blender 4.2 or later, this is 3.4.1"
+    ]
+    assert not (tmp_path / "bl").exists()
 
 
 @pytest.mark.parametrize(
