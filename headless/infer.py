@@ -14,8 +14,9 @@ the camera), _depth.exr (metres along the viewing axis: the predicted normals in
 the mask, discontinuity-aware, median depth = capture.json's distance_m or 0.75 m; the Blender
 import turns it into a relief mesh; --card leaves it out for a flat card), a PNG preview of
 each, and _camera.json (the maps' intrinsics and distance, so the Blender camera matches the
-capture's). With --blend, also DIR/<name>.blend: the maps imported into Blender as a relightable Principled BSDF asset (headless/relight.py in its own process;
-needs the bpy wheel: pip install bpy).
+capture's). With --blend, also DIR/<name>.blend: the maps imported into Blender as a
+relightable Principled BSDF asset (headless/relight.py in its own process; needs the bpy wheel:
+pip install bpy).
 
 Maps are predicted at the input's own resolution (--resolution full: the encoder sees the object
 resized to the network's input size, and the per-pixel decoder reads every pixel of the capture);

@@ -26,7 +26,8 @@ EXAMPLE = ROOT / "examples" / "capture"
 
 def test_command_line_runs_the_infer_module_without_blend():
     cmd = reconstruction.command_line("/py", "/data/mug", "/out")
-    assert cmd == ["/py", "-m", "headless.infer", "--input", "/data/mug", "--out", "/out", "--quiet", "--progress-lines"]
+    expected = ["/py", "-m", "headless.infer", "--input", "/data/mug", "--out", "/out", "--quiet", "--progress-lines"]
+    assert cmd == expected
     cmd = reconstruction.command_line("/py", "/data/mug", "/out", card=True, checkpoint="/m/model.pt")
     assert cmd[-3:] == ["--card", "--checkpoint", "/m/model.pt"] and "--blend" not in cmd
     assert "--checkpoint" not in reconstruction.command_line("/py", "c", "o", checkpoint="  ")
