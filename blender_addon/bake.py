@@ -275,7 +275,7 @@ def bake_to_mesh(
     if not kinds:
         raise ValueError("no albedo, roughness, metallic or normal map to bake")
     h, w = maps.shape
-    frustum = camera_frustum(camera, w, h)
+    frustum = camera_frustum(camera, w, h, scene=scene)
 
     unwrap_object(obj)
     vis = vertex_visibility(obj, camera)

@@ -11,6 +11,21 @@ into float images packed into the .blend file (exact values, no colour transform
   project and Blender), metallic, mask -> Alpha, and the camera-space normals through a Normal
   Map node.
 
+Camera: when ``<name>_camera.json`` lies beside the normal map (``headless/infer.py`` writes it;
+:func:`blender_addon.core.map_names.camera_file`), the camera gets its intrinsics
+(:func:`blender_addon.core.frustum.camera_from_intrinsics`: lens, 36 mm sensor fitted
+horizontally, lens shift for the principal point, square pixels), so the relief mesh, integrated
+with those intrinsics, keeps the capture's shape and its vertices project onto their pixel
+centres. Intrinsics with ``fx != fy`` use ``fx`` for both axes, with a warning.
+
+Sequences: a folder with ``<name>_sequence.json`` (``<name>_NNNN_<map>.exr`` per frame) gives
+frame 1's mesh and one material whose maps are Blender image sequences read from the files
+(``image_user``: ``frame_duration`` n, ``frame_start`` 1, auto refresh), with the scene's frame
+range set to 1..n: playing the timeline plays the frames. Blender numbers a sequence by the last
+digits of a file name, so ``_0001_normal`` works. The EXR normals hold ``n`` itself: a Multiply
+Add node encodes ``0.5 + 0.5 n`` for the Normal Map node. Only frame 1 is read and validated
+here; the other frames must exist and are read by Blender as they play.
+
 Normals: the mesh is parented to the camera with an identity local rotation, so its object frame
 IS the camera frame, and for the plane (facing the camera, UVs aligned with the image) the
 tangent frame is too (tangent = +x, bitangent = +y, normal = +z). The normal image stores
@@ -34,7 +49,7 @@ from bpy_extras.io_utils import ImportHelper
 from mathutils import Matrix, Vector
 
 from .core import map_io, map_names
-from .core.frustum import Frustum, blender_frustum, depth_mesh
+from .core.frustum import BlenderCamera, Frustum, blender_frustum, depth_mesh, read_camera_json
 
 __all__ = [
     "CLASSES",
@@ -44,6 +59,8 @@ __all__ = [
     "import_pbr_maps",
     "ensure_camera",
     "camera_frustum",
+    "match_camera",
+    "sequence_image",
 ]
 
 #: Normal Map node spaces that reproduce camera-space normals on the imported plane.
@@ -146,9 +163,10 @@ def ensure_camera(scene, camera=None):
     return camera
 
 
-def camera_frustum(camera, width: int, height: int) -> Frustum:
-    """The frustum of a Blender camera object at ``width x height`` pixels."""
+def camera_frustum(camera, width: int, height: int, *, scene=None) -> Frustum:
+    """The frustum of a Blender camera object at ``width x height`` pixels (``scene``'s pixel aspect, else square)."""
     cam = camera.data
+    render = scene.render if scene is not None else None
     return blender_frustum(
         width,
         height,
@@ -158,7 +176,21 @@ def camera_frustum(camera, width: int, height: int) -> Frustum:
         sensor_fit=cam.sensor_fit,
         shift_x=cam.shift_x,
         shift_y=cam.shift_y,
+        pixel_aspect_x=render.pixel_aspect_x if render else 1.0,
+        pixel_aspect_y=render.pixel_aspect_y if render else 1.0,
     )
+
+
+def match_camera(scene, camera, blender_camera: BlenderCamera) -> None:
+    """Give ``camera`` the settings of ``blender_camera`` (and ``scene`` square pixels)."""
+    cam = camera.data
+    cam.sensor_fit = blender_camera.sensor_fit
+    cam.sensor_width = blender_camera.sensor_width
+    cam.sensor_height = blender_camera.sensor_height
+    cam.lens_unit = "MILLIMETERS"
+    cam.lens = blender_camera.lens
+    cam.shift_x, cam.shift_y = blender_camera.shift_x, blender_camera.shift_y
+    scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
 
 
 # --------------------------------------------------------------------------- mesh and material
@@ -185,20 +217,50 @@ def _plane(name: str, frustum: Frustum, distance: float):
     return _mesh(name, vertices, np.array([[0, 1, 2, 3]]), uvs)
 
 
-def _tex(nodes, image, label: str, location: tuple[float, float]):
+def _tex(nodes, image, label: str, location: tuple[float, float], frames: int = 0):
     node = nodes.new("ShaderNodeTexImage")
     node.image = image
     node.label = label
     node.interpolation = "Linear"
     node.extension = "EXTEND"
     node.location = location
+    if frames:  # scene frame f shows file number f
+        user = node.image_user
+        user.frame_duration, user.frame_start, user.frame_offset = frames, 1, 0
+        user.use_cyclic, user.use_auto_refresh = False, True
     return node
 
 
-def build_material(name: str, images: Mapping[str, object], *, normal_space: str, use_alpha: bool):
+def sequence_image(path: Path, kind: str):
+    """An image sequence starting at ``path`` (frame 1's file), read from disk as the frames play.
+
+    Colour spaces as :func:`image_from_array` gives them: albedo scene-linear from EXR (sRGB from
+    PNG/JPEG), the rest ``Non-Color``.
+    """
+    try:
+        img = bpy.data.images.load(str(path), check_existing=False)
+    except RuntimeError as e:
+        raise ValueError(f"{path}: not a readable image: {e}") from None
+    img.source = "SEQUENCE"
+    float_file = Path(path).suffix.lower() == ".exr"
+    img.colorspace_settings.name = ("Linear Rec.709" if float_file else "sRGB") if kind == "albedo" else "Non-Color"
+    return img
+
+
+def build_material(
+    name: str,
+    images: Mapping[str, object],
+    *,
+    normal_space: str,
+    use_alpha: bool,
+    frames: int = 0,
+    normal_raw: bool = False,
+):
     """A Principled BSDF material reading ``images`` (kind -> Image) through the UV layer :data:`UV_NAME`.
 
-    The normal image holds ``0.5 + 0.5 n``; it goes through a Normal Map node in ``normal_space``.
+    The normal image holds ``0.5 + 0.5 n`` (or ``n`` itself with ``normal_raw``: a Multiply Add
+    node encodes it); it goes through a Normal Map node in ``normal_space``. ``frames`` > 0: the
+    images are sequences of that many frames, scene frame f showing frame f.
     """
     mat = bpy.data.materials.new(name)
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
@@ -211,15 +273,24 @@ def build_material(name: str, images: Mapping[str, object], *, normal_space: str
     targets = {"albedo": "Base Color", "roughness": "Roughness", "metallic": "Metallic", "mask": "Alpha"}
     for i, (kind, socket) in enumerate(targets.items()):
         if kind in images and (kind != "mask" or use_alpha):
-            tex = _tex(nodes, images[kind], kind, (-500, 300 - 280 * i))
+            tex = _tex(nodes, images[kind], kind, (-500, 300 - 280 * i), frames)
             links.new(tex.outputs["Color"], bsdf.inputs[socket])
     if "normal" in images:
-        tex = _tex(nodes, images["normal"], "normal", (-500, -850))
+        tex = _tex(nodes, images["normal"], "normal", (-500, -850), frames)
         nmap = nodes.new("ShaderNodeNormalMap")
         nmap.space = normal_space
         nmap.uv_map = UV_NAME
         nmap.location = (-200, -700)
-        links.new(tex.outputs["Color"], nmap.inputs["Color"])
+        color = tex.outputs["Color"]
+        if normal_raw:
+            encode = nodes.new("ShaderNodeVectorMath")
+            encode.operation = "MULTIPLY_ADD"
+            encode.label = "0.5 n + 0.5"
+            encode.inputs[1].default_value = encode.inputs[2].default_value = (0.5, 0.5, 0.5)
+            encode.location = (-350, -850)
+            links.new(color, encode.inputs[0])
+            color = encode.outputs["Vector"]
+        links.new(color, nmap.inputs["Color"])
         links.new(nmap.outputs["Normal"], bsdf.inputs["Normal"])
     return mat
 
@@ -231,6 +302,21 @@ def _asset_name(files: Mapping[str, Path]) -> str:
         tokens = map_names.filename_tokens(stems[0])
         prefix = "_".join(t for t in tokens if not map_names.match_kinds((t,)))
     return prefix or "PBR asset"
+
+
+def _packed_images(name: str, maps: map_io.PBRMaps) -> dict[str, object]:
+    """The validated maps as packed float images (mask only from a file or the normals)."""
+    images = {}
+    if maps.normal is not None:
+        images["normal"] = image_from_array(f"{name}_normal", 0.5 + 0.5 * maps.normal)
+    if maps.albedo is not None:
+        images["albedo"] = image_from_array(f"{name}_albedo", maps.albedo, colorspace="Linear Rec.709")
+    for kind in ("roughness", "metallic"):
+        if getattr(maps, kind) is not None:
+            images[kind] = image_from_array(f"{name}_{kind}", getattr(maps, kind))
+    if maps.mask_source != "none":
+        images["mask"] = image_from_array(f"{name}_mask", maps.mask)
+    return images
 
 
 # --------------------------------------------------------------------------- import
@@ -245,6 +331,7 @@ def import_pbr_maps(
     normal_space: str = "TANGENT",
     use_depth: bool = True,
     match_resolution: bool = True,
+    use_camera_file: bool = True,
     name: str | None = None,
 ):
     """Import PBR maps as a camera-parented plane (or depth mesh) with a Principled material.
@@ -253,43 +340,68 @@ def import_pbr_maps(
         context: ``bpy.context`` (its scene and collection receive the object).
         paths_or_folder: a folder, a list of files, or ``{kind: file}``; matched by filename
             tokens (see :func:`blender_addon.core.map_names.match_map_files`). A normal map is
-            required; the others are optional (Principled defaults stand in).
+            required; the others are optional (Principled defaults stand in). A folder holding
+            a ``<name>_sequence.json`` (or that file) imports the sequence (module docstring).
         camera: the capture camera; default the scene camera, else a new one at the origin.
         distance: plane distance from the camera in metres (ignored for a depth mesh).
         normal_space: ``"TANGENT"`` or ``"OBJECT"`` (identical on the plane; a depth mesh uses OBJECT).
         use_depth: build a depth-displaced mesh when a depth map is present.
         match_resolution: set the scene's render size to the maps' size, so the camera frames the
             asset exactly (the plane is sized for the maps' aspect ratio either way).
-        name: object name; default from the file names.
+        use_camera_file: give the camera the intrinsics of the maps' ``<prefix>_camera.json``
+            when there is one (else, and with False, the mesh is built in the camera's own frustum).
+        name: object name; default from the file names (a sequence: its name).
 
     Returns:
         The new object. Custom properties ``pdir_maps`` / ``pdir_missing`` list the imported
-        and missing kinds. Clipped values or a changed normal space are reported as
-        :class:`PBRImportWarning`.
+        and missing kinds, ``pdir_camera`` the camera file used (empty: none), ``pdir_frames``
+        the number of frames (1 without a sequence). Clipped values or a changed normal space
+        are reported as :class:`PBRImportWarning`.
 
     Raises:
-        FileNotFoundError: missing folder, file or normal map.
-        ValueError: ambiguous names, bad values, bad camera or arguments.
+        FileNotFoundError: missing folder, file, normal map or frame.
+        ValueError: ambiguous names, bad values, a malformed camera or sequence file (one line
+            naming the file and the field), bad camera or arguments.
     """
     if normal_space not in NORMAL_SPACES:
         raise ValueError(f"normal_space must be one of {NORMAL_SPACES}, got {normal_space!r}")
     if not distance > 0:
         raise ValueError(f"distance must be > 0 metres, got {distance}")
     scene = context.scene
-    files = map_names.match_map_files(paths_or_folder, required=("normal",))
+    sequence_file = map_names.find_sequence(paths_or_folder)
+    sequence = None if sequence_file is None else map_names.match_sequence_files(sequence_file)
+    files = sequence.first if sequence else map_names.match_map_files(paths_or_folder, required=("normal",))
     if not use_depth:
         files = map_names.MapFiles({k: v for k, v in files.files.items() if k != "depth"}, files.unmatched)
     maps = map_io.load_maps(files, reader=read_channels)
     for line in maps.warnings:
         warnings.warn(line, PBRImportWarning, stacklevel=2)
-    camera = ensure_camera(scene, camera)
     h, w = maps.shape
+    camera_path = map_names.camera_file(files.files) if use_camera_file else None
+    capture = None if camera_path is None else read_camera_json(camera_path)
+    if capture is not None and (capture.height, capture.width) != (h, w):
+        raise ValueError(
+            f"{camera_path}: width, height: {capture.width} x {capture.height}, but the maps are {w} x {h}"
+        )
+    camera = ensure_camera(scene, camera)
     if match_resolution:
         scene.render.resolution_x, scene.render.resolution_y = w, h
         scene.render.resolution_percentage = 100
         scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
-    frustum = camera_frustum(camera, w, h)
-    name = name or _asset_name(files.files)
+    if capture is not None:
+        match_camera(scene, camera, capture.blender)
+        frustum = capture.blender.frustum(w, h)  # in float64 (the camera holds it in float32)
+        ratio = capture.blender.fy_over_fx
+        if abs(ratio - 1.0) > 1e-6:
+            warnings.warn(
+                f"{camera_path.name}: fx != fy; Blender's camera has square pixels, so the camera and the relief "
+                f"use fx for both axes (the relief's height is fy / fx = {ratio:.6g} of the capture's)",
+                PBRImportWarning,
+                stacklevel=2,
+            )
+    else:
+        frustum = camera_frustum(camera, w, h, scene=scene)
+    name = name or (sequence.name if sequence else _asset_name(files.files))
 
     if maps.depth is not None:
         vertices, faces, uvs = depth_mesh(maps.depth, maps.valid, frustum)
@@ -314,24 +426,28 @@ def import_pbr_maps(
     obj.matrix_parent_inverse = Matrix.Identity(4)
     obj.matrix_basis = local
 
-    images = {}
-    if maps.normal is not None:
-        images["normal"] = image_from_array(f"{name}_normal", 0.5 + 0.5 * maps.normal)
-    if maps.albedo is not None:
-        images["albedo"] = image_from_array(f"{name}_albedo", maps.albedo, colorspace="Linear Rec.709")
-    for kind in ("roughness", "metallic"):
-        if getattr(maps, kind) is not None:
-            images[kind] = image_from_array(f"{name}_{kind}", getattr(maps, kind))
-    use_alpha = maps.mask_source != "none"
-    if use_alpha:
-        images["mask"] = image_from_array(f"{name}_mask", maps.mask)
-    mesh.materials.append(build_material(name, images, normal_space=normal_space, use_alpha=use_alpha))
+    if sequence:
+        images = {k: sequence_image(p, k) for k, p in files.files.items() if k != "depth"}
+        use_alpha = "mask" in images
+        normal_raw = files.files["normal"].suffix.lower() == ".exr"
+        material = build_material(
+            name, images, normal_space=normal_space, use_alpha=use_alpha, frames=sequence.frames, normal_raw=normal_raw
+        )
+        scene.frame_start, scene.frame_end = 1, sequence.frames
+        scene.frame_set(1)
+    else:
+        images = _packed_images(name, maps)
+        use_alpha = "mask" in images
+        material = build_material(name, images, normal_space=normal_space, use_alpha=use_alpha)
+    mesh.materials.append(material)
 
     present = maps.present()
     obj["pdir_maps"] = ",".join(present)
     obj["pdir_missing"] = ",".join(k for k in map_names.MAP_KINDS if k not in present)
-    obj["pdir_source"] = ", ".join(str(p) for p in files.files.values())
+    obj["pdir_source"] = str(sequence.path) if sequence else ", ".join(str(p) for p in files.files.values())
     obj["pdir_normal_space"] = normal_space
+    obj["pdir_camera"] = str(camera_path) if capture is not None else ""
+    obj["pdir_frames"] = sequence.frames if sequence else 1
     context.view_layer.update()  # matrix_world of the new child, for callers that place lights around it
     return obj
 
@@ -340,14 +456,14 @@ def import_pbr_maps(
 
 
 class PDIR_OT_import_pbr(bpy.types.Operator, ImportHelper):
-    """Import normal/albedo/roughness/metallic/mask(/depth) maps as a camera-facing relightable asset."""
+    """Import normal/albedo/roughness/metallic/mask(/depth) maps or a sequence as a camera-facing relightable asset."""
 
     bl_idname = "pdir.import_pbr"
     bl_label = "Import PBR Maps"
     bl_options = {"REGISTER", "UNDO"}
 
-    filter_glob: StringProperty(default="*.exr;*.png;*.jpg;*.jpeg", options={"HIDDEN"})
-    directory: StringProperty(subtype="DIR_PATH", description="Folder with the maps")
+    filter_glob: StringProperty(default="*.exr;*.png;*.jpg;*.jpeg;*_sequence.json", options={"HIDDEN"})
+    directory: StringProperty(subtype="DIR_PATH", description="Folder with the maps (or a <name>_sequence.json)")
     files: CollectionProperty(
         type=bpy.types.OperatorFileListElement, description="Map files (none selected: every map in the folder)"
     )
@@ -374,6 +490,11 @@ class PDIR_OT_import_pbr(bpy.types.Operator, ImportHelper):
     match_resolution: BoolProperty(
         name="Match Resolution", description="Set the render resolution to the maps' size", default=True
     )
+    use_camera_file: BoolProperty(
+        name="Match Capture Camera",
+        description="Give the camera the capture's intrinsics from the maps' <name>_camera.json when present",
+        default=True,
+    )
 
     def execute(self, context):
         """Import the selected files (or the whole folder) and report what was found."""
@@ -397,6 +518,7 @@ class PDIR_OT_import_pbr(bpy.types.Operator, ImportHelper):
                     normal_space=self.normal_space,
                     use_depth=self.use_depth,
                     match_resolution=self.match_resolution,
+                    use_camera_file=self.use_camera_file,
                 )
             except (ValueError, OSError) as e:
                 self.report({"ERROR"}, str(e))
@@ -405,7 +527,9 @@ class PDIR_OT_import_pbr(bpy.types.Operator, ImportHelper):
             if issubclass(w.category, PBRImportWarning):
                 self.report({"WARNING"}, str(w.message))
         missing = obj["pdir_missing"] or "none"
-        self.report({"INFO"}, f"imported {obj.name!r}: maps {obj['pdir_maps']}; missing {missing}")
+        frames = f"; {obj['pdir_frames']} frames" if obj["pdir_frames"] > 1 else ""
+        camera = f"; camera from {Path(obj['pdir_camera']).name}" if obj["pdir_camera"] else ""
+        self.report({"INFO"}, f"imported {obj.name!r}: maps {obj['pdir_maps']}; missing {missing}{frames}{camera}")
         return {"FINISHED"}
 
 

@@ -1,8 +1,11 @@
 """A Blender camera's frustum without bpy: pixel rays, projection and depth-map meshes.
 
-:func:`blender_frustum` turns a Blender camera's lens, sensor, fit and shift into a
+:func:`blender_frustum` turns a Blender camera's lens, sensor, fit, shift and pixel aspect into a
 :class:`Frustum`, whose camera maths is :mod:`pbrdf.sensor.projection`'s (the one home of the
-pinhole model); :func:`depth_mesh` lifts a depth map into a camera-frame triangle mesh.
+pinhole model); :func:`camera_from_intrinsics` is its inverse: the Blender camera whose frustum
+is a pinhole matrix ``K`` (:func:`read_camera_json` reads the ``<name>_camera.json`` that
+``headless/infer.py`` writes beside the maps); :func:`depth_mesh` lifts a depth map into a
+camera-frame triangle mesh.
 
 Convention (camera):
     A Blender camera looks down its local -z with x right and y up; :class:`Frustum` is its image
@@ -20,15 +23,31 @@ Convention (camera):
 
 from __future__ import annotations
 
+import json
 import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
 from pbrdf.sensor import projection
 
-__all__ = ["Frustum", "blender_frustum", "depth_mesh"]
+__all__ = [
+    "BlenderCamera",
+    "CaptureCamera",
+    "Frustum",
+    "blender_frustum",
+    "camera_from_intrinsics",
+    "depth_mesh",
+    "read_camera_json",
+]
+
+#: Sensor width (mm) of the cameras :func:`camera_from_intrinsics` makes (Blender's default).
+SENSOR_WIDTH = 36.0
+#: Blender's limits: lens >= 1 mm, |shift| <= 10.
+_MIN_LENS, _MAX_SHIFT = 1.0, 10.0
 
 
 @dataclass(frozen=True)
@@ -85,12 +104,16 @@ def blender_frustum(
     sensor_fit: str = "AUTO",
     shift_x: float = 0.0,
     shift_y: float = 0.0,
+    pixel_aspect_x: float = 1.0,
+    pixel_aspect_y: float = 1.0,
 ) -> Frustum:
-    """The frustum of a Blender perspective camera rendering ``width x height`` square pixels.
+    """The frustum of a Blender perspective camera rendering ``width x height`` pixels.
 
     Blender fits the sensor to one image axis: ``HORIZONTAL`` (sensor_width spans the width),
-    ``VERTICAL`` (sensor_height spans the height), ``AUTO`` (sensor_width spans the larger axis).
-    Lens shift is in units of the fitted axis.
+    ``VERTICAL`` (sensor_height spans the height), ``AUTO`` (sensor_width spans the axis that is
+    larger after the pixel aspect). Lens shift is in units of the fitted axis. A pixel is
+    ``pixel_aspect_y / pixel_aspect_x`` times as tall as wide (the scene's render settings), as in
+    Blender's ``BKE_camera_params_compute_viewplane``.
 
     Args:
         width: image columns.
@@ -101,25 +124,185 @@ def blender_frustum(
         sensor_fit: ``AUTO``, ``HORIZONTAL`` or ``VERTICAL``.
         shift_x: horizontal lens shift.
         shift_y: vertical lens shift.
+        pixel_aspect_x: the render setting of that name.
+        pixel_aspect_y: the render setting of that name.
     """
     if width < 1 or height < 1:
         raise ValueError(f"image size must be positive, got {width} x {height}")
     if not (lens > 0 and sensor_width > 0 and sensor_height > 0):
         raise ValueError(f"lens and sensor must be positive, got lens {lens}, sensor {sensor_width} x {sensor_height}")
+    if not (pixel_aspect_x > 0 and pixel_aspect_y > 0):
+        raise ValueError(f"pixel aspect must be positive, got {pixel_aspect_x} x {pixel_aspect_y}")
+    ycor = pixel_aspect_y / pixel_aspect_x  # pixel height / pixel width
     if sensor_fit == "AUTO":
-        sensor_fit = "HORIZONTAL" if width >= height else "VERTICAL"
+        sensor_fit = "HORIZONTAL" if pixel_aspect_x * width >= pixel_aspect_y * height else "VERTICAL"
         sensor_height = sensor_width
     if sensor_fit == "HORIZONTAL":
         hw = 0.5 * sensor_width / lens
-        hh = hw * height / width
+        hh = hw * ycor * height / width
         fitted = 2.0 * hw
     elif sensor_fit == "VERTICAL":
         hh = 0.5 * sensor_height / lens
-        hw = hh * width / height
+        hw = hh * width / (ycor * height)
         fitted = 2.0 * hh
     else:
         raise ValueError(f"unknown sensor_fit {sensor_fit!r}; valid: AUTO, HORIZONTAL, VERTICAL")
     return Frustum(int(width), int(height), hw, hh, shift_x * fitted, shift_y * fitted)
+
+
+@dataclass(frozen=True)
+class BlenderCamera:
+    """The Blender camera data of one pinhole camera, for square pixels (see :func:`camera_from_intrinsics`).
+
+    Attributes:
+        lens: focal length in mm (``Camera.lens``).
+        sensor_width: mm (``Camera.sensor_width``).
+        sensor_height: mm (``Camera.sensor_height``; the sensor's true height, unused by the fit).
+        sensor_fit: ``Camera.sensor_fit``.
+        shift_x: ``Camera.shift_x`` (units of the sensor width).
+        shift_y: ``Camera.shift_y`` (units of the sensor width).
+        fy_over_fx: ``K``'s ``fy / fx``; 1 when this camera is ``K`` exactly.
+    """
+
+    lens: float
+    sensor_width: float
+    sensor_height: float
+    sensor_fit: str
+    shift_x: float
+    shift_y: float
+    fy_over_fx: float = 1.0
+
+    def frustum(self, width: int, height: int) -> Frustum:
+        """:func:`blender_frustum` of this camera at ``width x height`` square pixels."""
+        return blender_frustum(
+            width,
+            height,
+            lens=self.lens,
+            sensor_width=self.sensor_width,
+            sensor_height=self.sensor_height,
+            sensor_fit=self.sensor_fit,
+            shift_x=self.shift_x,
+            shift_y=self.shift_y,
+        )
+
+
+def camera_from_intrinsics(intrinsics: NDArray, width: int, height: int) -> BlenderCamera:
+    """The Blender camera whose frustum at ``width x height`` square pixels is the pinhole matrix ``K``.
+
+    ``K`` is :mod:`pbrdf.sensor.projection`'s (OpenCV pixels: u right, v down, pixel centres at
+    integer + 0.5; ``v = cy - fy y / depth`` for Blender's y-up camera frame). With a 36 mm sensor
+    fitted horizontally: ``lens = 36 fx / W``; the principal point becomes the lens shift, in
+    units of the fitted sensor width: ``shift_x = (W / 2 - cx) / W``, ``shift_y = (cy - H / 2) / W``
+    (v grows downward, Blender's y upward). Exact when ``fx == fy``: the :func:`blender_frustum`
+    of the result has ``K`` as its intrinsics. Otherwise the camera uses ``fx`` for both axes
+    (``fy_over_fx`` says by how much rows are off): Blender's other route, the render's pixel
+    aspect, breaks multilayer EXR output with more than one pass (Blender 5.0 refuses to write
+    it) and the polarized export (square pixels only).
+
+    Example: a 64 x 48 image with ``f = 80`` px and the principal point 2 px right of the centre:
+
+    >>> k = [[80.0, 0.0, 34.0], [0.0, 80.0, 24.0], [0.0, 0.0, 1.0]]
+    >>> cam = camera_from_intrinsics(k, 64, 48)
+    >>> cam.lens, cam.shift_x, cam.shift_y
+    (45.0, -0.03125, 0.0)
+    >>> bool(np.allclose(cam.frustum(64, 48).intrinsics(), k))
+    True
+
+    Raises:
+        ValueError: one line starting ``intrinsics:`` (not a finite 3x3 pinhole matrix, skew,
+            outside Blender's lens or shift range) or ``width``/``height``.
+    """
+    for field_name, v in (("width", width), ("height", height)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{field_name}: must be a positive integer, got {v!r}")
+    try:
+        k = np.asarray(intrinsics, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"intrinsics: not a 3x3 matrix of numbers: {intrinsics!r}") from None
+    if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+        raise ValueError(f"intrinsics: must be a finite 3x3 matrix, got {k.tolist()}")
+    fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+    if not (fx > 0 and fy > 0):
+        raise ValueError(f"intrinsics: focal lengths must be positive, got fx {fx}, fy {fy}")
+    if k[1, 0] != 0 or not np.array_equal(k[2], [0.0, 0.0, 1.0]) or abs(k[0, 1]) > 1e-9 * fx:
+        raise ValueError(f"intrinsics: not a pinhole matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]: {k.tolist()}")
+    lens = fx * SENSOR_WIDTH / width
+    shift_x = (width / 2 - cx) / width
+    shift_y = (cy - height / 2) / width
+    if lens < _MIN_LENS or max(abs(shift_x), abs(shift_y)) > _MAX_SHIFT:
+        raise ValueError(
+            f"intrinsics: outside what a Blender camera can hold (lens {lens:.4g} mm >= {_MIN_LENS:g}, "
+            f"shift {shift_x:.4g}, {shift_y:.4g} within +-{_MAX_SHIFT:g})"
+        )
+    return BlenderCamera(
+        lens=float(lens),
+        sensor_width=SENSOR_WIDTH,
+        sensor_height=float(SENSOR_WIDTH * height / width),
+        sensor_fit="HORIZONTAL",
+        shift_x=float(shift_x),
+        shift_y=float(shift_y),
+        fy_over_fx=float(fy / fx),
+    )
+
+
+@dataclass(frozen=True)
+class CaptureCamera:
+    """A ``<name>_camera.json``: the maps' pinhole camera (``network.infer.camera_record``).
+
+    Attributes:
+        intrinsics: ``K (3, 3)`` of the maps' grid (:mod:`pbrdf.sensor.projection` convention).
+        width: map columns W.
+        height: map rows H.
+        distance_m: the capture's object distance in metres, or None.
+        blender: the matching Blender camera (:func:`camera_from_intrinsics`).
+    """
+
+    intrinsics: NDArray
+    width: int
+    height: int
+    distance_m: float | None
+    blender: BlenderCamera
+
+
+def read_camera_json(path: str | os.PathLike) -> CaptureCamera:
+    """Read and check a ``<name>_camera.json`` (``{"intrinsics", "width", "height", "distance_m"}``).
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: one line naming the file and the bad field (or the JSON error).
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e.msg} at line {e.lineno} column {e.colno})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not valid JSON (not UTF-8 text)") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{path}: expected a JSON object with intrinsics, width, height, got {type(doc).__name__}")
+    missing = [k for k in ("intrinsics", "width", "height") if k not in doc]
+    if missing:
+        raise ValueError(f"{path}: {missing[0]}: missing")
+    distance = doc.get("distance_m")
+    if distance is not None and (
+        isinstance(distance, bool)
+        or not isinstance(distance, (int, float))
+        or not (math.isfinite(distance) and distance > 0)
+    ):
+        raise ValueError(f"{path}: distance_m: must be null or a positive number of metres, got {distance!r}")
+    k = doc["intrinsics"]
+    if not (isinstance(k, list) and all(isinstance(r, list) for r in k)) or any(
+        isinstance(v, bool) or not isinstance(v, (int, float)) for r in k for v in r
+    ):
+        raise ValueError(f"{path}: intrinsics: must be a 3x3 list of numbers, got {json.dumps(k)[:120]}")
+    try:
+        cam = camera_from_intrinsics(k, doc["width"], doc["height"])
+    except ValueError as e:
+        raise ValueError(f"{path}: {e}") from None
+    return CaptureCamera(
+        np.asarray(k, dtype=np.float64), int(doc["width"]), int(doc["height"]),
+        None if distance is None else float(distance), cam,
+    )  # fmt: skip
 
 
 def depth_mesh(

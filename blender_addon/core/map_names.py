@@ -1,9 +1,13 @@
 """PBR map files by name: filename tokens, synonyms per map kind and matching a folder's files.
 
 The network (``headless/infer.py``) writes ``DIR/<name>_normal.exr``, ``_albedo.exr``,
-``_roughness.exr``, ``_metallic.exr``, ``_mask.exr`` and a PNG preview of each. Other tools name
-maps ``BaseColor``, ``nrm``, ``Metalness``...: :func:`match_map_files` finds each map kind by
-filename tokens; :mod:`.map_io` then reads and validates the files.
+``_roughness.exr``, ``_metallic.exr``, ``_mask.exr``, ``_depth.exr``, a PNG preview of each and
+``<name>_camera.json`` (found by :func:`camera_file`). Other tools name maps ``BaseColor``,
+``nrm``, ``Metalness``...: :func:`match_map_files` finds each map kind by filename tokens;
+:mod:`.map_io` then reads and validates the files. A sequence is ``<name>_NNNN_<map>.exr`` per
+frame (NNNN from 0001) plus ``<name>_sequence.json``: :func:`find_sequence` and
+:func:`match_sequence_files` check it is one Blender can play as image sequences (Blender takes
+the frame number from the last run of digits in a file name, whatever follows it).
 
 Convention (tokens):
     A file name (without its suffix) is split into lowercase tokens at every non-alphanumeric
@@ -21,6 +25,7 @@ Example:
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from collections.abc import Iterable, Mapping
@@ -28,7 +33,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 __all__ = [
+    "CAMERA_SUFFIX",
     "IMAGE_SUFFIXES",
+    "SEQUENCE_SUFFIX",
+    "SequenceFiles",
+    "camera_file",
+    "find_sequence",
+    "match_sequence_files",
     "MAP_KINDS",
     "SYNONYMS",
     "MapFiles",
@@ -53,6 +64,10 @@ SYNONYMS: dict[str, tuple[tuple[str, ...], ...]] = {
 #: Readable suffixes, most preferred first: when ``x_normal.exr`` and its preview ``x_normal.png``
 #: both exist, the EXR wins.
 IMAGE_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
+#: ``<prefix>_camera.json``: the maps' pinhole camera (``network.infer.camera_record``).
+CAMERA_SUFFIX = "_camera.json"
+#: ``<name>_sequence.json``: the frames of a sequence (``headless/infer.py``).
+SEQUENCE_SUFFIX = "_sequence.json"
 
 
 def filename_tokens(name: str | os.PathLike) -> tuple[str, ...]:
@@ -243,3 +258,166 @@ def _match(paths: list[Path]) -> MapFiles:
     if errors:
         raise ValueError("ambiguous map files: " + "; ".join(errors) + " (pass the files explicitly, one per map)")
     return MapFiles(files, tuple(unmatched), tuple(superseded))
+
+
+# --------------------------------------------------------------------------- camera and sequences
+
+
+def camera_file(files: Mapping[str, str | os.PathLike]) -> Path | None:
+    """The ``<prefix>_camera.json`` beside the normal map (else the first map) of ``files``, or None.
+
+    It belongs to the maps when every map is named ``<prefix><separator><its kind's synonym>``
+    (``cap_normal.exr``, ``cap_albedo.png`` for ``cap_camera.json``); a camera file of other
+    maps in the same folder is ignored.
+
+    Example:
+        >>> import tempfile
+        >>> d = Path(tempfile.mkdtemp())
+        >>> for n in ("cap_normal.exr", "cap_camera.json", "other_camera.json"):
+        ...     _ = (d / n).write_text("")
+        >>> camera_file({"normal": d / "cap_normal.exr"}).name
+        'cap_camera.json'
+    """
+    paths = {k: Path(v) for k, v in files.items()}
+    if not paths:
+        return None
+    folder = paths.get("normal", next(iter(paths.values()))).parent
+    if not folder.is_dir():
+        return None
+    for candidate in sorted(folder.glob(f"*{CAMERA_SUFFIX}")):
+        prefix = candidate.name[: -len(CAMERA_SUFFIX)]
+        if candidate.is_file() and prefix and all(_named(p, prefix, k) for k, p in paths.items()):
+            return candidate
+    return None
+
+
+def _named(path: Path, prefix: str, kind: str) -> bool:
+    """``path`` is ``<prefix><separator><a synonym of kind><image suffix>``."""
+    stem = path.name[: -len(path.suffix)] if path.suffix.lower() in IMAGE_SUFFIXES else path.name
+    rest = stem[len(prefix) :]
+    if not stem.startswith(prefix) or not rest or rest[0].isalnum():
+        return False
+    return filename_tokens(rest.lstrip("_-. ") + ".exr") in SYNONYMS.get(kind, ())
+
+
+def find_sequence(source: object) -> Path | None:
+    """The ``<name>_sequence.json`` that ``source`` names, or None (not a sequence).
+
+    ``source`` names one when it is that file (alone or as the only item of a list) or a folder
+    holding exactly one such file; several in one folder are refused on one line.
+
+    Raises:
+        ValueError: a folder with several sequence files.
+    """
+    if isinstance(source, Mapping):
+        return None
+    if not isinstance(source, (str, os.PathLike)):
+        items = list(source) if isinstance(source, Iterable) else []
+        if len(items) != 1 or not isinstance(items[0], (str, os.PathLike)):
+            return None
+        source = items[0]
+    path = Path(source)
+    if path.is_file():
+        return path if path.name.endswith(SEQUENCE_SUFFIX) else None
+    if not path.is_dir():
+        return None
+    found = sorted(p for p in path.glob(f"*{SEQUENCE_SUFFIX}") if p.is_file() and not p.name.startswith("."))
+    if len(found) > 1:
+        names = ", ".join(p.name for p in found)
+        raise ValueError(f"{path}: {len(found)} sequences ({names}); choose one {SEQUENCE_SUFFIX} file")
+    return found[0] if found else None
+
+
+@dataclass(frozen=True)
+class SequenceFiles:
+    """A sequence's files (see :func:`match_sequence_files`).
+
+    Attributes:
+        path: the ``<name>_sequence.json``.
+        name: the sequence name.
+        frames: number of frames n (files numbered 1..n).
+        first: frame 1's matched maps (the files Blender's image sequences start from).
+        camera: frame 1's ``<prefix>_camera.json``, or None.
+    """
+
+    path: Path
+    name: str
+    frames: int
+    first: MapFiles
+    camera: Path | None = None
+
+
+def _frame_number(path: Path) -> tuple[str, str, str]:
+    """``(head, digits, tail)`` of a file name as Blender splits it: the last digits before the suffix."""
+    stem, suffix = path.name[: -len(path.suffix)], path.suffix
+    m = re.search(r"(\d+)(\D*)$", stem)
+    if m is None:
+        return stem, "", suffix
+    return stem[: m.start()], m.group(1), m.group(2) + suffix
+
+
+def match_sequence_files(path: str | os.PathLike, *, required: Iterable[str] = ("normal",)) -> SequenceFiles:
+    """Check a ``<name>_sequence.json`` and the map files of its frames.
+
+    Frame 1's maps are the image files named ``<prefix>_*`` beside the JSON (``prefix`` of its
+    first frame), matched as :func:`match_map_files` does. Every frame i must have the same maps
+    under the name Blender derives for frame i (the last digits of frame 1's name replaced by i,
+    zero-padded to the same width), and the JSON's ``prefix`` of frame i must be that name's.
+
+    Raises:
+        FileNotFoundError: the JSON, a required map of frame 1 or a map of a later frame is missing.
+        ValueError: a malformed JSON (one line naming the file and the field), frame names Blender
+            cannot number, ambiguous map names.
+    """
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path}: not valid JSON ({e.msg} at line {e.lineno} column {e.colno})") from None
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not valid JSON (not UTF-8 text)") from None
+    frames = doc.get("frames") if isinstance(doc, dict) else None
+    if not isinstance(frames, list) or not frames:
+        raise ValueError(f"{path}: frames: must be a non-empty list of {{'prefix': ...}} objects")
+    prefixes = []
+    for i, frame in enumerate(frames):
+        prefix = frame.get("prefix") if isinstance(frame, dict) else None
+        if not isinstance(prefix, str) or not prefix or Path(prefix).name != prefix:
+            raise ValueError(f"{path}: frames[{i}].prefix: must be a file name prefix, got {prefix!r}")
+        prefixes.append(prefix)
+    name = (
+        doc.get("name") if isinstance(doc.get("name"), str) and doc.get("name") else path.name[: -len(SEQUENCE_SUFFIX)]
+    )
+    folder = path.parent
+    own = [
+        p
+        for p in _folder_images(folder)
+        if p.name.startswith(prefixes[0]) and p.name[len(prefixes[0]) : len(prefixes[0]) + 1] in ("_", "-", ".")
+    ]
+    if not own:
+        raise FileNotFoundError(f"{path}: frame 1 has no map files {prefixes[0]}_* in {folder}")
+    first = match_map_files(own, required=required)
+    head, digits, _ = _frame_number(Path(prefixes[0] + ".exr"))
+    if not digits or int(digits) != 1:
+        raise ValueError(
+            f"{path}: frames[0].prefix: {prefixes[0]!r} must end in frame number 1 (<name>_0001): "
+            f"Blender numbers image sequences by the last digits of a file name"
+        )
+    for p in first.files.values():
+        if _frame_number(p)[:2] != (head, digits):
+            raise ValueError(
+                f"{p.name}: Blender would read the frame number from its last digits, not from {digits!r}; "
+                f"name frames <name>_NNNN_<map> with no digits after the frame number"
+            )
+    for i, prefix in enumerate(prefixes[1:], start=2):
+        expected = head + str(i).zfill(len(digits))
+        if prefix != expected:
+            raise ValueError(
+                f"{path}: frames[{i - 1}].prefix: {prefix!r}, but Blender reads frame {i} from {expected!r}"
+            )
+        for p in first.files.values():
+            h, d, tail = _frame_number(p)
+            frame_file = p.with_name(h + str(i).zfill(len(d)) + tail)
+            if not frame_file.is_file():
+                raise FileNotFoundError(f"{path}: frame {i} has no {frame_file.name} (frame 1 has {p.name})")
+    return SequenceFiles(path, name, len(prefixes), first, camera_file(first.files))

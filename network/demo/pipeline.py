@@ -32,8 +32,6 @@ Example:
 
 from __future__ import annotations
 
-import subprocess
-import sys
 import time
 from collections.abc import Callable
 from contextlib import contextmanager
@@ -44,13 +42,11 @@ from typing import Any
 import numpy as np
 
 from network.demo import report
+from network.demo.relight_compare import compare_relit, relight, truth_maps
 from network.metrics import normal_angle_deg
 from pbrdf.io.strict_json import dumps_strict
 
 __all__ = ["DemoConfig", "run_demo"]
-
-#: The repository root (``headless/relight.py`` runs from here).
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @dataclass(frozen=True)
@@ -213,7 +209,7 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
     """
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.constant import load_statistics  # noqa: PLC0415
-    from network.infer import DEFAULT_CHECKPOINT, write_predictions  # noqa: PLC0415
+    from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
     from network.split_eval import predict_scene, score_scene  # noqa: PLC0415
     from pbrdf.expansion.run import ExpansionConfig, run_expansion  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
@@ -272,7 +268,7 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
             name = f"{s.parent.parent.name}_{s.stem}"
             scene = predict_scene(model, variant, s.parent.parent, int(s.stem), stats, input_scale=ckpt["input_scale"])
             if scene.ours is not None:
-                write_predictions(out / "predictions" / name, name, scene.ours)
+                _write_assets(out, name, scene)
             scenes[s], names[s] = scene, name
             bar.update()
         bar.close()
@@ -299,30 +295,32 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
     # 6. Blender: import the predictions as Principled BSDF assets and relight them with Cycles.
     step("blender")
     relit: list[tuple[str, str]] = []
+    relight_rows: list[dict] = []
     blender_note = ""
     if cfg.blender:
         with timer.stage("Blender import + Cycles relight"):
             bar = _bar(len(samples), "relight", cfg.progress)
-            script = str(ROOT / "headless" / "relight.py")
             for s in samples:  # one Blender process per asset: bpy never shares a process with torch
-                name, dest = names[s], out / "relit" / names[s]
+                name = names[s]
                 if scenes[s].ours is None:
                     continue
-                cmd = [sys.executable, script, "--input", str(out / "predictions" / name),
-                       "--name", name, "--out", str(dest), "--frames", str(cfg.relight_frames),
-                       "--size", str(cfg.relight_size), "--samples", str(cfg.relight_samples), "--save-blend",
-                       "--quiet"]  # fmt: skip
-                proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
-                if proc.returncode:
-                    raise RuntimeError(f"Blender relighting of {name} failed: {proc.stderr.strip().splitlines()[-1:]}")
-                frames, env = sorted(dest.glob("point_*.png")), sorted(dest.glob("env_*.png"))
-                if frames or env:
-                    imgs = [_read_png(p) for p in [*frames, *env]]
-                    titles = [f"point light {i + 1}/{len(frames)}" for i in range(len(frames))] + ["sky"] * len(env)
-                    fig = report.image_grid(fig_dir / f"{name}_relit.png", [imgs], [titles], cell=(2.2, 2.2))
+                kw = {"frames": cfg.relight_frames, "size": cfg.relight_size, "samples": cfg.relight_samples}
+                frames = relight(out / "predictions" / name, name, out / "relit" / name, **kw)
+                truth = relight(out / "truth" / name, name, out / "relit_truth" / name, **kw)
+                if frames:
+                    scores = compare_relit(frames, truth)
+                    relight_rows.append({"scene": name, "frames": scores, **_mean_scores(scores)})
+                    titles = [("sky" if p.name.startswith("env") else f"point light {p.stem[-4:]}") for p in frames]
+                    fig = report.image_grid(
+                        fig_dir / f"{name}_relit.png", [[_read_png(p) for p in truth], [_read_png(p) for p in frames]],
+                        [titles, [f"{t}: {_db(x['psnr'])}" for t, x in zip(titles, scores, strict=True)]],
+                        row_labels=["truth", "prediction"], cell=(2.2, 2.2),
+                    )  # fmt: skip
                     relit.append((fig.relative_to(out).as_posix(),
-                                  f"{name}: the predicted maps as a Principled BSDF asset in Blender ({name}.blend), "
-                                  "relit with Cycles under a rotating point light and a procedural sky"))  # fmt: skip
+                                  f"{name}: the true maps (top) and the predicted maps (bottom) as Principled BSDF "
+                                  f"relief assets in Blender ({name}.blend), relit alike with Cycles under a rotating "
+                                  "point light and a procedural sky; PSNR of each prediction frame against the "
+                                  "truth frame"))  # fmt: skip
                 bar.update()
             bar.close()
     else:
@@ -332,11 +330,44 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
     # 7. Report.
     step("report")
     with timer.stage("report"):
-        summary = _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, variant, blender_note)
+        summary = _write_outputs(
+            out, cfg, rows, figures, (relit, relight_rows), timer, exp, ckpt_path, variant, blender_note
+        )
     overall.update()
     overall.close()
     atomic_write_text(out / "timings.json", dumps_strict(timer.seconds) + "\n")
     return summary
+
+
+def _write_assets(out: Path, name: str, scene) -> None:
+    """The prediction (with its relief) and the truth, as the Blender import reads them.
+
+    Both carry the capture's camera; the prediction's relief is anchored at the true median depth
+    (the distance a user measures), since the rendered capture has no ``distance_m``.
+    """
+    from network.infer import camera_record, relief_depth, write_predictions  # noqa: PLC0415
+
+    truth = truth_maps(scene.gt, scene.region)
+    distance = float(np.median(truth["depth"][scene.region, 0])) if "depth" in truth else None
+    camera = None
+    pred = dict(scene.ours)
+    if scene.intrinsics is not None:
+        camera = camera_record(scene.intrinsics, scene.region.shape, distance)
+        pred["depth"] = relief_depth(pred, scene.intrinsics, distance)
+    write_predictions(out / "predictions" / name, name, pred, camera)
+    write_predictions(out / "truth" / name, name, truth, camera)
+
+
+def _mean_scores(scores: list[dict]) -> dict[str, float | None]:
+    out = {}
+    for key in ("psnr", "lpips"):
+        vals = [s[key] for s in scores if s[key] is not None]
+        out[key] = float(np.mean(vals)) if vals else None
+    return out
+
+
+def _db(x: float | None) -> str:
+    return "n/a" if x is None else f"{x:.1f} dB"
 
 
 def _deg(x: float | None) -> str:
@@ -361,6 +392,7 @@ def _stats_path(cfg: DemoConfig, ckpt_path: Path) -> Path:
 
 def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, variant, blender_note) -> dict:
     """Write metrics.json, metrics.md, the charts and report.html; returns the summary."""
+    relit, relight_rows = relit
     from network.split_eval import split_markdown, split_table, summarize_rows  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
     from pbrdf.io.strict_json import dumps_strict  # noqa: PLC0415
@@ -395,10 +427,15 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
         "scenes": rows,
         "timings_s": timer.seconds,
         "pbrdf_expansion": exp.summary(),
+        "relight": relight_rows,
     }
     atomic_write_text(out / "metrics.json", dumps_strict(summary) + "\n")
     md = "# Demo metrics\n\n" + split_markdown(result) + "\n## Per scene\n\n"
     md += report.markdown_table(per_scene_header, per_scene)
+    relight_header = ["scene", "relit PSNR (dB)", "relit LPIPS"]
+    relight_table = [[r["scene"], r["psnr"], r["lpips"]] for r in relight_rows]
+    if relight_rows:
+        md += "\n## Relit prediction against the relit truth\n\n" + report.markdown_table(relight_header, relight_table)
     md += "\n## Time per stage (s)\n\n" + report.markdown_table(["stage", "seconds"], list(timer.seconds.items()))
     atomic_write_text(out / "metrics.md", md)
     ours_mae, base_mae, const_mae = (means[m]["normal_mae"] for m in ("ours", "baseline", "constant"))
@@ -429,9 +466,16 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
         {"title": "Per scene", "html": report.html_table(per_scene_header, per_scene)},
         {"title": "Inputs, predictions, ground truth and errors", "figures": figures},
         {
-            "title": "Relighting in Blender",
+            "title": "Relighting in Blender: prediction against truth",
             "figures": relit,
-            "text": "" if relit else "No relit frames (Blender stage skipped).",
+            "text": (
+                "Both map sets go through the same import (relief mesh from the depth, the capture's camera) and "
+                "the same Cycles lights; scores are over the pixels either asset covers. The prediction's relief "
+                "is anchored at the true median depth, the distance a user enters as distance_m."
+                if relit
+                else "No relit frames (Blender stage skipped)."
+            ),
+            "html": report.html_table(relight_header, relight_table) if relight_rows else "",
         },
         {
             "title": "Expanded pBRDFs",

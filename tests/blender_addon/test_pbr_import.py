@@ -1,5 +1,7 @@
 """PBR import (blender_addon/pbr_import.py) with the real bpy 5.0 wheel and Cycles (tiny renders)."""
 
+import json
+import re
 import warnings
 
 import numpy as np
@@ -9,10 +11,13 @@ import pytest
 pytestmark = [pytest.mark.bpy, pytest.mark.usefixtures("clean_file")]
 bpy = pytest.importorskip("bpy")
 
+from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
+
 from blender_addon import pbr_import  # noqa: E402
 from blender_addon.core import map_io  # noqa: E402
-from blender_addon.core.frustum import blender_frustum  # noqa: E402
+from blender_addon.core.frustum import blender_frustum, camera_from_intrinsics  # noqa: E402
 from pbrdf.io.exr import read_exr  # noqa: E402
+from pbrdf.sensor import projection  # noqa: E402
 from tests.helpers import add_camera, write_pbr_maps  # noqa: E402
 
 H, W = 24, 32
@@ -188,3 +193,152 @@ def test_blender_png_reader_equals_pillow(clean_file, tmp_path):
         np.testing.assert_allclose(got[c], ref[c], atol=1e-6)
     np.testing.assert_allclose(got["A"], 1.0)
     assert not bpy.data.images  # the temporary image is removed
+
+
+# --------------------------------------------------------------------------- capture camera and sequences
+
+# a capture camera unlike Blender's default (lens 50 mm, centred): wider view, principal point off centre
+K = np.array([[60.0, 0.0, 19.3], [0.0, 60.0, 9.8], [0.0, 0.0, 1.0]])
+
+
+def _plane_field(k, h, w, normal=(0.2, 0.1, 1.0), point=(0.05, 0.0, -2.0), radius=0.4):
+    """Normals, mask and depth of a tilted disc seen through the pinhole ``k`` (no depth jumps)."""
+    n = np.asarray(normal) / np.linalg.norm(normal)
+    rays = projection.pixel_rays(k, h, w)
+    depth = (n @ np.asarray(point)) / (rays @ n)
+    mask = np.linalg.norm(rays * depth[..., None] - point, axis=-1) < radius
+    normals = np.where(mask[..., None], n, 0.0).astype(np.float32)
+    return normals, mask, np.where(mask, depth, np.inf)
+
+
+def _write_camera(path, k, w, h, distance=2.0):
+    """``<prefix>_camera.json`` as ``network.infer.camera_record`` writes it."""
+    path.write_text(json.dumps({"intrinsics": k.tolist(), "width": w, "height": h, "distance_m": distance}))
+
+
+def _k_project(k, p):
+    depth = -p[..., 2]
+    return np.stack([k[0, 0] * p[..., 0] / depth + k[0, 2], k[1, 2] - k[1, 1] * p[..., 1] / depth], -1)
+
+
+def _interior(mask):
+    """Mask pixels whose 8 neighbours are in the mask too (inside the mesh, off its boundary)."""
+    m = np.pad(mask, 1)
+    return np.all([m[1 + dy : 1 + dy + mask.shape[0], 1 + dx : 1 + dx + mask.shape[1]]
+                   for dy in (-1, 0, 1) for dx in (-1, 0, 1)], axis=0)  # fmt: skip
+
+
+def _camera_frame_vertices(obj, cam):
+    m = np.array(cam.matrix_world.inverted() @ obj.matrix_world)
+    return np.array([tuple(x.co) for x in obj.data.vertices]) @ m[:3, :3].T + m[:3, 3]
+
+
+def test_camera_file_gives_the_capture_camera(clean_file, tmp_path):
+    scene = clean_file
+    cam = add_camera(scene, (0.5, -3.0, 1.0), (1.2, 0.0, 0.3))  # lens 50 mm: not the capture's
+    n, mask, depth = _plane_field(K, H, W)
+    folder = write_pbr_maps(tmp_path / "c", n, mask=mask, depth=depth)
+    _write_camera(folder / "cap_camera.json", K, W, H)
+    _write_camera(folder / "other_camera.json", K * [[2], [2], [1]], W, H)  # another capture's: ignored
+    # the explicit {kind: file} of blender_addon/reconstruct.py: the camera file is found beside the normal map
+    files = {kind: folder / f"cap_{kind}.exr" for kind in ("normal", "mask", "depth")}
+    obj = pbr_import.import_pbr_maps(bpy.context, files, normal_space="OBJECT")
+    assert obj["pdir_camera"] == str(folder / "cap_camera.json")
+    want = camera_from_intrinsics(K, W, H)
+    data, render = cam.data, scene.render
+    assert (data.sensor_fit, data.sensor_width, data.lens_unit) == ("HORIZONTAL", 36.0, "MILLIMETERS")
+    assert data.lens == pytest.approx(want.lens, rel=1e-6) and want.lens == pytest.approx(36.0 * 60.0 / W)
+    assert (data.shift_x, data.shift_y) == pytest.approx((want.shift_x, want.shift_y), abs=1e-7)
+    assert (data.shift_x, data.shift_y) == pytest.approx(((W / 2 - 19.3) / W, (9.8 - H / 2) / W))
+    assert (render.pixel_aspect_x, render.pixel_aspect_y) == (1.0, 1.0)
+    assert (render.resolution_x, render.resolution_y, render.resolution_percentage) == (W, H, 100)
+    # every vertex projects onto its pixel centre: through K, and through Blender's own camera model
+    rows, cols = np.nonzero(mask)
+    centres = np.stack([cols + 0.5, rows + 0.5], -1)
+    v = _camera_frame_vertices(obj, cam)
+    np.testing.assert_allclose(_k_project(K, v), centres, atol=1e-4)  # float32 vertices
+    np.testing.assert_allclose(-v[:, 2], depth[mask], rtol=1e-6)
+    seen = [world_to_camera_view(scene, cam, obj.matrix_world @ x.co) for x in obj.data.vertices]
+    np.testing.assert_allclose([(q.x * W, (1 - q.y) * H) for q in seen], centres, atol=1e-3)
+    # and Cycles renders the mesh over the mask's pixel centres, nowhere else
+    render.film_transparent = True
+    scene.cycles.samples = 1
+    covered = _render_passes(scene, tmp_path / "c.exr")["ViewLayer.Combined.A"] > 0.5
+    assert covered[_interior(mask)].all() and not covered[~mask].any()
+
+
+def test_malformed_camera_file_is_refused(clean_file, tmp_path):
+    n, mask, _ = _plane_field(K, H, W)
+    folder = write_pbr_maps(tmp_path / "m", n, mask=mask)
+    path = folder / "cap_camera.json"
+    path.write_text(json.dumps({"intrinsics": [[60, 0, 16], [0, 60, 12]], "width": W, "height": H}))
+    with pytest.raises(RuntimeError, match=rf"{re.escape(str(path))}: intrinsics: must be a finite 3x3 matrix"):
+        bpy.ops.pdir.import_pbr(directory=str(folder))
+    _write_camera(path, K, W // 2, H // 2)
+    with pytest.raises(RuntimeError, match=r"cap_camera.json: width, height: 16 x 12, but the maps are 32 x 24"):
+        bpy.ops.pdir.import_pbr(directory=str(folder))
+    assert not clean_file.objects  # nothing imported, no camera made
+    assert bpy.ops.pdir.import_pbr(directory=str(folder), use_camera_file=False) == {"FINISHED"}
+    obj = next(o for o in clean_file.objects if o.type == "MESH")
+    assert obj["pdir_camera"] == "" and clean_file.camera.data.lens == 50.0
+    # fx != fy: square pixels with fx, and a warning
+    _write_camera(path, K * [[1.0], [1.1], [1.0]], W, H)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        obj = pbr_import.import_pbr_maps(bpy.context, folder)
+    assert obj["pdir_camera"] == str(path) and clean_file.camera.data.lens == pytest.approx(36 * 60 / W)
+    assert any("fx != fy" in str(w.message) and "1.1 of the capture's" in str(w.message) for w in caught)
+
+
+def test_sequence_plays_its_frames(clean_file, tmp_path):
+    scene = clean_file
+    cam = add_camera(scene, (0.2, 0.4, -0.1), (0.3, 0.2, -0.5))
+    n1, mask, depth = _plane_field(K, H, W)
+    n2 = np.where(mask[..., None], np.float32([-0.3, 0.2, 0.9]) / np.linalg.norm([-0.3, 0.2, 0.9]), 0.0)
+    folder = tmp_path / "seq"
+    frames = {1: (n1, 0.2, 0.3), 2: (n2.astype(np.float32), 0.6, 0.7)}  # normals, albedo, roughness
+    for i, (n, albedo, rough) in frames.items():
+        write_pbr_maps(folder, n, albedo=np.full((H, W, 3), albedo, np.float32), mask=mask, depth=depth,
+                       roughness=np.full((H, W), rough), prefix=f"face_{i:04d}")  # fmt: skip
+        _write_camera(folder / f"face_{i:04d}_camera.json", K, W, H)
+    doc = {"name": "face", "frames": [{"frame": i, "prefix": f"face_{i:04d}"} for i in frames], "frames_per_second": 1}
+    (folder / "face_sequence.json").write_text(json.dumps(doc))
+    assert bpy.ops.pdir.import_pbr(directory=str(folder)) == {"FINISHED"}
+    obj = next(o for o in scene.objects if o.type == "MESH")
+    assert (obj.name, obj["pdir_frames"], len(obj.data.vertices)) == ("face", 2, mask.sum())
+    assert obj["pdir_camera"] == str(folder / "face_0001_camera.json") and cam.data.shift_x != 0
+    assert (scene.frame_start, scene.frame_end, scene.frame_current) == (1, 2, 1)
+    nt = obj.active_material.node_tree
+    tex = {x.label: x for x in nt.nodes if x.bl_idname == "ShaderNodeTexImage"}
+    assert set(tex) == {"normal", "albedo", "roughness", "mask"}
+    for node in tex.values():
+        u = node.image_user
+        assert node.image.source == "SEQUENCE" and node.image.packed_file is None
+        assert (u.frame_duration, u.frame_start, u.frame_offset, u.use_auto_refresh) == (2, 1, 0, True)
+    assert tex["albedo"].image.colorspace_settings.name == "Linear Rec.709"
+    assert tex["normal"].image.colorspace_settings.name == "Non-Color"
+    aovs = {"alb": tex["albedo"].outputs["Color"], "rough": tex["roughness"].outputs["Color"]}
+    aovs["nmap"] = next(x for x in nt.nodes if x.bl_idname == "ShaderNodeNormalMap").outputs["Normal"]
+    for aov_name, socket in aovs.items():
+        aov = nt.nodes.new("ShaderNodeOutputAOV")
+        aov.aov_name = aov_name
+        nt.links.new(socket, aov.inputs["Color"])
+        scene.view_layers[0].aovs.add().name = aov_name
+    scene.cycles.samples = 1
+    inside = _interior(mask)
+    world_to_cam = np.array(cam.matrix_world.to_3x3())
+    for i, (n, albedo, rough) in frames.items():
+        scene.frame_set(i)
+        # the evaluated image user follows the frame: Blender numbers "face_0002_albedo.exr" by its 0002
+        user = (
+            obj.active_material.evaluated_get(bpy.context.evaluated_depsgraph_get())
+            .node_tree.nodes[tex["albedo"].name]
+            .image_user
+        )
+        assert user.frame_current == i
+        assert tex["albedo"].image.filepath_from_user(image_user=user).endswith(f"face_{i:04d}_albedo.exr")
+        ch = _render_passes(scene, tmp_path / f"frame{i}.exr")
+        np.testing.assert_allclose(np.stack([ch[f"ViewLayer.alb.{c}"] for c in "RGB"], -1)[inside], albedo, atol=1e-6)
+        np.testing.assert_allclose(ch["ViewLayer.rough.R"][inside], rough, atol=1e-6)
+        got = np.stack([ch[f"ViewLayer.nmap.{c}"] for c in "RGB"], -1) @ world_to_cam
+        assert _angles(got, n)[inside].max() < 0.05  # raw EXR normals encoded for the Normal Map node

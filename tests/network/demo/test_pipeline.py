@@ -16,7 +16,9 @@ def test_config_rejects_bad_sizes(changes):
 
 
 def test_relight_script_exists_beside_the_package():
-    assert (pipeline.ROOT / "headless" / "relight.py").is_file()
+    from network.demo.relight_compare import RELIGHT_SCRIPT
+
+    assert RELIGHT_SCRIPT.is_file()
 
 
 def test_demo_rows_are_summarised_per_scene_and_pixel_weighted():
