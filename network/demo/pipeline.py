@@ -41,12 +41,15 @@ from typing import Any
 
 import numpy as np
 
+from network.demo import figures as scene_figs
 from network.demo import report
 from network.demo.relight_compare import compare_relit, relight, truth_maps
-from network.metrics import normal_angle_deg
 from pbrdf.io.strict_json import dumps_strict
 
 __all__ = ["DemoConfig", "run_demo"]
+
+#: Generated pBRDF tables drawn in ``pbrdfs/figure_generated.png`` (the seed figure shows every seed).
+FIGURE_TABLES = 8
 
 
 @dataclass(frozen=True)
@@ -122,71 +125,6 @@ def _samples(root: Path) -> list[Path]:
     return sorted((root / "samples").glob("*.json"))
 
 
-def _rgb(img: np.ndarray, mask: np.ndarray, q: float = 99.0) -> np.ndarray:
-    """Exposure-normalised RGB preview of a radiometric map."""
-    vals = img[mask]
-    scale = float(np.percentile(vals, q)) if vals.size else 1.0
-    return np.clip(img / max(scale, 1e-8), 0, 1) * mask[..., None]
-
-
-def _angle_map(a: np.ndarray, b: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Angle in degrees between ``(H, W, 3)`` vector maps, NaN outside ``mask``."""
-    return np.where(mask, normal_angle_deg(a, b), np.nan)
-
-
-def _scene_figures(fig_dir: Path, name: str, maps, mask, gt, pred, base) -> list[tuple[str, str]]:
-    """Input and result figures of one scene; returns (path relative to the output, caption)."""
-    m = mask.astype(bool)
-    nan = lambda a: np.where(m, a, np.nan)  # noqa: E731
-    cp = np.clip(0.5 + 2.0 * maps[..., 6:9], 0, 1) * m[..., None]
-    inputs = report.image_grid(
-        fig_dir / f"{name}_inputs.png",
-        [[_rgb(maps[..., 0:3], m), _rgb(maps[..., 3:6], m), cp, m.astype(np.float32)]],
-        [["unpol (RGB)", "LP (RGB)", "CP (RGB, 0.5 + 2 CP)", "mask"]],
-        [None, None, None, (0.0, 1.0)],
-        [None, None, None, "gray"],
-    )
-    n_err, b_err = _angle_map(pred["normal"], gt["normal"], m), _angle_map(base["normal"], gt["normal"], m)
-    a_err = nan(np.abs(pred["albedo"] - gt["albedo"]).mean(-1))
-    ab_err = nan(np.abs(base["albedo"] - gt["albedo"]).mean(-1))
-    nrm = lambda n: (n * 0.5 + 0.5) * m[..., None]  # noqa: E731
-    r = lambda a: nan(a[..., 0] if a.ndim == 3 else a)  # noqa: E731
-    results = report.image_grid(
-        fig_dir / f"{name}_results.png",
-        [
-            [nrm(gt["normal"]), nrm(pred["normal"]), nrm(base["normal"]), n_err, b_err],
-            [gt["albedo"] * m[..., None], pred["albedo"], base["albedo"], a_err, ab_err],
-            [
-                r(gt["roughness"]),
-                r(pred["roughness"]),
-                r(gt["metallic"]),
-                r(pred["metallic"]),
-                nan(np.abs(pred["roughness"][..., 0] - gt["roughness"].reshape(m.shape))),
-            ],
-        ],  # fmt: skip
-        [
-            ["normal: truth", "normal: ours", "normal: baseline (PS)", "ours: error (deg)", "baseline: error (deg)"],
-            ["albedo: truth", "albedo: ours", "albedo: baseline (PS)", "ours: |error|", "baseline: |error|"],
-            ["roughness: truth", "roughness: ours", "metallic: truth", "metallic: ours", "roughness |error|"],
-        ],
-        [
-            [None, None, None, (0.0, 60.0), (0.0, 60.0)],
-            [None, None, None, (0.0, 0.5), (0.0, 0.5)],
-            [(0.0, 1.0), (0.0, 1.0), (0.0, 1.0), (0.0, 1.0), (0.0, 0.5)],
-        ],
-        [
-            [None, None, None, "magma", "magma"],
-            [None, None, None, "magma", "magma"],
-            ["viridis", "viridis", "cividis", "cividis", "magma"],
-        ],
-    )
-    return [
-        (inputs.relative_to(fig_dir.parent).as_posix(), f"{name}: the nine maps decoded from the raw capture"),
-        (results.relative_to(fig_dir.parent).as_posix(),
-         f"{name}: predictions next to ground truth and the photometric-stereo baseline, with error maps"),
-    ]  # fmt: skip
-
-
 def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
     """Run every stage and write the report.
 
@@ -231,7 +169,9 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
     step("pbrdf")
     with timer.stage("pbrdf expansion"):
         exp = run_expansion(
-            ExpansionConfig(out=out / "pbrdfs", count=cfg.tables, seed=cfg.seed, generator_steps=300, figures=2),
+            ExpansionConfig(
+                out=out / "pbrdfs", count=cfg.tables, seed=cfg.seed, generator_steps=300, figures=FIGURE_TABLES
+            ),  # fmt: skip
             progress=cfg.progress,
         )
     overall.update()
@@ -285,7 +225,7 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
             row = score_scene(scene, lpips=True)
             kind = next(iter(scene.meta["materials"].values()))["kind"]
             rows.append({"scene": names[s], "material": kind, **row})
-            figures += _scene_figures(
+            figures += scene_figs.scene_figures(
                 fig_dir, names[s], scene.maps, scene.region, scene.gt, scene.preds["ours"], scene.preds["baseline"]
             )
             bar.update()
@@ -310,17 +250,8 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
                 if frames:
                     scores = compare_relit(frames, truth)
                     relight_rows.append({"scene": name, "frames": scores, **_mean_scores(scores)})
-                    titles = [("sky" if p.name.startswith("env") else f"point light {p.stem[-4:]}") for p in frames]
-                    fig = report.image_grid(
-                        fig_dir / f"{name}_relit.png", [[_read_png(p) for p in truth], [_read_png(p) for p in frames]],
-                        [titles, [f"{t}: {_db(x['psnr'])}" for t, x in zip(titles, scores, strict=True)]],
-                        row_labels=["truth", "prediction"], cell=(2.2, 2.2),
-                    )  # fmt: skip
-                    relit.append((fig.relative_to(out).as_posix(),
-                                  f"{name}: the true maps (top) and the predicted maps (bottom) as Principled BSDF "
-                                  f"relief assets in Blender ({name}.blend), relit alike with Cycles under a rotating "
-                                  "point light and a procedural sky; PSNR of each prediction frame against the "
-                                  "truth frame"))  # fmt: skip
+                    fig, caption = scene_figs.relit_figure(fig_dir / f"{name}_relit.png", name, truth, frames, scores)
+                    relit.append((fig.relative_to(out).as_posix(), caption))
                 bar.update()
             bar.close()
     else:
@@ -358,6 +289,17 @@ def _write_assets(out: Path, name: str, scene) -> None:
     write_predictions(out / "truth" / name, name, truth, camera)
 
 
+def _expansion_figures(out: Path) -> list[tuple[str, str]]:
+    """The expansion's figures that exist under ``out/pbrdfs``, each with its caption."""
+    from pbrdf.expansion import figures as exp_figures  # noqa: PLC0415
+    from pbrdf.io.strict_json import loads_strict  # noqa: PLC0415
+
+    manifest = loads_strict((out / "pbrdfs" / "manifest.json").read_text())
+    counts = {"figure_seeds.png": len(manifest["seeds"]), "figure_generated.png": min(manifest["count"], FIGURE_TABLES)}
+    return [(f"pbrdfs/{name}", exp_figures.caption(name, n)) for name, n in counts.items()
+            if (out / "pbrdfs" / name).is_file()]  # fmt: skip
+
+
 def _mean_scores(scores: list[dict]) -> dict[str, float | None]:
     out = {}
     for key in ("psnr", "lpips"):
@@ -366,19 +308,8 @@ def _mean_scores(scores: list[dict]) -> dict[str, float | None]:
     return out
 
 
-def _db(x: float | None) -> str:
-    return "n/a" if x is None else f"{x:.1f} dB"
-
-
 def _deg(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.1f} deg"
-
-
-def _read_png(path: Path) -> np.ndarray:
-    """An 8-bit PNG as ``(H, W, 3)`` float32 RGB in [0, 1]."""
-    from PIL import Image  # noqa: PLC0415
-
-    return np.asarray(Image.open(path).convert("RGB"), dtype=np.float32) / 255.0
 
 
 def _stats_path(cfg: DemoConfig, ckpt_path: Path) -> Path:
@@ -439,7 +370,7 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
     md += "\n## Time per stage (s)\n\n" + report.markdown_table(["stage", "seconds"], list(timer.seconds.items()))
     atomic_write_text(out / "metrics.md", md)
     ours_mae, base_mae, const_mae = (means[m]["normal_mae"] for m in ("ours", "baseline", "constant"))
-    exp_figs = sorted((out / "pbrdfs").glob("*.png"))
+    exp_figs = _expansion_figures(out)
     sections = [
         {
             "title": "Summary",
@@ -459,12 +390,23 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
             "figures": [
                 (
                     chart.relative_to(out).as_posix(),
-                    "ours against the photometric-stereo baseline and the constant predictor",
+                    "Mean over the scenes of each metric (one panel each; its title says whether lower or higher "
+                    "is better) for our model, the classical photometric-stereo baseline (PS) and the constant "
+                    "predictor from the training-set statistics; the number above a bar is its value, n/a where "
+                    "a method does not predict that map. The table above gives the 95 % intervals.",
                 )
             ],
         },
         {"title": "Per scene", "html": report.html_table(per_scene_header, per_scene)},
-        {"title": "Inputs, predictions, ground truth and errors", "figures": figures},
+        {
+            "title": "Inputs, predictions, ground truth and errors",
+            "text": (
+                "Per scene, two figures: the decoded input maps, then the predictions beside the ground truth, the "
+                "photometric-stereo baseline and the error maps. Each caption says how its colours read; normals "
+                "use x right = red, y up = green, z toward the camera = blue, with a key in the figure."
+            ),
+            "figures": figures,
+        },
         {
             "title": "Relighting in Blender: prediction against truth",
             "figures": relit,
@@ -479,11 +421,23 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
         },
         {
             "title": "Expanded pBRDFs",
-            "figures": [(p.relative_to(out).as_posix(), p.stem.replace("_", " ")) for p in exp_figs],
-        },  # fmt: skip
+            "text": (
+                f"The analytic seed materials are factorised, compressed by PCA and modelled by a conditional "
+                f"generator; {cfg.tables} new tables were drawn from it, filtered for physical validity and labelled "
+                f"with their Disney fit ({cfg.measured_scenes} scene(s) above use them). The spheres show what each "
+                f"material does to light; the captions say how to read the three panels."
+            ),
+            "figures": exp_figs,
+        },
         {
             "title": "Time per stage",
-            "figures": [(timing.relative_to(out).as_posix(), "wall-clock seconds per stage")],
+            "figures": [
+                (
+                    timing.relative_to(out).as_posix(),
+                    "Wall-clock seconds of each demo stage on this machine, in pipeline order (the total in the "
+                    "title); the table below has the same numbers.",
+                )
+            ],
             "html": report.html_table(["stage", "seconds"], [[k, v] for k, v in timer.seconds.items()]),
         },
     ]

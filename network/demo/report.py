@@ -25,7 +25,15 @@ import numpy as np
 
 from pbrdf.io.atomic import atomic_write_text, temporary_path
 
-__all__ = ["image_grid", "timing_chart", "metric_chart", "markdown_table", "html_table", "write_report"]
+__all__ = [
+    "image_grid",
+    "timing_chart",
+    "metric_chart",
+    "markdown_table",
+    "html_table",
+    "placeholder_caption",
+    "write_report",
+]
 
 
 def _plt():
@@ -57,23 +65,28 @@ def image_grid(
     *,
     row_labels: Sequence[str] | None = None,
     cell: tuple[float, float] = (2.4, 2.2),
+    nan_colour: str | None = None,
 ) -> Path:
     """Save a grid of images.
 
     Args:
         path: output PNG.
         rows: ``rows[r][c]`` an ``(H, W, 3)`` RGB image in [0, 1] (clipped), an ``(H, W)`` scalar
-            image (drawn with a colour bar; NaN is transparent), or None for an empty cell.
+            image (drawn with a colour bar; NaN is transparent, or ``nan_colour``), or None for an
+            empty cell.
         titles: one title per cell.
         limits: ``(vmin, vmax)`` tuples per column, or a list per row of them; default the data range.
         cmaps: colour map names per column, or a list per row of them; default ``viridis``.
         row_labels: optional label drawn left of each row.
         cell: size of one cell in inches.
+        nan_colour: matplotlib colour of NaN pixels in scalar images (e.g. off the object), so
+            that they differ from a colour map's own white; None: transparent.
 
     Returns:
         The written path.
     """
     plt = _plt()
+    import matplotlib as mpl  # noqa: PLC0415
 
     def pick(table, r: int, c: int, default):
         if table is None:
@@ -101,7 +114,10 @@ def image_grid(
             else:
                 finite = img[np.isfinite(img)]
                 lo, hi = pick(limits, r, c, (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0))
-                im = ax.imshow(img, cmap=pick(cmaps, r, c, "viridis"), vmin=lo, vmax=hi, interpolation="nearest")
+                cmap = mpl.colormaps[pick(cmaps, r, c, "viridis")]
+                if nan_colour is not None:
+                    cmap = cmap.with_extremes(bad=nan_colour)
+                im = ax.imshow(img, cmap=cmap, vmin=lo, vmax=hi, interpolation="nearest")
                 fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
             ax.set_title(titles[r][c], fontsize=8)
         if row_labels:
@@ -216,6 +232,30 @@ figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}figcaption{f
 """
 
 
+#: Fewest words a figure caption may have: it says what the figure shows and how to read it.
+MIN_CAPTION_WORDS = 6
+
+
+def placeholder_caption(rel: str, caption: str) -> bool:
+    """Whether ``caption`` of the figure at ``rel`` is a placeholder rather than a reading guide.
+
+    A placeholder is shorter than :data:`MIN_CAPTION_WORDS` words, or is the file's name (with
+    ``_``/``-`` as spaces, optionally after "figure"), or says TODO/TBD/placeholder.
+
+    Example:
+        >>> placeholder_caption("pbrdfs/figure_generated.png", "figure generated")
+        True
+    """
+    words = caption.lower().split()
+    stem = Path(rel).stem.lower().replace("_", " ").replace("-", " ")
+    text = " ".join(words)
+    return (
+        len(words) < MIN_CAPTION_WORDS
+        or text in (stem, f"figure {stem}")
+        or any(w.strip(".:,;()") in ("todo", "tbd", "placeholder") for w in words)
+    )
+
+
 def write_report(path: str | os.PathLike, title: str, sections: Sequence[dict]) -> Path:
     """Write a self-contained static HTML page (figures referenced relative to the page).
 
@@ -231,6 +271,7 @@ def write_report(path: str | os.PathLike, title: str, sections: Sequence[dict]) 
     Raises:
         FileNotFoundError: when a referenced figure does not exist (a report never points at
             missing files).
+        ValueError: when a figure's caption is a placeholder (:func:`placeholder_caption`).
     """
     path = Path(path)
     parts = [
@@ -250,6 +291,8 @@ def write_report(path: str | os.PathLike, title: str, sections: Sequence[dict]) 
         for rel, caption in sec.get("figures", ()):
             if not (path.parent / rel).is_file():
                 raise FileNotFoundError(f"{path.parent / rel}: figure referenced by the report does not exist")
+            if placeholder_caption(rel, caption):
+                raise ValueError(f"{rel}: caption {caption!r} is a placeholder; say what it shows and how to read it")
             src = html.escape(Path(rel).as_posix(), quote=True)
             parts.append(
                 f'<figure><img src="{src}" alt="{html.escape(caption, quote=True)}" loading="lazy">'

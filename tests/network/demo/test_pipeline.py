@@ -36,7 +36,24 @@ def test_demo_rows_are_summarised_per_scene_and_pixel_weighted():
 
 
 def test_angle_map_degrees():
+    from network.demo.figures import angle_map
+
     a = np.array([[[1.0, 0, 0], [0, 1.0, 0]]])
     b = np.array([[[0, 1.0, 0], [0, 2.0, 0]]])
-    out = pipeline._angle_map(a, b, np.array([[True, True]]))
+    out = angle_map(a, b, np.array([[True, True]]))
     np.testing.assert_allclose(out, [[90.0, 0.0]], atol=1e-6)
+
+
+def test_expansion_figures_get_captions_not_file_names(tmp_path):
+    from network.demo.report import placeholder_caption
+
+    (tmp_path / "pbrdfs").mkdir()
+    (tmp_path / "pbrdfs" / "manifest.json").write_text('{"seeds": [{}, {}, {}], "count": 12}')
+    (tmp_path / "pbrdfs" / "figure_seeds.png").write_bytes(b"")
+    (tmp_path / "pbrdfs" / "figure_generated.png").write_bytes(b"")
+    figs = dict(pipeline._expansion_figures(tmp_path))
+    assert set(figs) == {"pbrdfs/figure_seeds.png", "pbrdfs/figure_generated.png"}
+    for rel, caption in figs.items():
+        assert not placeholder_caption(rel, caption), caption
+    assert figs["pbrdfs/figure_seeds.png"].startswith("All 3 seed materials")
+    assert figs["pbrdfs/figure_generated.png"].startswith(f"{pipeline.FIGURE_TABLES} of the pBRDF tables")

@@ -31,7 +31,8 @@ def test_image_grid_and_charts_write_pngs(tmp_path):
 def test_report_links_figures_relatively_and_refuses_missing_ones(tmp_path):
     report.timing_chart(tmp_path / "figures" / "t.png", {"a": 1.0})
     page = report.write_report(tmp_path / "report.html", "T <1>", [
-        {"title": "S", "text": "one\n\ntwo <3>", "html": "<p>raw</p>", "figures": [("figures/t.png", "cap")]},
+        {"title": "S", "text": "one\n\ntwo <3>", "html": "<p>raw</p>",
+         "figures": [("figures/t.png", "seconds per stage, longest bar is the slowest stage")]},
     ])  # fmt: skip
     text = page.read_text()
     assert '<img src="figures/t.png"' in text and "<p>two &lt;3&gt;</p>" in text and "<p>raw</p>" in text
@@ -39,3 +40,19 @@ def test_report_links_figures_relatively_and_refuses_missing_ones(tmp_path):
     with pytest.raises(FileNotFoundError, match="does not exist"):
         report.write_report(tmp_path / "bad.html", "T", [{"title": "S", "figures": [("figures/none.png", "c")]}])
     assert not (tmp_path / "bad.html").exists()
+
+
+@pytest.mark.parametrize("caption", ["figure t", "t", "", "TODO: say what this shows and how", "wall-clock seconds"])
+def test_report_refuses_placeholder_captions(tmp_path, caption):
+    report.timing_chart(tmp_path / "figures" / "t.png", {"a": 1.0})
+    with pytest.raises(ValueError, match="placeholder"):
+        report.write_report(tmp_path / "r.html", "T", [{"title": "S", "figures": [("figures/t.png", caption)]}])
+    assert not (tmp_path / "r.html").exists()
+
+
+def test_image_grid_draws_nan_in_the_given_colour(tmp_path):
+    scalar = np.full((20, 20), np.nan)
+    scalar[5:15, 5:15] = 0.0
+    path = report.image_grid(tmp_path / "g.png", [[scalar]], [["x"]], [(-1.0, 1.0)], ["RdBu_r"], nan_colour="0.5")
+    rgb = np.asarray(Image.open(path).convert("RGB"))
+    assert (np.abs(rgb.astype(int) - 128).max(-1) <= 1).sum() > 100  # the grey of the NaN pixels is drawn
