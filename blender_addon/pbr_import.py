@@ -31,7 +31,16 @@ IS the camera frame, and for the plane (facing the camera, UVs aligned with the 
 tangent frame is too (tangent = +x, bitangent = +y, normal = +z). The normal image stores
 ``0.5 + 0.5 n`` and the Normal Map node decodes it into exactly the input normal, in either
 space. A depth mesh is not flat, so its tangent frames are not the camera frame: it always uses
-OBJECT space.
+OBJECT space, and (imported from files, not a sequence) it carries the normals itself, as custom
+normals of its smooth-shaded vertices (one per pixel); its Normal Map node stays in the material,
+unlinked. Linked, Cycles would treat the normals as bump detail on the mesh's flat triangles and
+darken them by its bump-shadowing term wherever a triangle tilts away from the pixel's normal (dark
+blotches where the relief is not exactly the integral of the normals).
+
+Outline: the maps go on two pixels past the mask (:func:`blender_addon.core.map_io.extend_past_mask`)
+and a depth mesh one pixel past it, so bilinear texture lookups at the outline never blend in the
+values outside the mask and the mesh does not stop at the edge pixels' centres; the mask, as
+alpha, cuts the asset where the mask's pixels end.
 """
 
 from __future__ import annotations
@@ -209,6 +218,12 @@ def _mesh(name: str, vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray):
     return mesh
 
 
+def _vertex_normals(mesh, normals: np.ndarray) -> None:
+    """Smooth shading with ``normals (N, 3)`` (object frame) as the custom normals of the N vertices."""
+    mesh.shade_smooth()
+    mesh.normals_split_custom_set_from_vertices(np.asarray(normals, np.float64).tolist())
+
+
 def _plane(name: str, frustum: Frustum, distance: float):
     """A plane mesh centred at its origin covering the frustum at ``distance`` (UV (0, 0) at the lower left)."""
     hw, hh = frustum.half_width * distance, frustum.half_height * distance
@@ -255,12 +270,14 @@ def build_material(
     use_alpha: bool,
     frames: int = 0,
     normal_raw: bool = False,
+    normals_on_mesh: bool = False,
 ):
     """A Principled BSDF material reading ``images`` (kind -> Image) through the UV layer :data:`UV_NAME`.
 
     The normal image holds ``0.5 + 0.5 n`` (or ``n`` itself with ``normal_raw``: a Multiply Add
     node encodes it); it goes through a Normal Map node in ``normal_space``. ``frames`` > 0: the
-    images are sequences of that many frames, scene frame f showing frame f.
+    images are sequences of that many frames, scene frame f showing frame f. ``normals_on_mesh``:
+    the Normal Map node is not linked to the BSDF (the mesh's own normals are the map's).
     """
     mat = bpy.data.materials.new(name)
     nodes, links = mat.node_tree.nodes, mat.node_tree.links
@@ -291,7 +308,10 @@ def build_material(
             links.new(color, encode.inputs[0])
             color = encode.outputs["Vector"]
         links.new(color, nmap.inputs["Color"])
-        links.new(nmap.outputs["Normal"], bsdf.inputs["Normal"])
+        if normals_on_mesh:
+            nmap.label = "normal (on the mesh; unlinked)"
+        else:
+            links.new(nmap.outputs["Normal"], bsdf.inputs["Normal"])
     return mat
 
 
@@ -376,6 +396,7 @@ def import_pbr_maps(
     maps = map_io.load_maps(files, reader=read_channels)
     for line in maps.warnings:
         warnings.warn(line, PBRImportWarning, stacklevel=2)
+    maps = map_io.extend_past_mask(maps)  # the outline keeps its own values (module docstring)
     h, w = maps.shape
     camera_path = map_names.camera_file(files.files) if use_camera_file else None
     capture = None if camera_path is None else read_camera_json(camera_path)
@@ -404,10 +425,13 @@ def import_pbr_maps(
     name = name or (sequence.name if sequence else _asset_name(files.files))
 
     if maps.depth is not None:
-        vertices, faces, uvs = depth_mesh(maps.depth, maps.valid, frustum)
+        support = map_io.dilate(maps.valid)  # one pixel past the outline, cut by the mask as alpha
+        vertices, faces, uvs = depth_mesh(maps.depth, support, frustum)
         if len(faces) == 0:
             raise ValueError(f"{files.files['depth']}: the depth map gives no triangles inside the mask")
         mesh = _mesh(name, vertices, faces, uvs)
+        if not sequence:
+            _vertex_normals(mesh, maps.normal[support])
         local = Matrix.Identity(4)
         if normal_space != "OBJECT":
             warnings.warn(
@@ -438,7 +462,9 @@ def import_pbr_maps(
     else:
         images = _packed_images(name, maps)
         use_alpha = "mask" in images
-        material = build_material(name, images, normal_space=normal_space, use_alpha=use_alpha)
+        material = build_material(
+            name, images, normal_space=normal_space, use_alpha=use_alpha, normals_on_mesh=maps.depth is not None
+        )
     mesh.materials.append(material)
 
     present = maps.present()

@@ -3,7 +3,8 @@
 * :func:`add_point_light_orbit`: a point light keyframed on a circle around the target, one
   keyframe per frame (every integer frame lies exactly on the circle).
 * :func:`add_environment`: a world lit by Blender 5.0's procedural Sky Texture
-  (``MULTIPLE_SCATTERING`` by default) or an HDR/EXR environment file.
+  (``MULTIPLE_SCATTERING`` by default, without its sun disc unless asked) or an HDR/EXR
+  environment file.
 * :func:`render_relit`: Cycles on CPU or GPU (falls back to CPU with a warning when no GPU
   backend has a device), one file per frame, each written atomically.
 
@@ -132,6 +133,7 @@ def add_environment(
     strength: float = 1.0,
     sun_elevation: float = math.radians(15.0),
     sun_rotation: float = 0.0,
+    sun: bool = False,
 ):
     """Light the scene with a procedural sky (no ``hdr_path``) or an HDR/EXR environment map.
 
@@ -144,6 +146,10 @@ def add_environment(
         strength: Background strength (>= 0).
         sun_elevation: sky sun elevation in radians.
         sun_rotation: sky sun rotation about world z in radians.
+        sun: draw the sky's sun disc. Off by default: the physically scaled sun outshines its
+            sky about tenfold, so at any strength that exposes the sky, the sunlit side of an
+            asset clips to flat white behind a hard terminator while the rest, lit by the sky
+            alone, is starved of light samples (noisy); see docs/measurements/blender_addon.md.
 
     Returns:
         The world.
@@ -174,6 +180,7 @@ def add_environment(
         tex = nodes.new("ShaderNodeTexSky")
         kinds = {item.identifier for item in tex.bl_rna.properties["sky_type"].enum_items}
         tex.sky_type = "MULTIPLE_SCATTERING" if "MULTIPLE_SCATTERING" in kinds else "NISHITA"  # 5.0 / 4.2-4.5
+        tex.sun_disc = sun
         tex.sun_elevation = sun_elevation
         tex.sun_rotation = sun_rotation
     tex.location = (-300, 0)

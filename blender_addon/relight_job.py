@@ -4,7 +4,10 @@ The body of ``headless/relight.py`` (which runs it in its own process: bpy never
 torch or Mitsuba). :func:`relight_maps` empties the session, imports the maps as the
 camera-parented Principled BSDF asset (:func:`blender_addon.pbr_import.import_pbr_maps`),
 renders a point light orbiting it and one frame under a procedural sky or an HDR environment
-with Cycles (:mod:`blender_addon.relight`), and optionally saves the scene for artists. It
+with Cycles (:mod:`blender_addon.relight`), and optionally saves the scene for artists: Cycles
+with denoising, the world of the environment frame, the orbit light (at frame 1, keyframed over
+the orbit; added even when no frame is rendered), the capture camera with the camera-parented
+asset, and every image packed, so the ``.blend`` opens lit and self-contained anywhere. It
 takes plain arguments only, so it runs the same from the bpy wheel and inside Blender.
 """
 
@@ -16,13 +19,19 @@ import shutil
 from pathlib import Path
 
 import bpy
+from mathutils import Vector
 
 from pbrdf.io.atomic import temporary_path
 
 from . import pbr_import
 from . import relight as brelight
 
-__all__ = ["relight_maps", "point_light_power"]
+__all__ = ["relight_maps", "point_light_power", "ARTIST_SAMPLES"]
+
+#: The orbit's target: an empty at the asset's centre.
+ASSET_CENTRE_NAME = "PDIR Asset Centre"
+#: Cycles samples of the saved ``.blend`` (with denoising), unless the relit frames used more.
+ARTIST_SAMPLES = 128
 
 
 def point_light_power(radius: float, height: float, exposure: float = 1.0) -> float:
@@ -53,6 +62,7 @@ def relight_maps(
     exposure: float = 1.0,
     hdr: str | os.PathLike | None = None,
     env_strength: float = 0.3,
+    sun: bool = False,
     device: str = "CPU",
     save_blend: bool = False,
 ) -> list[Path]:
@@ -70,8 +80,10 @@ def relight_maps(
         exposure: point-light power scale.
         hdr: environment map (``.hdr``/``.exr``); None for a procedural sky.
         env_strength: environment strength.
+        sun: give the procedural sky its sun disc (see :func:`blender_addon.relight.add_environment`).
         device: Cycles device, ``"CPU"`` or ``"GPU"`` (falls back to the CPU).
-        save_blend: also save ``OUT/<name>.blend`` (asset, orbit animation, environment).
+        save_blend: also save ``OUT/<name>.blend`` (asset, camera, orbit light, environment, Cycles,
+            packed images; see the module docstring).
 
     Returns:
         The written files: ``point_NNNN.png`` per orbit frame, ``env_NNNN.png`` and the ``.blend``.
@@ -95,20 +107,56 @@ def relight_maps(
     scene.render.film_transparent = False
     out.mkdir(parents=True, exist_ok=True)
     written: list[Path] = []
+    # Orbit in front of the asset's centre (its +z faces the camera); kept in the .blend even without frames.
+    radius = height = 0.6 * distance
+    power = point_light_power(radius, height, exposure)
+    light = brelight.add_point_light_orbit(scene, _asset_centre(scene, obj), radius=radius, height=height,
+                                           frames=max(frames, 1), energy=power)  # fmt: skip
     if frames > 0:
-        # Orbit in front of the asset (its +z faces the camera).
-        radius = height = 0.6 * distance
-        light = brelight.add_point_light_orbit(scene, obj, radius=radius, height=height, frames=frames,
-                                               energy=point_light_power(radius, height, exposure))  # fmt: skip
         written += brelight.render_relit(scene, out, device=device, samples=samples, prefix="point_")
-        light.hide_render = True
-        brelight.add_environment(scene, hdr_path=hdr, strength=env_strength)
+    light.hide_render = True
+    brelight.add_environment(scene, hdr_path=hdr, strength=env_strength, sun=sun)
+    if frames > 0:
         written += brelight.render_relit(scene, out, device=device, samples=samples,
                                          frames=[scene.frame_start], prefix="env_")  # fmt: skip
-        light.hide_render = False
+    light.hide_render = False
     if save_blend:
+        _prepare_for_artists(scene, samples)
         written.append(_save_blend(out / f"{name or obj.name}.blend"))
     return written
+
+
+def _asset_centre(scene, obj):
+    """An empty at the centre of ``obj``'s bounding box, with ``obj``'s axes (a child of ``obj``).
+
+    The orbit circles its target's origin, and a relief mesh's origin is the camera (its object
+    frame is the camera frame): around the mesh itself the light would circle the camera, about
+    twice as far from the asset as :func:`point_light_power` assumes and closer to the view axis.
+    """
+    empty = bpy.data.objects.new(ASSET_CENTRE_NAME, None)
+    scene.collection.objects.link(empty)
+    empty.parent = obj
+    empty.location = sum((Vector(corner) for corner in obj.bound_box), Vector()) / 8.0
+    empty.empty_display_size = 0.05
+    bpy.context.view_layer.update()
+    return empty
+
+
+def _prepare_for_artists(scene, samples: int) -> None:
+    """Cycles (denoised, at least :data:`ARTIST_SAMPLES`), the first frame, every image packed.
+
+    Images that are files (an HDR environment; the import's maps are packed already) are packed
+    into the ``.blend``; image sequences cannot be packed and stay on disk.
+    """
+    scene.render.engine = "CYCLES"
+    scene.cycles.samples = max(samples, ARTIST_SAMPLES)
+    scene.cycles.use_adaptive_sampling = True
+    scene.cycles.use_denoising = True
+    scene.cycles.use_preview_denoising = True
+    scene.frame_set(scene.frame_start)
+    for image in bpy.data.images:
+        if image.type == "IMAGE" and image.source in {"FILE", "GENERATED"} and image.packed_file is None:
+            image.pack()
 
 
 def _save_blend(path: Path) -> Path:

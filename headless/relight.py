@@ -1,14 +1,15 @@
 """Import predicted PBR maps into Blender as a Principled BSDF asset and relight it with Cycles.
 
     python headless/relight.py --input DIR [--name NAME] --out DIR [--frames 8] [--size 160]
-        [--samples 16] [--hdr FILE] [--device CPU|GPU] [--save-blend] [--quiet]
+        [--samples 16] [--hdr FILE] [--sun] [--device CPU|GPU] [--save-blend] [--quiet]
 
 Reads DIR/<NAME>_normal/_albedo/_roughness/_metallic/_mask.exr (what headless/infer.py writes;
 any names the add-on's "Import PBR maps" recognises), builds the camera-parented asset, then
 renders OUT/point_NNNN.png: a point light orbiting the asset (--frames frames) and
-OUT/env_NNNN.png: a procedural sky or --hdr environment map. With --save-blend the scene (asset,
-orbit animation, environment) is saved as OUT/<NAME>.blend for artists
-(blender_addon.relight_job). Runs with the bpy wheel (`pip install bpy`) or inside Blender 4.2+:
+OUT/env_NNNN.png: a procedural sky (without its sun disc unless --sun) or --hdr environment map.
+With --save-blend the scene is saved as OUT/<NAME>.blend for artists (blender_addon.relight_job):
+Cycles with denoising, the world, the orbit light, the capture camera with the asset, packed
+images. Runs with the bpy wheel (`pip install bpy`) or inside Blender 4.2+:
 `blender -b --python-exit-code 1 -P headless/relight.py -- <args>` (an older Blender is refused
 with one line and status 2; inside the binary an uncaught error is one "error: ..." line with
 status 1). --maps still works for one release (use --input).
@@ -45,6 +46,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--exposure", type=float, default=1.0, help="point-light power scale (default 1)")
     parser.add_argument("--hdr", type=Path, default=None, help="environment map (.hdr/.exr); default procedural sky")
     parser.add_argument("--env-strength", type=float, default=0.3, help="environment strength (default 0.3)")
+    parser.add_argument("--sun", action="store_true",
+                        help="give the procedural sky its sun disc (~10x the sky: lower --env-strength)")  # fmt: skip
     parser.add_argument("--device", default="CPU", choices=["CPU", "GPU"], help="Cycles device (default CPU)")
     parser.add_argument("--save-blend", action="store_true", help="save OUT/<NAME>.blend")
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
@@ -75,7 +78,7 @@ def main(argv: list[str] | None = None) -> int:
         written = relight_maps(
             args.input, args.out, name=args.name, frames=args.frames, size=args.size, samples=args.samples,
             distance=args.distance, exposure=args.exposure, hdr=args.hdr, env_strength=args.env_strength,
-            device=args.device, save_blend=args.save_blend,
+            sun=args.sun, device=args.device, save_blend=args.save_blend,
         )  # fmt: skip
     except (ValueError, OSError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)

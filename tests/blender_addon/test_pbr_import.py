@@ -86,7 +86,7 @@ def test_import_operator_builds_camera_plane(clean_file, tmp_path):
     }
     px = np.empty(W * H * 4, np.float32)
     tex["albedo"].pixels.foreach_get(px)
-    np.testing.assert_array_equal(px.reshape(H, W, 4)[::-1, :, :3], alb)
+    np.testing.assert_array_equal(px.reshape(H, W, 4)[::-1][mask, :3], alb[mask])  # outside: extended (map_io)
     tex["normal"].pixels.foreach_get(px)
     np.testing.assert_allclose(px.reshape(H, W, 4)[::-1][mask, :3], 0.5 + 0.5 * n[mask], atol=1e-6)
     assert all(im.packed_file is not None for im in tex.values())
@@ -160,11 +160,12 @@ def test_depth_mesh_lies_on_the_surface_and_keeps_normals(clean_file, tmp_path):
         warnings.simplefilter("always")
         obj = pbr_import.import_pbr_maps(bpy.context, folder)  # TANGENT requested, OBJECT used
     assert any("OBJECT space" in str(w.message) for w in caught)
-    assert obj["pdir_normal_space"] == "OBJECT" and len(obj.data.vertices) == mask.sum()
-    # every vertex lies on the sphere (camera frame): | p - c | = r
+    support = map_io.dilate(mask)  # the mesh goes one pixel past the outline (map_io.extend_past_mask)
+    assert obj["pdir_normal_space"] == "OBJECT" and len(obj.data.vertices) == support.sum()
+    # every vertex of a mask pixel lies on the sphere (camera frame): | p - c | = r
     m = np.array(cam.matrix_world.inverted() @ obj.matrix_world)
     v = np.array([tuple(x.co) for x in obj.data.vertices]) @ m[:3, :3].T + m[:3, 3]
-    np.testing.assert_allclose(np.linalg.norm(v - centre, axis=1), radius, rtol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(v[mask[support]] - centre, axis=1), radius, rtol=1e-5)
     nt = obj.active_material.node_tree
     aov = nt.nodes.new("ShaderNodeOutputAOV")
     aov.aov_name = "nmap"
@@ -253,11 +254,12 @@ def test_camera_file_gives_the_capture_camera(clean_file, tmp_path):
     assert (render.pixel_aspect_x, render.pixel_aspect_y) == (1.0, 1.0)
     assert (render.resolution_x, render.resolution_y, render.resolution_percentage) == (W, H, 100)
     # every vertex projects onto its pixel centre: through K, and through Blender's own camera model
-    rows, cols = np.nonzero(mask)
+    support = map_io.dilate(mask)  # the mesh goes one pixel past the outline (map_io.extend_past_mask)
+    rows, cols = np.nonzero(support)
     centres = np.stack([cols + 0.5, rows + 0.5], -1)
     v = _camera_frame_vertices(obj, cam)
     np.testing.assert_allclose(_k_project(K, v), centres, atol=1e-4)  # float32 vertices
-    np.testing.assert_allclose(-v[:, 2], depth[mask], rtol=1e-6)
+    np.testing.assert_allclose(-v[mask[support], 2], depth[mask], rtol=1e-6)
     seen = [world_to_camera_view(scene, cam, obj.matrix_world @ x.co) for x in obj.data.vertices]
     np.testing.assert_allclose([(q.x * W, (1 - q.y) * H) for q in seen], centres, atol=1e-3)
     # and Cycles renders the mesh over the mask's pixel centres, nowhere else
@@ -305,7 +307,7 @@ def test_sequence_plays_its_frames(clean_file, tmp_path):
     (folder / "face_sequence.json").write_text(json.dumps(doc))
     assert bpy.ops.pdir.import_pbr(directory=str(folder)) == {"FINISHED"}
     obj = next(o for o in scene.objects if o.type == "MESH")
-    assert (obj.name, obj["pdir_frames"], len(obj.data.vertices)) == ("face", 2, mask.sum())
+    assert (obj.name, obj["pdir_frames"], len(obj.data.vertices)) == ("face", 2, map_io.dilate(mask).sum())
     assert obj["pdir_camera"] == str(folder / "face_0001_camera.json") and cam.data.shift_x != 0
     assert (scene.frame_start, scene.frame_end, scene.frame_current) == (1, 2, 1)
     nt = obj.active_material.node_tree

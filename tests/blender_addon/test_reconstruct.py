@@ -253,9 +253,10 @@ def test_operator_reconstructs_the_example_capture_as_a_relief(bpy, reconstruct,
         node = link.from_node
         return node.label if node.bl_idname == "ShaderNodeTexImage" else node.inputs["Color"].links[0].from_node.label
 
-    got = {s: source(s) for s in ("Base Color", "Roughness", "Metallic", "Alpha", "Normal")}
-    assert got == {"Base Color": "albedo", "Roughness": "roughness", "Metallic": "metallic", "Alpha": "mask",
-                   "Normal": "normal"}  # fmt: skip
+    got = {s: source(s) for s in ("Base Color", "Roughness", "Metallic", "Alpha")}
+    assert got == {"Base Color": "albedo", "Roughness": "roughness", "Metallic": "metallic", "Alpha": "mask"}
+    # the relief carries the normals itself (custom normals); its Normal Map node stays, unlinked (pbr_import)
+    assert obj.data.has_custom_normals and not bsdf.inputs["Normal"].links
     assert next(n for n in nodes if n.bl_idname == "ShaderNodeNormalMap").space == "OBJECT"
     assert reconstruct.running_job() is None
 

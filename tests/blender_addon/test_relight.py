@@ -12,6 +12,7 @@ bpy = pytest.importorskip("bpy")
 
 from blender_addon import pbr_import, relight  # noqa: E402
 from blender_addon.core.frustum import blender_frustum  # noqa: E402
+from blender_addon.core.map_io import dilate as map_io_dilate  # noqa: E402
 from pbrdf.io.exr import read_exr, write_exr  # noqa: E402
 from tests.helpers import add_camera, write_pbr_maps  # noqa: E402
 
@@ -165,3 +166,114 @@ def test_log_names_no_temporary_file(clean_file, tmp_path, capfd):
     assert ".tmp-" not in out + err
     assert [f.name for f in files] == ["point_0001.png", "point_0002.png"]
     assert sorted(p.name for p in (tmp_path / "frames").iterdir()) == ["point_0001.png", "point_0002.png"]
+
+
+# --------------------------------------------------------------------------- relief assets: outline, facets, sky
+
+SH, SW = 48, 64  # the relief sphere's maps (and renders: one render pixel per map pixel)
+
+
+def _relief_sphere(tmp_path, *, pits=0.0, albedo=0.5):
+    """A sphere cap (normals within 60 deg of the view axis) imported as a relief by the default camera.
+
+    Returns the object, the mask, the true normals and the camera-frame points of the pixels.
+    ``pits`` moves every 6th pixel of every 6th row that fraction of its depth back (0.004: a
+    third of a pixel's width): the triangles around it tilt by about 20 deg, too little to shadow
+    anything under a light 45 deg or more above the surface, while the normal map stays the sphere's.
+    """
+    fr = blender_frustum(SW, SH, lens=50.0, sensor_width=36.0, sensor_height=24.0)
+    d = np.concatenate([fr.pixel_xy(), -np.ones((SH, SW, 1))], -1)
+    c, radius = np.array([0.03, -0.02, -2.0]), 0.45
+    dc, dd = (d * c).sum(-1), (d * d).sum(-1)
+    disc = dc**2 - dd * (c @ c - radius**2)
+    t = (dc - np.sqrt(np.maximum(disc, 0))) / dd
+    p = t[..., None] * d
+    n = (p - c) / radius
+    mask = (disc > 0) & (n[..., 2] > 0.5)
+    yy, xx = np.mgrid[0:SH, 0:SW]
+    t = t * (1 + pits * ((yy % 6 == 3) & (xx % 6 == 3)))
+    p = t[..., None] * d
+    folder = write_pbr_maps(tmp_path / "sphere", np.where(mask[..., None], n, 0).astype(np.float32),
+                            albedo=np.full((SH, SW, 3), albedo, np.float32), mask=mask,
+                            depth=np.where(mask, t, 0).astype(np.float32))  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", pbr_import.PBRImportWarning)  # OBJECT space on a relief
+        obj = pbr_import.import_pbr_maps(bpy.context, folder)
+    _principled(obj).inputs["Specular IOR Level"].default_value = 0.0  # pure Lambert
+    return obj, mask, n, p
+
+
+def _point_light(scene, location, power):
+    light = bpy.data.objects.new("key", bpy.data.lights.new("key", "POINT"))
+    light.data.energy, light.data.shadow_soft_size = power, 0.0
+    light.location = location
+    scene.collection.objects.link(light)
+    return light
+
+
+def _lambert_ratio(scene, tmp_path, mask, n, p, albedo=0.5, power=300.0, lpos=(0.9, 0.7, -0.9)):
+    """Rendered / analytic Lambert radiance at every pixel centre, and ``n . l``."""
+    _point_light(scene, lpos, power)
+    (out,) = relight.render_relit(scene, tmp_path / "relit", samples=16, frames=[1], file_format="OPEN_EXR")
+    img = read_exr(out)
+    rgb = np.stack([img[c] for c in "RGB"], -1).mean(-1)
+    to_light = np.asarray(lpos) - p
+    r = np.linalg.norm(to_light, axis=-1)
+    cos = (n * to_light).sum(-1) / r
+    expected = albedo / np.pi * power / (4 * np.pi) * np.clip(cos, 0, None) / r**2
+    return rgb / np.maximum(expected, 1e-12), cos
+
+
+def _erode(mask, rings):
+    return ~map_io_dilate(~mask, rings)
+
+
+def test_relief_outline_relights_like_its_interior(clean_file, tmp_path):
+    """Pixels within 2 px of the mask edge match the analytic Lambert render as well as the interior.
+
+    The relief mesh used to end at the edge pixels' centres, so each edge pixel was half background.
+    """
+    scene = clean_file
+    _, mask, n, p = _relief_sphere(tmp_path)
+    ratio, cos = _lambert_ratio(scene, tmp_path, mask, n, p)
+    lit = mask & (cos > 0.2)
+    inner = _erode(mask, 2)
+    edge, interior = lit & ~inner, lit & inner
+    assert edge.sum() > 40 and interior.sum() > 400
+    for region in (interior, edge):
+        # measured (16 spp): median 1.0000 in both; edge pixels 0.994-1.029 (half of them about 0.5 when
+        # the mesh ended at the edge pixels' centres)
+        assert np.median(ratio[region]) == pytest.approx(1.0, abs=0.01)
+        assert np.abs(ratio[region] - 1).max() < 0.05
+
+
+def test_relief_shading_follows_the_normals_not_the_triangles(clean_file, tmp_path):
+    """A relief whose triangles tilt away from the normal map still shades like the normals (no dark blotches).
+
+    Through a Normal Map node Cycles takes the normals for bump detail on the flat triangles and
+    darkens them by its bump-shadowing term where a triangle turns away from the light.
+    """
+    scene = clean_file
+    _, mask, n, p = _relief_sphere(tmp_path, pits=0.004)
+    ratio, cos = _lambert_ratio(scene, tmp_path, mask, n, p)
+    region = _erode(mask, 2) & (cos > 0.4)
+    assert region.sum() > 300
+    # measured (16 spp): median 1.0000, 1st percentile 0.999 (0.95 through the Normal Map node), lowest 0.998
+    assert np.median(ratio[region]) == pytest.approx(1.0, abs=0.01)
+    assert np.percentile(ratio[region], 1) > 0.97 and ratio[region].min() > 0.95
+
+
+def test_sky_frame_has_no_sun_band(clean_file, tmp_path):
+    """The default sky lights a relief without a clipped, sunlit half behind a hard terminator."""
+    scene = clean_file
+    _, mask, _, _ = _relief_sphere(tmp_path)
+    world = relight.add_environment(scene, strength=0.3)
+    (out,) = relight.render_relit(scene, tmp_path / "sky", samples=16, frames=[1], file_format="OPEN_EXR")
+    y = np.stack([read_exr(out)[c] for c in "RGB"], -1).mean(-1)[_erode(mask, 1)]
+    # measured (16 spp): brightest 0.79, p95 / p5 1.7; with the sun disc 60 % of the pixels above 1 (clipped
+    # in a PNG), brightest 4.9, p95 / p5 10.5
+    assert y.max() < 1.0
+    assert np.percentile(y, 95) / np.percentile(y, 5) < 3.0
+    assert not next(x for x in world.node_tree.nodes if x.bl_idname == "ShaderNodeTexSky").sun_disc
+    world = relight.add_environment(scene, strength=0.3, sun=True)  # rebuilt: a new Sky Texture node
+    assert next(x for x in world.node_tree.nodes if x.bl_idname == "ShaderNodeTexSky").sun_disc

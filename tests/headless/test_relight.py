@@ -1,5 +1,7 @@
 """headless/relight.py: predicted maps -> Blender asset, relit frames and a .blend, in its own process."""
 
+import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -10,12 +12,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture
-def maps(tmp_path):
-    """Predicted maps of a 16 x 24 hemisphere-ish blob, as headless/infer.py writes them."""
-    from network.infer import write_predictions
-
-    h, w = 16, 24
+def _blob(h=16, w=24):
+    """``(maps, depth)``: predicted maps of an ``h x w`` hemisphere-ish blob (as infer.py predicts) and a relief."""
     yy, xx = np.mgrid[0:h, 0:w]
     u, v = (xx - w / 2 + 0.5) / (w / 2), (yy - h / 2 + 0.5) / (h / 2)
     mask = (u**2 + v**2 < 0.8).astype(np.float32)[..., None]
@@ -28,7 +26,15 @@ def maps(tmp_path):
         "metallic": np.zeros((h, w, 1), np.float32),
         "mask": mask,
     }
-    write_predictions(tmp_path / "pred", "blob", pred)
+    return pred, (np.where(mask[..., 0] > 0, 1.0 - 0.1 * z, 0.0)[..., None]).astype(np.float32)
+
+
+@pytest.fixture
+def maps(tmp_path):
+    """Predicted maps of a 16 x 24 hemisphere-ish blob, as headless/infer.py writes them (no depth: a card)."""
+    from network.infer import write_predictions
+
+    write_predictions(tmp_path / "pred", "blob", _blob()[0])
     return tmp_path / "pred"
 
 
@@ -49,6 +55,65 @@ def test_relight_writes_frames_and_blend(maps, tmp_path):
     assert not list(out.glob("*.tmp*")) and not list(out.glob(".*"))
     assert ".tmp" not in proc.stdout + proc.stderr  # the log names the final files only
     assert "deprecated" not in proc.stderr
+
+
+#: Opens a saved .blend in a fresh process and prints what an artist gets, as JSON.
+CHECK_BLEND = """
+import json, sys
+import bpy, mathutils
+bpy.ops.wm.open_mainfile(filepath=sys.argv[1])
+scene = bpy.context.scene
+images = [i for i in bpy.data.images if i.type == "IMAGE"]
+loaded = []
+for image in images:
+    image.reload()
+    loaded.append(len(image.pixels[:]) == image.size[0] * image.size[1] * image.channels > 0 and image.has_data)
+print(json.dumps({
+    "engine": scene.render.engine, "denoise": scene.cycles.use_denoising, "samples": scene.cycles.samples,
+    "world": scene.world is not None and len(scene.world.node_tree.nodes) > 0,
+    "lights": [o.name for o in scene.objects if o.type == "LIGHT" and not o.hide_render],
+    "asset_on_camera": any(o.parent == scene.camera for o in scene.objects if o.type == "MESH"),
+    "light_to_asset": [(o.matrix_world.translation - sum((m.matrix_world @ mathutils.Vector(c) for c in m.bound_box),
+                        mathutils.Vector()) / 8).length for o in scene.objects if o.type == "LIGHT"
+                       for m in scene.objects if m.type == "MESH"],
+    "images": sorted(i.name for i in images), "packed": [i.packed_file is not None for i in images], "loaded": loaded,
+}))
+"""
+
+
+@pytest.mark.bpy
+def test_saved_blend_is_lit_and_self_contained(tmp_path):
+    """Even without relit frames: Cycles with denoising, the world, a light, the camera with the asset, packed images.
+
+    The .blend of a relief asset is opened in a fresh process after the maps and the HDR have
+    been moved away; the light circles the asset (not the relief's origin, the camera).
+    """
+    pytest.importorskip("bpy")
+    from network.infer import write_predictions
+    from pbrdf.io.exr import write_exr
+
+    pred, depth = _blob()
+    maps = tmp_path / "pred"
+    write_predictions(maps, "blob", {**pred, "depth": depth})
+
+    hdr = tmp_path / "sky.exr"
+    write_exr(hdr, {c: np.full((4, 8), 0.5, np.float32) for c in "RGB"})
+    out = tmp_path / "relit"
+    proc = _run("--input", maps, "--name", "blob", "--out", out, "--frames", "0", "--hdr", hdr, "--save-blend",
+                "--quiet")  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    shutil.move(maps, tmp_path / "moved")
+    hdr.rename(tmp_path / "moved.exr")
+    check = subprocess.run([sys.executable, "-c", CHECK_BLEND, str(out / "blob.blend")], capture_output=True,
+                           text=True, timeout=600)  # fmt: skip
+    assert check.returncode == 0, check.stderr[-2000:]
+    got = json.loads(check.stdout.strip().splitlines()[-1])
+    assert (got["engine"], got["denoise"], got["world"], got["asset_on_camera"]) == ("CYCLES", True, True, True)
+    assert got["samples"] >= 128 and got["lights"] == ["PDIR Orbit Light"]
+    assert got["images"] == ["blob_albedo", "blob_mask", "blob_metallic", "blob_normal", "blob_roughness", "sky.exr"]
+    assert all(got["packed"]) and all(got["loaded"])
+    # frame 1 of the orbit: radius = height = 0.6 m around the asset's centre
+    assert got["light_to_asset"] == [pytest.approx(0.6 * 2**0.5, rel=1e-4)]
 
 
 @pytest.mark.bpy

@@ -114,3 +114,25 @@ class TestLoad:
         write_exr(tmp_path / "a_rough.exr", {"a.Y": np.zeros((2, 2)), "b.Y": np.zeros((2, 2))})
         with pytest.raises(ValueError, match="cannot tell which channel holds the roughness map"):
             map_io.load_maps({"roughness": tmp_path / "a_rough.exr"})
+
+
+def test_extend_past_mask_keeps_the_inside_and_continues_the_surface():
+    """Two rings past the mask: inside unchanged, unit normals, neighbours' albedo, a plane's depth continued."""
+    h, w = 12, 16
+    yy, xx = np.mgrid[0:h, 0:w]
+    mask = ((yy - 5.5) ** 2 + (xx - 7.5) ** 2 < 16).astype(np.float32)
+    inside = mask > 0.5
+    n = np.where(inside[..., None], np.float32([0.3, -0.2, 0.9327379]), 0.0).astype(np.float32)
+    depth = np.where(inside, 2.0 + 0.01 * xx - 0.02 * yy, np.inf).astype(np.float32)  # a tilted plane
+    albedo = np.where(inside[..., None], 0.4, 0.0).astype(np.float32) * np.ones(3, np.float32)
+    maps = map_io.PBRMaps(normal=n, albedo=albedo, mask=mask, depth=depth, mask_source="file")
+    out = map_io.extend_past_mask(maps, 2)
+    ring = map_io.dilate(inside, 2) & ~inside
+    beyond = ~map_io.dilate(inside, 2)
+    assert ring.sum() > 20 and not (out.albedo[..., 0] > 0)[beyond].any()
+    np.testing.assert_array_equal(out.mask, mask)
+    np.testing.assert_array_equal(out.normal[inside], n[inside])
+    np.testing.assert_allclose(np.linalg.norm(out.normal[ring], axis=-1), 1.0, rtol=1e-6)
+    np.testing.assert_allclose(out.albedo[ring], 0.4, rtol=1e-6)
+    np.testing.assert_allclose(out.depth[ring], (2.0 + 0.01 * xx - 0.02 * yy)[ring], rtol=1e-6)  # a plane stays one
+    assert maps.depth is depth and np.isinf(maps.depth[~inside]).all()  # the input is not changed
