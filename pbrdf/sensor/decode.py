@@ -17,6 +17,10 @@ ones (:mod:`pbrdf.data.capture`). Steps, all linear and in float32:
    incoming ``s2`` is not measured.
 4. :func:`nine_maps`: ``LP = -s1``, ``unpol = s0 - LP = s0 + s1``, ``CP = s3 / (s0 + eps)``.
 
+:func:`decode` runs steps 2 and 3 as one linear map per colour (small matrix products, one
+horizontal strip of the image at a time, so that the intermediates stay in the cache) and step 4
+on each strip as it is done; the separate functions give the same numbers up to float32 rounding.
+
 Convention (decomposition): the display emits vertically polarized light, ``s1 = -s0``, so the
 polarized (specular) part is ``LP = -s1 >= 0`` and the unpolarized part is ``unpol = s0 + s1``.
 The paper prints ``unpol = s0 - s1``, which would give ``2 s0`` for pure display light; we use the
@@ -29,7 +33,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy import ndimage
 
 from pbrdf.sensor.camera import CameraModel, SensorParams, measurement_matrix, mosaic, mosaic_indices
 
@@ -78,6 +81,95 @@ def _check_raws(raws: NDArray, n_exposures: int) -> None:
         raise ValueError(f"raw size must be a multiple of 4 and at least 8x8; got {h}x{w}")
 
 
+def _checked_bracket(raws: ArrayLike, exposures: ArrayLike) -> tuple[NDArray, NDArray[np.float64]]:
+    r = np.asarray(raws)
+    t = np.asarray(exposures, dtype=np.float64).reshape(-1)
+    _check_raws(r, t.size)
+    if np.any(t <= 0) or not np.all(np.isfinite(t)):
+        raise ValueError(f"exposure times must be positive and finite; got {t}")
+    if r.dtype.kind == "f" and not np.all(np.isfinite(r)):
+        raise ValueError("raw frames contain NaN or Inf")
+    return r, t
+
+
+def _merge_into(r: NDArray, t: NDArray, sensor: SensorParams, out: NDArray) -> NDArray[np.bool_]:
+    """The HDR merge of raws ``(E, H, W)`` whose 2x2 blocks start at even rows and columns into ``out`` ``(H, W)``.
+
+    Works on pairs of rows with the block quantities repeated along the columns, so that every
+    pass over the raws is contiguous; the arithmetic (and so the rounding) is that of the formula
+    in :func:`hdr_merge`, summed over the exposures in order. Returns the ``(H/2, W/2)`` blocks
+    with some unsaturated exposure.
+    """
+    e, h, w = r.shape
+    rows = r.reshape(e, h // 2, 2, w)
+    pair_max = np.maximum(rows[:, :, 0], rows[:, :, 1])  # (E, H/2, W)
+    # v[j]: all four analyzer pixels of the block below the saturation threshold in exposure j.
+    v = np.maximum(pair_max[..., 0::2], pair_max[..., 1::2]) < sensor.saturation * sensor.white_level
+    den = np.zeros(v.shape[1:], dtype=np.float32)
+    for j in range(e):
+        den += np.float32(t[j]) * v[j]
+    count = v.sum(axis=0, dtype=np.float32)
+    valid_b = den > 0
+    if not valid_b.all():  # blocks saturated in every exposure fall back to the shortest one (flagged)
+        shortest = int(np.argmin(t))
+        v[shortest] |= ~valid_b
+        den[~valid_b] = np.float32(t[shortest])
+        count[~valid_b] = 1.0
+    rate = np.float32(1.0 / sensor.dn_per_unit_second) / den
+    offset = np.float32(sensor.black_level) * count
+    # Per-block quantities repeated to the pixel columns; the masked sum as a product with 0/1
+    # (exact, and without the branches of a masked add, slow on ragged saturation borders).
+    rate, offset = np.repeat(rate, 2, axis=1), np.repeat(offset, 2, axis=1)
+    keep = (v.view(np.uint8).astype(np.uint16) * np.uint16(257)).view(np.bool_)  # (E, H/2, W)
+    term = np.empty((h // 2, w), dtype=r.dtype)
+    every, some = [bool(x.all()) for x in v], [bool(x.any()) for x in v]
+    for di in (0, 1):
+        num = out[di::2]
+        num[...] = 0.0
+        for j in range(e):
+            if every[j]:
+                np.add(num, r[j, di::2], out=num)
+            elif some[j]:
+                np.multiply(r[j, di::2], keep[j], out=term)
+                np.add(num, term, out=num)
+        num -= offset
+        num *= rate
+    return valid_b
+
+
+def _merge_padded(r: NDArray, t: NDArray, sensor: SensorParams, pattern_offset: tuple[int, int], pad: int):
+    """HDR merge into a buffer with ``pad`` edge-replicated rows and columns on each side.
+
+    Returns ``(padded, valid_blocks)``: the ``(H + 2 pad, W + 2 pad)`` float32 mosaic and the
+    validity of the 2x2 blocks of the pattern, ``(H/2 + pr, W/2 + pc)`` with ``pr, pc`` the
+    parities of ``pattern_offset`` (an odd offset adds a block row or column in front).
+    """
+    e, h, w = r.shape
+    padded = np.empty((h + 2 * pad, w + 2 * pad), dtype=np.float32)
+    inner = padded[pad : pad + h, pad : pad + w]
+    pr, pc = pattern_offset[0] % 2, pattern_offset[1] % 2
+    if pr or pc:  # align the 2x2 blocks: one edge row/column in front (and behind)
+        aligned = np.empty((h + 2 * pr, w + 2 * pc), dtype=np.float32)
+        valid_b = _merge_into(np.pad(r, ((0, 0), (pr, pr), (pc, pc)), mode="edge"), t, sensor, aligned)
+        inner[...] = aligned[pr : pr + h, pc : pc + w]
+    else:
+        valid_b = _merge_into(r, t, sensor, inner)
+    _fill_pad(padded, pad)
+    return padded, valid_b
+
+
+def _fill_pad(padded: NDArray, pad: int) -> None:
+    """Copy the first and last ``pad`` rows and columns of the interior into the border (in place).
+
+    With ``pad = 4`` every lattice of the 4x4 pattern gets one copy of its edge sample outside.
+    """
+    if pad:
+        padded[:pad] = padded[pad : 2 * pad]
+        padded[-pad:] = padded[-2 * pad : -pad]
+        padded[:, :pad] = padded[:, pad : 2 * pad]
+        padded[:, -pad:] = padded[:, -2 * pad : -pad]
+
+
 def hdr_merge(
     raws: ArrayLike,
     exposures: ArrayLike,
@@ -86,6 +178,10 @@ def hdr_merge(
     pattern_offset: tuple[int, int] = (0, 0),
 ) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
     """Merge an exposure bracket of raw mosaics into one linear mosaic.
+
+    Per pixel ``E = (sum_j v_j z_j - b sum_j v_j) / (g sum_j v_j t_j)`` (float32), where ``v_j``
+    says that all four pixels of the pixel's 2x2 block are below the saturation threshold in
+    exposure ``j``.
 
     Args:
         raws: ``(E, H, W)`` raw frames (uint16 or float DN, black level included).
@@ -99,130 +195,132 @@ def hdr_merge(
         (``(H, W)`` float32), and ``(H, W)`` bool, False where every exposure saturated (the
         shortest exposure is used there, clipped).
     """
-    r = np.asarray(raws)
-    t = np.asarray(exposures, dtype=np.float64).reshape(-1)
-    _check_raws(r, t.size)
-    if np.any(t <= 0) or not np.all(np.isfinite(t)):
-        raise ValueError(f"exposure times must be positive and finite; got {t}")
-    if r.dtype.kind == "f" and not np.all(np.isfinite(r)):
-        raise ValueError("raw frames contain NaN or Inf")
-    e, h, w = r.shape
-    # Align 2x2 blocks: pad one row/column in front when the offset is odd.
+    r, t = _checked_bracket(raws, exposures)
+    h, w = r.shape[1:]
+    merged, valid_b = _merge_padded(r, t, sensor, pattern_offset, 0)
     pr, pc = pattern_offset[0] % 2, pattern_offset[1] % 2
-    if pr or pc:
-        r = np.pad(r, ((0, 0), (pr, pr), (pc, pc)), mode="edge")
-    # The four pixels of each 2x2 block as strided views (E, H/2, W/2): faster than a reshape
-    # reduction over non-adjacent axes.
-    phases = [r[:, di::2, dj::2] for di in (0, 1) for dj in (0, 1)]
-    block_max = np.maximum(np.maximum(phases[0], phases[1]), np.maximum(phases[2], phases[3]))
-    # v[j]: all four analyzer pixels of the block below the saturation threshold in exposure j.
-    v = block_max < sensor.saturation * sensor.white_level
-    den = np.zeros(v.shape[1:], dtype=np.float32)
-    for j in range(e):
-        den += np.float32(t[j]) * v[j]
-    count = v.sum(axis=0, dtype=np.float32)
-    valid_b = den > 0
-    shortest = int(np.argmin(t))
-    scale = np.float32(1.0 / sensor.dn_per_unit_second)
-    # Pixels saturated in every exposure fall back to the shortest one (and are flagged).
-    rate = np.where(valid_b, scale / np.where(valid_b, den, 1.0), scale / np.float32(t[shortest]))
-    offset = np.float32(sensor.black_level) * np.where(valid_b, count, 1.0)
-    merged = np.empty(r.shape[1:], dtype=np.float32)
-    for k, (di, dj) in enumerate(((0, 0), (0, 1), (1, 0), (1, 1))):
-        num = np.where(valid_b, np.float32(0.0), phases[k][shortest].astype(np.float32))
-        for j in range(e):
-            np.add(num, phases[k][j], out=num, where=v[j])
-        num -= offset
-        num *= rate
-        merged[di::2, dj::2] = num
-    valid = np.repeat(np.repeat(valid_b, 2, axis=0), 2, axis=1)
-    if pr or pc:
-        merged = merged[pr : pr + h, pc : pc + w]
-        valid = valid[pr : pr + h, pc : pc + w]
-    return np.ascontiguousarray(merged), np.ascontiguousarray(valid)
+    valid = np.repeat(np.repeat(valid_b, 2, axis=0), 2, axis=1)[pr : pr + h, pc : pc + w]
+    return merged, np.ascontiguousarray(valid)
 
 
-def _grid_positions(n: int, grid: str) -> NDArray[np.float64]:
+# ---- demosaic, Stokes and maps: separable interpolation as small matrix products ----------------
+#
+# Every (colour, angle) lattice has period 4 and is interpolated linearly, with its edge samples
+# repeated outside, to the output grid. Both grids repeat every 4 raw pixels (P = 4 outputs for
+# "full", 2 for "half"), so output p of period n reads the lattice samples n - 1, n, n + 1 (one
+# edge sample padded on each side) with fixed weights: a (P, 3) matrix per lattice offset.
+# Columns first, on the quarter-height lattices, as one (Q, 3) @ (3, P) product per lattice row;
+# then rows and the per-colour linear map (decoding matrix, or the identity for demosaic) as one
+# (P, 3 L) @ (3 L, W') product per output period and component over the colour's L lattices.
+# The image is processed in horizontal strips, so the intermediates stay in the cache.
+
+_PAD = 4  # raw pixels of edge padding: one lattice sample on each side
+
+
+def _grid_period(grid: str) -> tuple[float, ...]:
+    """Positions of the outputs inside a 4-pixel period, in raw pixels."""
     if grid == "full":
-        return np.arange(n, dtype=np.float64)
+        return (0.0, 1.0, 2.0, 3.0)
     if grid == "half":
-        return 2.0 * np.arange(n // 2) + 0.5
+        return (0.5, 2.5)  # the centres of the 2x2 blocks
     raise ValueError(f"grid must be 'full' or 'half'; got {grid!r}")
 
 
-def _phases(n_src: int, offset: int, targets: NDArray) -> list[tuple[slice, int, float]]:
-    """Linear interpolation from samples at ``offset + 4 m`` (``m < n_src``) to ``targets``.
+def _tap_weights(positions: tuple[float, ...], offset: int) -> NDArray[np.float64]:
+    """``(P, 3)``: weights of lattice samples ``n - 1, n, n + 1`` for the outputs of period ``n``."""
+    weights = np.zeros((len(positions), 3))
+    for p, d in enumerate(positions):
+        u = (d - offset) / 4.0
+        m = int(np.floor(u))  # -1 or 0
+        weights[p, m + 1] += 1.0 - (u - m)
+        weights[p, m + 2] += u - m
+    return weights
 
-    Both output grids advance by 4 raw pixels every ``period`` outputs (4 for "full", 2 for
-    "half"), so the weights repeat: output ``p::period`` reads padded samples ``m_p + 1 + n`` and
-    ``m_p + 2 + n`` with one weight ``w_p``. Samples are edge-padded by one on each side, which
-    clamps to the nearest sample outside the sampled range.
 
-    Returns:
-        ``[(output slice, first padded index, weight of the second sample), ...]`` per phase.
+class _Interpolator:
+    """The 16 lattices interpolated to a grid and mapped linearly per colour, as matrix products.
+
+    Output ``[c, k]`` is ``sum_a coef[c, k, a] * interp(angle a of colour c)`` (green: the mean
+    of its two lattices per angle); ``coef`` is ``(3, K, 4)``.
     """
-    period = 4 if np.all(np.diff(targets[:5]) == 1) else 2
-    out = []
-    for p in range(min(period, targets.size)):
-        u = (targets[p] - offset) / 4.0
-        m = int(np.floor(u))
-        count = len(range(p, targets.size, period))
-        start = min(max(m + 1, 0), n_src + 1)
-        w = float(np.clip(u - m, 0.0, 1.0)) if 0 <= m + 1 <= n_src else 0.0
-        if start + count + 1 > n_src + 2:  # beyond the last sample: clamp
-            raise AssertionError("interpolation phase out of range")  # pragma: no cover
-        out.append((slice(p, None, period), start, w))
-    return out
+
+    def __init__(self, shape: tuple[int, int], grid: str, pattern_offset: tuple[int, int], coef: NDArray) -> None:
+        positions = _grid_period(grid)
+        self.h, self.w = shape
+        self.period = len(positions)
+        self.q = self.w // 4
+        self.out_h, self.out_w = self.period * (self.h // 4), self.period * self.q
+        # Strips of about 128k output pixels: the intermediates stay in the cache, and the
+        # per-strip overhead is small (docs/measurements/headless.md, decode speed).
+        self.strip_periods = max(1, min(self.h // 4, (1 << 17) // (self.out_w * self.period)))
+        self.strip_rows = self.period * self.strip_periods
+        color, angle = mosaic_indices(pattern_offset)
+        self.col_weights = [_tap_weights(positions, j).T.astype(np.float32) for j in range(4)]  # (3, P)
+        row_weights = [_tap_weights(positions, i) for i in range(4)]
+        self.slots: list[tuple[int, int]] = []  # (colour, slot in the colour's lattices) of lattice (i, j)
+        members: list[list[tuple[int, int]]] = [[], [], []]
+        for i in range(4):
+            for j in range(4):
+                c = int(color[i, j])
+                self.slots.append((c, len(members[c])))
+                members[c].append((i, j))
+        n_out = coef.shape[1]
+        self.rows: list[NDArray[np.float32]] = []  # per colour: (K, P, 3 L)
+        for c, lattices in enumerate(members):
+            n_lat = len(lattices)
+            a = np.zeros((n_out, self.period, 3, n_lat))
+            for s, (i, j) in enumerate(lattices):
+                share = 4.0 / n_lat  # green: two lattices per angle, averaged
+                a[:, :, :, s] = share * coef[c, :, angle[i, j], None, None] * row_weights[i][None]
+            self.rows.append(a.reshape(n_out, self.period, 3 * n_lat).astype(np.float32))
+        self.n_lat = [len(m) for m in members]
+
+    def strips(self, padded: NDArray[np.float32], out: NDArray[np.float32]):
+        """Fill ``out`` ``(3, K, H', W')`` (C-contiguous) from the mosaic padded by :data:`_PAD`.
+
+        Yields ``(y0, y1)`` after writing output rows ``y0:y1``, strip by strip.
+        """
+        periods, strip_periods = self.h // 4, self.strip_periods
+        nr_max = strip_periods + 2
+        cols = np.empty((nr_max, self.q, 4, 3), dtype=np.float32)
+        lat = [np.empty((nr_max, n, self.out_w), dtype=np.float32) for n in self.n_lat]
+        for n0 in range(0, periods, strip_periods):
+            n1 = min(n0 + strip_periods, periods)
+            nr = n1 - n0 + 2
+            for i in range(4):
+                # cols[r, q, j, t] = padded[4 (n0 + r) + i, 4 (q + t) + j]: the three samples around
+                # period q of lattice (i, j), for padded lattice rows n0 ... n1 + 1 (one copy per t:
+                # contiguous runs).
+                rows = padded[4 * n0 + i :: 4][:nr]
+                for t in range(3):
+                    np.copyto(cols[:nr, :, :, t], rows[:, 4 * t : 4 * t + self.w].reshape(nr, self.q, 4))
+                for j in range(4):
+                    c, s = self.slots[4 * i + j]
+                    dst = lat[c][:nr, s].reshape(nr, self.q, self.period)
+                    np.matmul(cols[:nr, :, j], self.col_weights[j], out=dst)
+            y0, y1 = self.period * n0, self.period * n1
+            for c in range(3):
+                n_lat, buf = self.n_lat[c], lat[c]
+                windows = np.lib.stride_tricks.as_strided(
+                    buf,
+                    shape=(n1 - n0, 3 * n_lat, self.out_w),
+                    strides=(buf.strides[0], buf.strides[1], 4),
+                    writeable=False,
+                )
+                for k in range(out.shape[1]):
+                    np.matmul(self.rows[c][k], windows, out=out[c, k, y0:y1].reshape(n1 - n0, self.period, self.out_w))
+            yield y0, y1
 
 
-def _resample_axis0(src: NDArray, phases: list, dst: NDArray, scale: float, accumulate: bool, scratch: NDArray) -> None:
-    """``dst (+)= scale * interp(src)`` along axis 0 without temporaries (``scratch`` >= one phase)."""
-    padded = np.concatenate([src[:1], src, src[-1:]], axis=0)
-    for sl, start, w in phases:
-        view = dst[sl]
-        count = view.shape[0]
-        tmp = scratch[:count]
-        lo = padded[start : start + count]
-        hi = padded[start + 1 : start + 1 + count]
-        a, b = np.float32(scale * (1.0 - w)), np.float32(scale * w)
-        if accumulate:
-            np.multiply(lo, a, out=tmp)
-            view += tmp
-        else:
-            np.multiply(lo, a, out=view)
-        if w != 0.0:
-            np.multiply(hi, b, out=tmp)
-            view += tmp
-
-
-def _column_weights(n_src: int, offset: int, targets: NDArray) -> tuple[NDArray, NDArray]:
-    """Gather indices and weights for interpolation along columns (nearest sample outside)."""
-    u = (targets - offset) / 4.0
-    i0 = np.clip(np.floor(u), 0, n_src - 2).astype(np.intp)
-    return i0, np.clip(u - i0, 0.0, 1.0).astype(np.float32)
-
-
-def _demosaic_planar(img: NDArray, grid: str, pattern_offset: tuple[int, int]) -> NDArray[np.float32]:
-    """Planar demosaic: ``(H, W)`` -> ``(3, 4, H', W')`` (colour, angle, rows, cols)."""
-    h, w = img.shape
-    ys, xs = _grid_positions(h, grid), _grid_positions(w, grid)
-    color, angle = mosaic_indices(pattern_offset)
-    out = np.empty((3, 4, ys.size, xs.size), dtype=np.float32)
-    written = np.zeros((3, 4), dtype=bool)
-    scratch = np.empty(((ys.size + 1) // 2, xs.size), dtype=np.float32)
-    for i in range(4):
-        row_phases = _phases(h // 4, i, ys)
-        for j in range(4):
-            c, a = color[i, j], angle[i, j]
-            lattice = img[i::4, j::4]
-            # Columns by gather on the small (H/4, W') array, rows by periodic slices of the
-            # large one: every pass over the output is contiguous.
-            ci, cw = _column_weights(w // 4, j, xs)
-            cols = lattice[:, ci]
-            cols += (lattice[:, ci + 1] - cols) * cw
-            scale = 0.5 if c == 1 else 1.0  # two green lattices per angle: average them
-            _resample_axis0(cols, row_phases, out[c, a], scale, bool(written[c, a]), scratch)
-            written[c, a] = True
+def _erode_blocks(ok: NDArray[np.bool_], radius: int = 2) -> NDArray[np.bool_]:
+    """False within ``radius`` blocks of a False block (a separable minimum filter, edges repeated)."""
+    out = ok.copy()
+    for axis in (0, 1):
+        src = out.copy()
+        a, b = np.moveaxis(out, axis, 0), np.moveaxis(src, axis, 0)
+        for s in range(1, radius + 1):
+            a[s:] &= b[:-s]
+            a[:-s] &= b[s:]
     return out
 
 
@@ -244,7 +342,14 @@ def demosaic(image: ArrayLike, *, grid: str = "half", pattern_offset: tuple[int,
         ``(H', W', 3, 4)`` float32: colour (R, G, B) and analyzer angle (0, 45, 90, 135).
     """
     img = _check_mosaic(image)
-    return np.moveaxis(_demosaic_planar(img, grid, pattern_offset), (0, 1), (2, 3))
+    interp = _Interpolator(img.shape, grid, pattern_offset, np.broadcast_to(np.eye(4), (3, 4, 4)))
+    padded = np.empty((img.shape[0] + 2 * _PAD, img.shape[1] + 2 * _PAD), dtype=np.float32)
+    padded[_PAD:-_PAD, _PAD:-_PAD] = img
+    _fill_pad(padded, _PAD)
+    out = np.empty((3, 4, interp.h * interp.period // 4, interp.out_w), dtype=np.float32)
+    for _ in interp.strips(padded, out):
+        pass
+    return np.moveaxis(out, (0, 1), (2, 3))
 
 
 def _check_mosaic(image: ArrayLike) -> NDArray[np.float32]:
@@ -281,6 +386,20 @@ def stokes_from_intensities(intensities: ArrayLike, model: CameraModel) -> NDArr
     return np.einsum("cka,...ca->...ck", dec, x, optimize=True)
 
 
+def _maps_planar(s0: NDArray, s1: NDArray, s3: NDArray, out: NDArray, eps: float) -> None:
+    """The nine maps ``out[kind, colour, ...]`` (kinds unpol, LP, CP) from ``s0, s1, s3`` ``(colour, ...)``."""
+    lp = np.negative(s1, out=out[1])
+    np.subtract(s0, lp, out=out[0])
+    den = s0 + eps
+    with np.errstate(over="ignore"):  # a subnormal den (eps = 0) overflows to +-inf; the clip makes it +-1
+        if den.size and den.min() > 0:
+            np.divide(s3, den, out=out[2])
+        else:
+            out[2] = 0.0
+            np.divide(s3, den, out=out[2], where=den > 0)
+    np.clip(out[2], -1.0, 1.0, out=out[2])
+
+
 def nine_maps(stokes3: ArrayLike, *, eps: float = 1e-6, channel_axis: int = -1) -> NDArray:
     """The network's nine input maps from measured Stokes ``(s0, s1, s3)`` per colour.
 
@@ -309,18 +428,25 @@ def nine_maps(stokes3: ArrayLike, *, eps: float = 1e-6, channel_axis: int = -1) 
     s = np.asarray(stokes3)
     if s.shape[-2:] != (3, 3):
         raise ValueError(f"stokes must have shape (..., 3, 3) = colour x (s0, s1, s3); got {s.shape}")
-    s0, s1, s3 = s[..., 0], s[..., 1], s[..., 2]  # each (..., 3 colours)
     out = np.empty((3, 3, *s.shape[:-2]), dtype=s.dtype)  # (kind, colour, ...)
-    cm = np.moveaxis
-    lp = np.negative(cm(s1, -1, 0), out=out[1])
-    np.subtract(cm(s0, -1, 0), lp, out=out[0])
-    den = cm(s0, -1, 0) + eps
-    out[2] = 0.0
-    with np.errstate(over="ignore"):  # a subnormal den (eps = 0) overflows to +-inf; the clip makes it +-1
-        np.divide(cm(s3, -1, 0), den, out=out[2], where=den > 0)
-    np.clip(out[2], -1.0, 1.0, out=out[2])
+    s0, s1, s3 = (np.moveaxis(s[..., k], -1, 0) for k in range(3))  # each (colour, ...)
+    _maps_planar(s0, s1, s3, out, eps)
     out = out.reshape(9, *s.shape[:-2])
     return out if channel_axis == 0 else np.moveaxis(out, 0, channel_axis)
+
+
+def _maps_surely_finite(r: NDArray, t: NDArray, sensor: SensorParams, dec: NDArray) -> bool:
+    """True when the raws' range bounds every map and their sum far below float32 overflow.
+
+    ``|merged| <= E (max|raw| + black) / (g min t)``; interpolation is convex and
+    ``|s_k| <= sum_a |dec[k, a]| max|merged|``, so the nine maps sum to less than ``9 max|s| + 3``.
+    """
+    if r.dtype.kind in "iu":
+        top = float(max(-int(np.iinfo(r.dtype).min), int(np.iinfo(r.dtype).max)))
+    else:
+        top = max(abs(float(r.max())), abs(float(r.min())))
+    merged = r.shape[0] * (top + sensor.black_level) / (sensor.dn_per_unit_second * float(t.min()))
+    return bool(18.0 * merged * float(np.abs(dec).sum(axis=-1).max()) + 3.0 < 1e37)
 
 
 def decode(
@@ -345,27 +471,40 @@ def decode(
         :class:`Decoded` with ``maps`` ``(H', W', 9)``, ``mask`` ``(H', W')``, ``stokes``
         ``(H', W', 3, 3)``.
     """
-    merged, valid = hdr_merge(raws, model.exposures, model.sensor, pattern_offset=model.pattern_offset)
-    planar = _demosaic_planar(merged, grid, model.pattern_offset)  # (3, 4, H', W')
-    hh, ww = planar.shape[2:]
-    # Stokes per colour as one small matrix product over all pixels: (3,3,4) @ (3,4,N).
-    dec = _decoding_matrix(model).astype(np.float32)
-    st = np.matmul(dec, planar.reshape(3, 4, hh * ww)).reshape(3, 3, hh, ww)  # colour, (s0,s1,s3)
-    maps_planar = nine_maps(np.moveaxis(st, (0, 1), (2, 3)), eps=eps, channel_axis=0)
+    r, t = _checked_bracket(raws, model.exposures)
+    h, w = r.shape[1:]
+    dec = _decoding_matrix(model)
+    interp = _Interpolator((h, w), grid, model.pattern_offset, dec)
+    padded, valid_b = _merge_padded(r, t, model.sensor, model.pattern_offset, _PAD)
+    hh, ww = interp.out_h, interp.out_w
+    st = np.empty((3, 3, hh, ww), dtype=np.float32)  # colour, (s0, s1, s3)
+    maps = np.empty((hh, ww, 9), dtype=np.float32)
+    mask = np.empty((hh, ww), dtype=bool)
     # A pixel is valid only if no input sample of its interpolation support (+-2 blocks) was
-    # unmeasured.
-    block_valid = valid[::2, ::2]
-    if not block_valid.all():
-        block_valid = ndimage.minimum_filter(block_valid, size=5, mode="nearest")
-    mask = block_valid if grid == "half" else np.repeat(np.repeat(block_valid, 2, 0), 2, 1)
-    mask = mask & (st[:, 0].sum(axis=0) > min_signal)
-    finite = np.isfinite(maps_planar.sum(axis=0))
-    if not finite.all():
-        mask &= finite
-    maps = np.ascontiguousarray(np.moveaxis(maps_planar, 0, -1))
-    if not mask.all():
-        maps[~mask] = 0.0
+    # unmeasured: the validity of the 2x2 blocks, eroded by 2 blocks.
+    block_valid = valid_b[: h // 2, : w // 2]
+    all_valid = bool(block_valid.all())
+    if not all_valid:
+        block_valid = _erode_blocks(block_valid)
+    finite = _maps_surely_finite(r, t, model.sensor, dec)
+    planes = np.empty((3, 3, interp.strip_rows, ww), dtype=np.float32)  # kind, colour
+    for y0, y1 in interp.strips(padded, st):
+        s, m = st[:, :, y0:y1], planes[:, :, : y1 - y0]
+        _maps_planar(s[:, 0], s[:, 1], s[:, 2], m, eps)
+        ok = mask[y0:y1]
+        np.greater(s[0, 0] + s[1, 0] + s[2, 0], min_signal, out=ok)
+        if not all_valid:
+            ok &= block_valid[y0:y1] if grid == "half" else _upsample2(block_valid[y0 // 2 : y1 // 2])
+        if not finite:
+            ok &= np.isfinite(m.reshape(9, y1 - y0, ww).sum(axis=0))
+        if not ok.all():
+            np.copyto(m, 0.0, where=~ok)
+        np.copyto(maps[y0:y1], np.moveaxis(m.reshape(9, y1 - y0, ww), 0, -1))
     return Decoded(maps=maps, mask=mask, stokes=np.moveaxis(st, (0, 1), (2, 3)))
+
+
+def _upsample2(a: NDArray) -> NDArray:
+    return np.repeat(np.repeat(a, 2, axis=0), 2, axis=1)
 
 
 def estimate_pattern_offset(raw: ArrayLike, stokes_rgb: ArrayLike, model: CameraModel) -> tuple[int, int]:

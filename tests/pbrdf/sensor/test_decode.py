@@ -513,6 +513,91 @@ def test_all_saturated_pixels_are_masked_with_finite_zero_maps():
         assert dec.mask[: 12 // f].all() and dec.mask[:, 52 // f :].all()  # far from the patch: measured
 
 
+def _blocks_to_pixels(blocks: np.ndarray) -> np.ndarray:
+    """Per-2x2-block values (H/2, W/2) repeated to the pixels (H, W)."""
+    return np.repeat(np.repeat(blocks, 2, axis=0), 2, axis=1)
+
+
+@pytest.mark.parametrize("grid", ["half", "full"])
+@pytest.mark.parametrize("offset", [(0, 0), (1, 0), (0, 1), (3, 3)])
+def test_saturated_blocks_decode_as_if_their_saturated_exposure_were_dropped(grid, offset):
+    # The block rule, physically: a 2x2 block saturated in the longest exposure is measured by the three shorter
+    # ones only, every other block by all four. So decoding the bracket equals the plain ML merge sum z / sum t
+    # (a 16-bit sensor that never saturates at these values) of the three shorter exposures on the saturated blocks
+    # and of all four elsewhere, spliced block by block, then demosaiced and inverted.
+    rng = np.random.default_rng(7)
+    model = CameraModel(pattern_offset=offset)
+    sensor, t = model.sensor, model.exposures
+    threshold = sensor.saturation * sensor.white_level
+    h, w = 48, 64
+    # Brightness per 2x2 pixel patch around the longest exposure's threshold: saturated and unsaturated blocks
+    # side by side everywhere, so every block edge tests which exposures its pixels use. The 100 ms frame stays
+    # below the threshold (half the light of the 200 ms one).
+    level = (threshold - sensor.black_level) / (sensor.dn_per_unit_second * t[-1])
+    lum = _blocks_to_pixels(rng.uniform(0.5, 1.5, size=(h // 2, w // 2))) * level
+    raws = camera.simulate_capture(lum[..., None, None] * elliptical_states(), model, rng=rng)
+    assert raws[:-1].max() < threshold
+
+    pr, pc = offset[0] % 2, offset[1] % 2  # an odd offset shifts the blocks: edge row/column in front
+    longest = np.pad(raws[-1], ((pr, pr), (pc, pc)), mode="edge")
+    hb, wb = longest.shape[0] // 2, longest.shape[1] // 2
+    saturated = _blocks_to_pixels(longest.reshape(hb, 2, wb, 2).max(axis=(1, 3)) >= threshold)[pr : pr + h, pc : pc + w]
+    assert 0.3 < saturated.mean() < 0.7
+
+    never = SensorParams(bits=16)  # same gain, black level and scale; the threshold is far above 4095
+    all_four, _ = decode.hdr_merge(raws, t, never, pattern_offset=offset)
+    three, _ = decode.hdr_merge(raws[:-1], t[:-1], never, pattern_offset=offset)
+    # Dropping matters on both sides: the clipped frame biases the saturated blocks, noise separates the others.
+    assert np.median(np.abs(all_four / three - 1)[saturated]) > 5e-3
+    assert np.median(np.abs(all_four / three - 1)[~saturated]) > 1e-3
+    merged = np.where(saturated, three, all_four)
+    expected = decode.nine_maps(
+        decode.stokes_from_intensities(decode.demosaic(merged, grid=grid, pattern_offset=offset), model)
+    )
+
+    dec = decode.decode(raws, model, grid=grid)
+    assert dec.mask.all()
+    # float32 arithmetic in a different order: a few ulp of the intensities (about 0.06).
+    np.testing.assert_allclose(dec.maps, expected, rtol=1e-5, atol=1e-5 * np.abs(expected).max())
+
+
+@pytest.mark.parametrize("grid", ["half", "full"])
+def test_mask_is_the_block_validity_eroded_by_the_interpolation_support(grid):
+    # Blocks saturated in every exposure are unmeasured; an output pixel reads lattice samples up to 4 raw pixels
+    # (2 blocks) away, so it is valid only if every block within 2 blocks is measured: a 5x5 minimum filter on the
+    # block grid (edges repeated), written here with scipy as the reference.
+    from scipy import ndimage
+
+    model = CameraModel()
+    h, w = 64, 80
+    rng = np.random.default_rng(3)
+    hot = rng.random((h // 2, w // 2)) < 0.01  # about 13 isolated highlights
+    lum = np.where(_blocks_to_pixels(hot), 20.0, 0.05)  # 20: saturated even at 10 ms; 0.05: never saturated
+    raws = camera.simulate_capture(lum[..., None, None] * elliptical_states(), model, noise=False)
+    measured = ndimage.minimum_filter(~hot, size=5, mode="nearest")
+    dec = decode.decode(raws, model, grid=grid)
+    np.testing.assert_array_equal(dec.mask, measured if grid == "half" else _blocks_to_pixels(measured))
+    assert np.isfinite(dec.maps).all() and np.all(dec.maps[~dec.mask] == 0.0)
+    assert 0.2 < dec.mask.mean() < 0.9
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning", "ignore:invalid value:RuntimeWarning")
+def test_maps_that_overflow_float32_are_masked_even_where_the_signal_test_passes():
+    # Finite float raws of -3e38 on the red 0 degree lattice (below the saturation threshold: measured). With an
+    # analyzer transmittance of 0.5 the decoder doubles I0 - I90, so s1 and the maps overflow to -inf while s0 (and
+    # the colours' sum, tested against min_signal = -inf) stays finite: only the finiteness check can mask them.
+    model = _unit_model(**IDEAL_OPTICS, analyzer_transmittance=0.5)
+    raws = _float_raws(_constant_image(elliptical_states(), 32, 32), model)
+    color, angle = camera.mosaic_indices(model.pattern_offset)
+    (i, j), *_ = zip(*np.nonzero((color == 0) & (angle == 0)), strict=True)
+    raws[0, 12 + i : 20 : 4, 12 + j : 20 : 4] = -3e38
+    dec = decode.decode(raws, model, grid="full", min_signal=-np.inf)
+    assert np.isfinite(dec.maps).all() and np.all(dec.maps[~dec.mask] == 0.0)
+    s0 = dec.stokes[..., 0].sum(axis=-1)
+    assert (np.isfinite(s0) & ~dec.mask).any()  # masked for the overflow, not for the signal
+    assert not dec.mask[14:18, 14:18].any() and dec.mask[:4].all() and dec.mask[:, -4:].all()
+
+
 def test_dark_pixels_are_masked_and_finite():
     model = CameraModel()
     h, w = 48, 48
