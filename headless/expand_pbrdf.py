@@ -8,8 +8,10 @@ steel, aluminium) stands in for the measured tables. Writes DIR/tables/gen_NNNNN
 measured_polarized format, 5 bands) with a JSON sidecar each (fitted Disney parameters,
 validity), DIR/materials.json (what `headless/render.py --pbrdfs DIR` reads), DIR/manifest.json
 (explained variance, validity statistics, timings), DIR/model/ (PCA bases, generator
-checkpoint) and figures: spheres under unpolarized light with intensity, DoLP and DoCP for a
-sample of seed and generated materials (pbrdf.expansion.run). A killed run continues where it
+checkpoint) and figures (pbrdf.expansion.figures): a sphere per material with its colour and
+DoLP under unpolarized light and its signed CP/S0 under 45-degree linear light, each on a scale
+fitted to it, for every seed (figure_seeds.png) and up to 8 generated tables
+(figure_generated.png). A killed run continues where it
 stopped when started again with the same arguments (the temporary files it left are removed).
 --measured still works for one release (use --input).
 """

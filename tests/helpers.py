@@ -110,7 +110,7 @@ def assert_maps_physical_to_physical(m, rng):
 
 
 def assert_mueller_physical(m, rng):
-    """Cloude and Givens-Kostinski tests of pbrdf.polar.validity, plus the Stokes criterion done here."""
+    """The Cloude test of pbrdf.polar.validity (which implies Givens-Kostinski), plus the Stokes criterion done here."""
     from pbrdf.polar import validity
 
     assert np.all(validity.is_mueller_physical(m))

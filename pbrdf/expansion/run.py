@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 
 from pbrdf.brdf import seeds
-from pbrdf.brdf.table import PBRDFTable, evaluate, load_table, resample, save_table, to_mitsuba_bands
-from pbrdf.expansion import expand
+from pbrdf.brdf.table import PBRDFTable, load_table, resample, save_table, to_mitsuba_bands
+from pbrdf.expansion import expand, figures
+from pbrdf.expansion.figures import sphere_polarimetry
 from pbrdf.io.atomic import atomic_open, atomic_write_text, remove_leftovers
 from pbrdf.io.strict_json import dumps_strict
 
@@ -56,7 +57,8 @@ class ExpansionConfig:
         fit_samples: samples of each Disney fit, >= 5. A table whose fit fails the held-out check
             (``fit_ok`` False, :func:`pbrdf.expansion.expand.fit_table_disney`) is drawn again:
             its Disney label would be wrong ground truth.
-        figures: materials shown per figure, >= 0 (0: no figures).
+        figures: generated tables shown in ``figure_generated.png``, >= 0 (0: no figures);
+            ``figure_seeds.png`` shows every seed (:mod:`pbrdf.expansion.figures`).
 
     Raises:
         ValueError: a value out of its range; the message names the command-line flag.
@@ -162,65 +164,6 @@ def _random_condition(rng: np.random.Generator) -> np.ndarray:
     metallic = float(rng.random() < 0.3)
     albedo = rng.uniform(0.3, 1.0, 3) if metallic else rng.uniform(0.02, 0.95, 3)
     return np.array([*albedo, rng.uniform(0.25, 0.9), metallic])
-
-
-def sphere_polarimetry(table: PBRDFTable, size: int = 64, wavelength: float = 550.0) -> dict[str, np.ndarray]:
-    """A sphere lit by unpolarized light from beside the camera: intensity, DoLP, DoCP images.
-
-    The view is along -z, the light comes from ``(-0.3, 0.4, 1)``; degrees of polarization are
-    frame-independent, so no frame rotation is needed for them.
-    """
-    yy, xx = np.mgrid[0:size, 0:size]
-    x = (xx + 0.5) / size * 2 - 1
-    y = 1 - (yy + 0.5) / size * 2
-    inside = x**2 + y**2 < 1
-    n = np.stack([x, y, np.sqrt(np.clip(1 - x**2 - y**2, 0, 1))], -1)[inside]
-    view = np.array([0.0, 0.0, 1.0])
-    light = np.array([-0.3, 0.4, 1.0]) / np.linalg.norm([-0.3, 0.4, 1.0])
-    # Local frame per pixel: z = n, x = any tangent.
-    t = np.cross(n, [0.0, 1.0, 0.0])
-    t /= np.maximum(np.linalg.norm(t, axis=-1, keepdims=True), 1e-9)
-    b = np.cross(n, t)
-    to_local = np.stack([t, b, n], axis=-2)
-    wi = to_local @ view
-    wo = to_local @ light
-    s = evaluate(table, wi, wo, wavelength)[..., 0]  # unpolarized input: first column
-    out = {k: np.zeros((size, size)) for k in ("s0", "dolp", "docp")}
-    s0 = np.maximum(s[:, 0], 1e-12)
-    out["s0"][inside] = s[:, 0]
-    out["dolp"][inside] = np.hypot(s[:, 1], s[:, 2]) / s0 * (s[:, 0] > 1e-9)
-    out["docp"][inside] = np.abs(s[:, 3]) / s0 * (s[:, 0] > 1e-9)
-    return out
-
-
-def _figure(path: Path, tables: list[PBRDFTable], params: list[dict]) -> None:
-    import matplotlib  # noqa: PLC0415
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt  # noqa: PLC0415
-
-    n = len(tables)
-    fig, axes = plt.subplots(n, 3, figsize=(8.0, 2.1 * n), squeeze=False)
-    for r, (t, p) in enumerate(zip(tables, params, strict=True)):
-        img = sphere_polarimetry(t)
-        for c, (key, title, vmax) in enumerate((("s0", "intensity", None), ("dolp", "DoLP", 1), ("docp", "DoCP", 0.3))):
-            ax = axes[r, c]
-            im = img[key]
-            ax.imshow(
-                im / max(np.percentile(im, 99), 1e-9) if vmax is None else im, vmin=0, vmax=vmax or 1, cmap="magma"
-            )
-            ax.set_axis_off()
-            if r == 0:
-                ax.set_title(title, fontsize=9)
-        a = p["albedo"]
-        label = f"{t.name}\nalb ({a[0]:.2f},{a[1]:.2f},{a[2]:.2f})\nr {p['roughness']:.2f} m {p['metallic']:.2f}"
-        axes[r, 0].text(-0.1, 0.5, label, transform=axes[r, 0].transAxes, ha="right", va="center", fontsize=7)
-    fig.subplots_adjust(left=0.25, right=0.98, wspace=0.05)
-    try:
-        with atomic_open(path) as f:
-            fig.savefig(f, dpi=90, format="png")
-    finally:
-        plt.close(fig)
 
 
 def run_expansion(cfg: ExpansionConfig, *, progress: bool = True) -> ExpansionReport:
@@ -359,10 +302,15 @@ def _write_index(out: Path, cfg: ExpansionConfig, report: ExpansionReport, fits,
     atomic_write_text(out / "manifest.json", dumps_strict(manifest, indent=1))
     if cfg.figures and entries:
         pick = entries[:: max(1, len(entries) // cfg.figures)][: cfg.figures]
-        tables = [load_table(out / e["table"]) for e in pick]
-        for t, e in zip(tables, pick, strict=True):
-            object.__setattr__(t, "name", e["name"])
-        _figure(out / "figure_generated.png", tables, pick)
-        seed_params = [{"albedo": f.albedo, "roughness": f.roughness, "metallic": f.metallic} for f in fits]
-        step = max(1, len(seed_set) // cfg.figures)
-        _figure(out / "figure_seeds.png", seed_set[::step][: cfg.figures], seed_params[::step][: cfg.figures])
+        figures.material_figure(
+            out / "figure_generated.png",
+            [load_table(out / e["table"]) for e in pick],
+            [figures.table_label(e["name"], e["albedo"], e["roughness"], e["metallic"]) for e in pick],
+            f"{len(pick)} of {len(entries)} generated pBRDF tables",
+        )
+        figures.material_figure(
+            out / "figure_seeds.png",
+            seed_set,
+            [figures.seed_label(t, f.albedo, f.roughness, f.metallic) for t, f in zip(seed_set, fits, strict=True)],
+            f"the {len(seed_set)} seed materials",
+        )

@@ -22,7 +22,25 @@ Convention:
     * :func:`is_givens_kostinski` -- the *Stokes criterion*: ``M`` maps every physical Stokes
       vector to a physical Stokes vector (no over-polarization, no negative intensity).
     * :func:`is_cloude_physical` -- ``H >= 0``: ``M`` is an ensemble of deterministic
-      (Jones) systems. Every Cloude-physical matrix passes Givens-Kostinski, not vice versa.
+      (Jones) systems. Every Cloude-physical matrix passes Givens-Kostinski, not vice versa
+      (a convex sum of Jones systems maps the Stokes cone into itself). With the tolerances,
+      Cloude at ``rtol`` implies Givens-Kostinski at about ``4 rtol``: ``H + rtol m00 I >= 0``
+      means ``M + 4 rtol m00 diag(1, 0, 0, 0)`` is exactly physical. So
+      :func:`is_mueller_physical` is decided by Cloude alone.
+
+    The Cloude test decides ``H + rtol m00 I >= 0`` from the four pivots of an ``LDL^H``
+    factorisation without pivoting, in closed form and vectorised over 16 real rows (Sylvester's
+    criterion: the pivots are the ratios of consecutive leading principal minors, all positive
+    iff the matrix is positive definite). Cholesky-type factorisation is backward stable, so a
+    computed pivot set is exact for a matrix within a few ulps of ``H``: the verdict is certain
+    unless the first pivot that is not clearly positive lies within ``1e-10 m00`` of zero, which
+    happens only next to the boundary ``lambda_min(H) = -rtol m00``. Only those matrices go to
+    the eigenvalue route (``eigvalsh``), which remains available as ``method="eigh"``. The shift
+    ``rtol m00 I`` keeps pure matrices (rank-1 ``H``) clear of that band. The
+    elementary-symmetric criterion (every ``e_k`` of the eigenvalues ``>= 0``, ``e_k`` the sum of
+    the ``k x k`` principal minors) is equally exact in theory, but from power sums (Newton's
+    identities) the ``e_k`` of near-pure matrices drown in cancellation, and from the 15
+    principal minors it costs more than the factorisation (docs/measurements/pbrdf.md).
 
     The spectral functions reject NaN and Inf entries with a ``ValueError``; mask invalid
     entries (e.g. the invalid geometry of measured pBRDF tables) before calling them.
@@ -39,6 +57,7 @@ References:
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Literal
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -57,6 +76,13 @@ __all__ = [
 
 # Matrices per chunk in the spectral functions (a few tens of MB of temporaries per chunk).
 _CHUNK = 1 << 16
+# Matrices per chunk of the closed-form Cloude test: its 16 rows of temporaries stay in cache.
+_LDL_CHUNK = 1 << 13
+# Pivots of 4 H / m00 (trace 4) within this of zero leave the verdict to the eigenvalues.
+_PIVOT_TOL = 1e-10
+# Where some m00 lies outside [1 / _HUGE, _HUGE], the pivots are computed on M / m00, so that
+# products of entries neither underflow nor overflow.
+_HUGE = 1e100
 
 _PAULI = np.array([[[1, 0], [0, 1]], [[1, 0], [0, -1]], [[0, 1], [1, 0]], [[0, -1j], [1j, 0]]], dtype=np.complex128)
 # _BASIS[i, j] = sigma_i kron conj(sigma_j); all 16 are Hermitian with tr(B_ij B_kl) = 4 delta_ik delta_jl.
@@ -65,6 +91,15 @@ _BASIS = np.einsum("iab,jcd->ijacbd", _PAULI, _PAULI.conj()).reshape(4, 4, 4, 4)
 _M2H = 0.25 * _BASIS.reshape(16, 16)
 _H2M = np.ascontiguousarray(np.swapaxes(_BASIS, -1, -2).reshape(16, 16).T)
 _G = np.array([1.0, -1.0, -1.0, -1.0])
+# 4 H as 16 real rows of vec(M): the diagonal h00..h33, Re(h10, h20, h30), Im(h10, h20, h30),
+# Re(h21, h31), Im(h21, h31), Re h32, Im h32 (entries 0 and +-1); then m00 itself.
+_LOWER = ((1, 0), (2, 0), (3, 0), (2, 1), (3, 1), (3, 2))
+_H_ROWS = np.array(
+    [4 * _M2H[:, 5 * i].real for i in range(4)]
+    + [4 * part(_M2H[:, 4 * i + j]) for pairs in (_LOWER[:3], _LOWER[3:5], _LOWER[5:]) for part in (np.real, np.imag)
+       for i, j in pairs]
+    + [np.eye(16)[0]]
+)  # fmt: skip
 _NONFINITE_MSG = "mueller contains NaN or Inf; mask invalid entries first"
 
 
@@ -76,13 +111,20 @@ def _checked(mueller: ArrayLike, *, finite: bool = True) -> NDArray[np.floating]
     return m
 
 
-def _chunked(fn: Callable[[NDArray[np.float64]], NDArray], m: NDArray, tail: tuple[int, ...], dtype: type) -> NDArray:
-    """Apply ``fn`` to ``(n, 4, 4)`` float64 chunks of ``m`` and gather into ``(..., *tail)``."""
+def _chunked(
+    fn: Callable[[NDArray[np.float64]], NDArray], m: NDArray, tail: tuple[int, ...], dtype: type, chunk: int = 0
+) -> NDArray:
+    """Apply ``fn`` to ``(n, 4, 4)`` float64 chunks of ``m`` and gather into ``(..., *tail)``.
+
+    The chunks are views where ``m`` is float64 (``fn`` must not write to them); ``chunk``
+    matrices each, ``_CHUNK`` by default.
+    """
+    chunk = chunk or _CHUNK
     batch = m.shape[:-2]
     flat = m.reshape(-1, 4, 4)
     out = np.empty((flat.shape[0], *tail), dtype=dtype)
-    for start in range(0, flat.shape[0], _CHUNK):
-        out[start : start + _CHUNK] = fn(flat[start : start + _CHUNK].astype(np.float64))
+    for start in range(0, flat.shape[0], chunk):
+        out[start : start + chunk] = fn(np.asarray(flat[start : start + chunk], dtype=np.float64))
     return out.reshape(batch + tail)
 
 
@@ -187,21 +229,120 @@ def coherency_eigenvalues(mueller: ArrayLike) -> NDArray[np.float64]:
     return _chunked(fn, m, (4,), np.float64)
 
 
-def is_cloude_physical(mueller: ArrayLike, *, rtol: float = 1e-6) -> NDArray[np.bool_]:
+def _cloude_eigh(c: NDArray[np.float64], rtol: float) -> NDArray[np.bool_]:
+    """The eigenvalue route: ``m00 > 0`` and ``lambda_min(H) >= -rtol |m00|`` (``eigvalsh``)."""
+    scale = _scale(c)
+    h = coherency_matrix(c / scale[:, None, None])
+    lam = np.linalg.eigvalsh(0.5 * (h + np.conj(np.swapaxes(h, -1, -2))))
+    return (c[:, 0, 0] > 0) & (lam[:, 0] >= -rtol * np.abs(c[:, 0, 0] / scale))
+
+
+def _cloude_pivots(c: NDArray[np.float64], rtol: float) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """Certain verdicts of the closed-form Cloude test on ``(n, 4, 4)`` float64 matrices.
+
+    Returns ``(physical, not_physical)``; a matrix in neither is uncertain (within rounding of
+    the tolerance boundary, or a pivot overflowed) and needs the eigenvalues. The pivots of
+    ``LDL^H = 4 (H + rtol m00 I)`` are computed on 16 real rows of ``n`` entries each.
+    """
+    n = len(c)
+    a = _H_ROWS @ c.reshape(n, 16).T  # 4 H and m00: rows as in _H_ROWS; tr(4 H) = 4 m00
+    unit = a[16]  # the scale of the pivots: m00
+    lit = None  # every m00 in [1 / _HUGE, _HUGE] (checked by the chunk's extremes)
+    if n and not 1.0 / _HUGE <= unit.min() <= unit.max() <= _HUGE:
+        lit = unit > 0
+        unit = np.where(lit, unit, 1.0)
+        if np.any((unit < 1.0 / _HUGE) | (unit > _HUGE)):
+            a /= unit
+            unit = np.ones(n)
+    a[:4] += (4.0 * rtol) * unit
+    tmp, tmp2 = np.empty(n), np.empty(n)
+
+    def sub_products(dst: NDArray, x1: NDArray, y1: NDArray, x2: NDArray, y2: NDArray, sign: float) -> None:
+        """``dst -= x1 y1 + sign x2 y2`` in place."""
+        np.multiply(x1, y1, out=tmp)
+        np.multiply(x2, y2, out=tmp2)
+        if sign > 0:
+            np.add(tmp, tmp2, out=tmp)
+        else:
+            np.subtract(tmp, tmp2, out=tmp)
+        np.subtract(dst, tmp, out=dst)
+
+    # A zero, negative or non-finite pivot only spoils the pivots after it, which the verdict
+    # below ignores.
+    with np.errstate(all="ignore"):
+        # Step 1: eliminate column 0; b = (h10, h20, h30) / d0 as Re rows 0-2, Im rows 3-5.
+        b = a[4:10] * (1.0 / a[0])
+        a[1:4] -= a[4:7] * b[:3] + a[7:10] * b[3:]
+        r10, r20, i10, i20 = a[4], a[5], a[7], a[8]
+        sub_products(a[10], b[1], r10, b[4], i10, 1.0)  # h21 -= b2 conj(h10)
+        sub_products(a[12], b[4], r10, b[1], i10, -1.0)
+        sub_products(a[11], b[2], r10, b[5], i10, 1.0)  # h31 -= b3 conj(h10)
+        sub_products(a[13], b[5], r10, b[2], i10, -1.0)
+        sub_products(a[14], b[2], r20, b[5], i20, 1.0)  # h32 -= b3 conj(h20)
+        sub_products(a[15], b[5], r20, b[2], i20, -1.0)
+        # Step 2: eliminate column 1; e = (h21, h31) / d1 as Re rows 0-1, Im rows 2-3.
+        e = a[10:14] * (1.0 / a[1])
+        sub_products(a[2], e[0], a[10], e[2], a[12], 1.0)  # h22 -= |h21|^2 / d1
+        sub_products(a[3], e[1], a[11], e[3], a[13], 1.0)  # h33 -= |h31|^2 / d1
+        sub_products(a[14], e[1], a[10], e[3], a[12], 1.0)  # h32 -= e3 conj(h21)
+        sub_products(a[15], e[3], a[10], e[1], a[12], -1.0)
+        # Step 3: h33 -= |h32|^2 / d2.
+        np.multiply(a[14], a[14], out=tmp)
+        np.multiply(a[15], a[15], out=tmp2)
+        tmp += tmp2
+        tmp /= a[2]
+        a[3] -= tmp
+        # Verdict: every pivot in [tol, top], or the first pivot outside that interval finite and
+        # clearly negative or above top (the pivots of a PSD H' lie in [0, tr(4 H')], and
+        # top = 2 tr(4 H') is far beyond their rounding errors). An overflow (+-Inf, NaN) leaves
+        # the verdict to the eigenvalues.
+        pivots = a[:4]
+        top = (8.0 + 32.0 * rtol) * unit
+        good = (pivots >= _PIVOT_TOL * unit) & (pivots <= top)
+        bad = ((pivots <= -_PIVOT_TOL * unit) | (pivots > top)) & np.isfinite(pivots)
+    physical, not_physical = good[0], bad[0]
+    if lit is not None:
+        physical &= lit
+        not_physical |= ~lit
+    for k in range(1, 4):
+        not_physical |= physical & bad[k]
+        physical &= good[k]
+    return physical, not_physical
+
+
+def _cloude_chunk(c: NDArray[np.float64], rtol: float) -> NDArray[np.bool_]:
+    """Closed-form Cloude test with the eigenvalue route for the uncertain matrices."""
+    physical, not_physical = _cloude_pivots(c, rtol)
+    unsure = ~(physical | not_physical)
+    if np.any(unsure):
+        physical[unsure] = _cloude_eigh(c[unsure], rtol)
+    return physical
+
+
+def is_cloude_physical(
+    mueller: ArrayLike, *, rtol: float = 1e-6, method: Literal["pivots", "eigh"] = "pivots"
+) -> NDArray[np.bool_]:
     """True where the coherency matrix is positive semidefinite and ``m00 > 0``.
 
     An eigenvalue counts as non-negative if it is ``>= -rtol * |tr H|``: a pure matrix stored in
-    float32 has eigenvalues of about ``-1e-8 * m00`` and must pass.
+    float32 has eigenvalues of about ``-1e-8 * m00`` and must pass. Equivalently, the test is
+    ``H + rtol m00 I >= 0``.
+
+    ``method="pivots"`` (default) decides this from the pivots of ``4 (H + rtol m00 I) =
+    L D L^H``, in closed form (see the module notes); the few matrices whose first
+    non-positive pivot lies within rounding of zero get the eigenvalue verdict. ``"eigh"``
+    computes the eigenvalues of every matrix (the reference; slower).
 
     Args:
         mueller: Mueller matrices, shape ``(..., 4, 4)``.
-        rtol: tolerance on the smallest eigenvalue, relative to ``|tr H| = |m00|``.
+        rtol: tolerance on the smallest eigenvalue, relative to ``|tr H| = |m00|``; ``>= 0``.
+        method: ``"pivots"`` or ``"eigh"``.
 
     Returns:
         Booleans, shape ``(...)`` (a numpy bool for a single matrix).
 
     Raises:
-        ValueError: for a wrong shape or NaN/Inf entries.
+        ValueError: for a wrong shape, NaN/Inf entries, a negative ``rtol`` or an unknown method.
 
     Example:
         A quarter-wave plate is physical; ``diag(1, 1, 1, -1)`` (a mirror-like sign flip of s3
@@ -211,14 +352,14 @@ def is_cloude_physical(mueller: ArrayLike, *, rtol: float = 1e-6) -> NDArray[np.
         >>> print(is_cloude_physical(qwp(0.3)), is_cloude_physical(np.diag([1.0, 1, 1, -1])))
         True False
     """
+    if not rtol >= 0:
+        raise ValueError(f"rtol must be >= 0, got {rtol!r}")
+    if method not in ("pivots", "eigh"):
+        raise ValueError(f"method must be 'pivots' or 'eigh', got {method!r}")
     m = _checked(mueller)
-
-    def fn(c: NDArray[np.float64]) -> NDArray[np.bool_]:
-        lam, _, scale = _eigh_coherency(c)
-        trace = c[:, 0, 0] / scale
-        return (c[:, 0, 0] > 0) & (lam[:, 0] >= -rtol * np.abs(trace))
-
-    return _chunked(fn, m, (), np.bool_)[()]
+    if method == "eigh":
+        return _chunked(lambda c: _cloude_eigh(c, rtol), m, (), np.bool_)[()]
+    return _chunked(lambda c: _cloude_chunk(c, rtol), m, (), np.bool_, _LDL_CHUNK)[()]
 
 
 def cloude_filter(mueller: ArrayLike, *, renormalize: bool = True) -> NDArray[np.floating]:
@@ -362,11 +503,17 @@ def is_givens_kostinski(mueller: ArrayLike, *, rtol: float = 1e-6, atol: float =
 
 
 def is_mueller_physical(mueller: ArrayLike, *, rtol: float = 1e-6) -> NDArray[np.bool_]:
-    """True where a Mueller matrix passes both the Cloude and the Givens-Kostinski tests.
+    """True where a Mueller matrix is physically realizable: Cloude-physical, hence also Givens-Kostinski.
+
+    Givens-Kostinski is implied and not evaluated: a convex sum of Jones systems maps the Stokes
+    cone into itself. Within the tolerance, ``H + rtol m00 I >= 0`` makes ``M + 4 rtol m00
+    diag(1, 0, 0, 0)`` exactly physical, so a matrix that passes here passes
+    :func:`is_givens_kostinski` at about ``4 rtol``, not always at ``rtol``: near-pure matrices
+    with ``lambda_min(H)`` in ``[-rtol m00, 0)`` can exceed ``|m_0j| <= m00 (1 + rtol)``.
 
     Args:
         mueller: Mueller matrices, shape ``(..., 4, 4)``.
-        rtol: relative tolerance passed to both tests.
+        rtol: relative tolerance of the Cloude test.
 
     Returns:
         Booleans, shape ``(...)`` (a numpy bool for a single matrix).
@@ -382,5 +529,4 @@ def is_mueller_physical(mueller: ArrayLike, *, rtol: float = 1e-6) -> NDArray[np
         >>> is_mueller_physical(m)
         array([ True,  True, False])
     """
-    m = _checked(mueller)
-    return is_cloude_physical(m, rtol=rtol) & is_givens_kostinski(m, rtol=rtol)
+    return is_cloude_physical(mueller, rtol=rtol)

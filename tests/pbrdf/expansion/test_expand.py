@@ -115,6 +115,21 @@ class TestFilter:
         lit = flat[:, 0, 0] > 1e-8
         assert np.all(validity.is_cloude_physical(flat[lit], rtol=1e-5))
 
+    def test_givens_kostinski_runs_only_on_cloude_failures(self, seed_set, rng, monkeypatch):
+        t = seed_set[0][:2].copy()
+        bad = rng.choice(t.shape[1], 6, replace=False)
+        m00 = t[0, bad, 0, 0, 0][:, None, None]
+        t[0, bad, 0] = m00 * np.diag([1.0, 1.0, 1.0, -1.0])  # GK ok, Cloude not
+        t[0, bad[:2], 0, 0, 1] = 3 * t[0, bad[:2], 0, 0, 0]  # neither
+        tested = []
+        gk = validity.is_givens_kostinski
+        monkeypatch.setattr(validity, "is_givens_kostinski", lambda m, **kw: tested.append(len(m)) or gk(m, **kw))
+        _, (v0, v1) = expand.filter_tables(t, min_valid_fraction=0.9)
+        assert tested == [6]  # table 1 is physical: no GK at all
+        n = np.count_nonzero(t[0, ..., 0, 0] > expand.M00_EPS)
+        assert v0.cloude_fraction == pytest.approx((n - 6) / n) and v0.gk_fraction == pytest.approx((n - 2) / n)
+        assert v1.gk_fraction == v1.cloude_fraction == 1.0 and v0.accepted and v1.accepted
+
     def test_mostly_invalid_table_rejected(self, seed_set):
         t = -seed_set[0][:1]  # negative intensities everywhere... m00 <= 0: nothing lit
         _, (v,) = expand.filter_tables(t)

@@ -32,6 +32,14 @@ def test_expansion_run_and_resume(tmp_path):
         assert meta["fit_ok"] is True and meta["fit_error"] <= 0.5
     assert all("fit_error" in s for s in manifest["seeds"])
     assert (tmp_path / "figure_generated.png").is_file() and (tmp_path / "figure_seeds.png").is_file()
+    # The seed figure shows every seed (not the first `figures` of them), each named; `figures` caps the other one.
+    from PIL import Image
+
+    with Image.open(tmp_path / "figure_seeds.png") as img:
+        labels = img.text["Description"].split("\n\n")
+    assert [label.split(":")[0] for label in labels] == [m.name.replace("_", " ") for m in seeds.SEED_MATERIALS]
+    with Image.open(tmp_path / "figure_generated.png") as img:
+        assert len(img.text["Description"].split("\n\n")) == min(2, report.written)
     # Resume: nothing is regenerated, nothing lost.
     again = run_expansion(cfg, progress=False)
     assert again.written == 0 and again.skipped == report.written

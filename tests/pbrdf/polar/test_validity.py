@@ -451,3 +451,206 @@ def test_degenerate_matrices():
     # Rank-1 (ideal polarizer) and nilpotent G M^T G M (polarizer then depolarizer).
     for m in (linear_polarizer(0.7), depolarizer(0.0) @ linear_polarizer(1.0)):
         assert is_givens_kostinski(m) and is_cloude_physical(m)
+
+
+# --------------------------------------------------------------------------- closed-form Cloude test
+# The pivot test (default) against the eigenvalue reference: the coherency eigenvalues by eigh,
+# as is_cloude_physical computed them at commit a8e355c. Disagreements are allowed only where the
+# smallest eigenvalue lies within BAND * m00 of the tolerance boundary -rtol * m00, where eigh and
+# eigvalsh (the fallback) round differently; against eigvalsh there are none
+# (docs/measurements/pbrdf.md).
+
+BAND = 1e-12
+
+
+def eigenvalue_reference(m, rtol):
+    """``(verdict, distance)``: the eigh verdict and |lambda_min / m00 + rtol|."""
+    m00 = np.asarray(m, dtype=np.float64)[..., 0, 0]
+    lam = coherency_eigenvalues(m)[..., -1]
+    verdict = (m00 > 0) & (lam >= -rtol * np.abs(m00))
+    return verdict, np.abs(lam / np.where(m00 != 0, np.abs(m00), 1.0) + rtol)
+
+
+def assert_agrees_with_eigenvalues(m, rtol):
+    """Fast and eigenvalue verdicts agree outside the band; with ``method="eigh"`` (eigvalsh, the
+    fallback of the uncertain matrices) they agree everywhere."""
+    fast = is_cloude_physical(m, rtol=rtol)
+    ref, dist = eigenvalue_reference(m, rtol)
+    off = (fast != ref) & (dist > BAND)
+    assert not off.any(), f"{off.sum()} disagreements, lambda_min/m00 + rtol = {dist[off][:5]}"
+    assert np.array_equal(fast, is_cloude_physical(m, rtol=rtol, method="eigh"))
+    return fast, ref
+
+
+def boundary_matrices(rng, n, rtol):
+    """Coherency matrices U diag(lam) U^H with trace 1 and lam_min = -rtol (1 + s) exactly at, or
+    10^-16 .. 1 relatively inside or outside, the tolerance boundary; positive part of rank 1
+    (near pure), 2 or 3; magnitudes 1e-30 .. 1e30."""
+    q, _ = np.linalg.qr(rng.normal(size=(n, 4, 4)) + 1j * rng.normal(size=(n, 4, 4)))
+    s = rng.choice([-1.0, 1.0], n) * 10.0 ** rng.uniform(-16, 0, n)
+    s[rng.random(n) < 0.05] = 0.0
+    lam_min = -rtol * (1 + s)
+    w = rng.dirichlet(np.ones(3), n) * (np.arange(3) < rng.integers(1, 4, n)[:, None])
+    lam = np.concatenate([w / w.sum(1, keepdims=True) * (1 - lam_min)[:, None], lam_min[:, None]], 1)
+    h = (q * lam[:, None, :]) @ np.conj(np.swapaxes(q, -1, -2))
+    return mueller_from_coherency(h) * 10.0 ** rng.uniform(-30, 30, (n, 1, 1))
+
+
+def pure_depolarizer_mixtures(rng, n):
+    """(1 - p) P + p D (eigenvalues p/4: tiny positive) and (1 + p) P - p D (-p/4: tiny negative)
+    for random pure P, the ideal depolarizer D and p = 1e-14 .. 0.1."""
+    pure = jones_to_mueller(random_jones(rng, n))
+    pure /= pure[:, :1, :1]
+    p = rng.choice([-1.0, 1.0], n) * 10.0 ** rng.uniform(-14, -1, n)
+    return (1 - p)[:, None, None] * pure + p[:, None, None] * depolarizer(0.0)
+
+
+def generic_matrices(rng, n):
+    """Identity, ideal depolarizer and pure matrices plus noise, and plain normal matrices."""
+    k = n // 4
+    return np.concatenate(
+        [
+            np.eye(4) + rng.normal(scale=0.1, size=(k, 4, 4)),
+            depolarizer(0.0) + rng.normal(scale=0.02, size=(k, 4, 4)),
+            rng.normal(size=(k, 4, 4)),
+            jones_to_mueller(random_jones(rng, n - 3 * k)),
+        ]
+    )
+
+
+@pytest.fixture(scope="module")
+def seed_matrices():
+    from pbrdf.brdf import seeds
+
+    m = np.concatenate([np.asarray(t.M, dtype=np.float64).reshape(-1, 4, 4) for t in seeds.seed_tables()])
+    return m[m[:, 0, 0] > 0]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rtol", [1e-6, 1e-5])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_closed_form_agrees_on_seed_tables(seed_matrices, rtol, dtype):
+    fast, ref = assert_agrees_with_eigenvalues(seed_matrices.astype(dtype), rtol)
+    assert np.array_equal(fast, ref) and fast.all()  # every lit seed matrix is physical
+    # Non-physical relatives: s3 flipped at the output, and noise of 3 % of m00.
+    rng = np.random.default_rng(11)
+    m00 = seed_matrices[:, :1, :1]
+    for m in (
+        np.diag([1.0, 1, 1, -1]) @ seed_matrices,
+        seed_matrices + rng.normal(scale=0.03, size=seed_matrices.shape) * m00,
+    ):
+        fast, ref = assert_agrees_with_eigenvalues(m.astype(dtype), rtol)
+        assert np.array_equal(fast, ref) and 0.02 < fast.mean() < 0.98
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_closed_form_agrees_on_a_million_random_matrices(dtype):
+    rng = np.random.default_rng(20261124)
+    for rtol in (1e-6, 1e-5):
+        sets = {
+            "boundary": boundary_matrices(rng, 200_000, rtol),
+            "mixtures": pure_depolarizer_mixtures(rng, 150_000),
+            "generic": generic_matrices(rng, 150_000),
+        }
+        for name, m in sets.items():
+            m = m.astype(dtype)
+            fast, ref = assert_agrees_with_eigenvalues(m, rtol)
+            assert 0.05 < ref.mean() < 0.95, name  # both verdicts are exercised
+            # Only matrices near the boundary need the eigenvalues: nearly all within 1e-10 m00 of
+            # it (a few near-pure ones with pivots of the size of rtol further out).
+            physical, not_physical = validity._cloude_pivots(m.astype(np.float64), rtol)
+            unsure = ~(physical | not_physical)
+            _, dist = eigenvalue_reference(m, rtol)
+            assert np.count_nonzero(unsure & (dist > 1e-10)) <= 1e-4 * len(m), name
+            if name != "boundary":
+                assert not unsure.any(), name
+            elif dtype == np.float64:
+                assert unsure.any()  # the fallback is exercised
+
+
+def test_uncertain_matrices_fall_back_to_the_eigenvalues(monkeypatch):
+    rng = np.random.default_rng(7)
+    m = boundary_matrices(rng, 2000, 1e-6)
+    physical, not_physical = validity._cloude_pivots(m / m[:, :1, :1], 1e-6)
+    unsure = ~(physical | not_physical)
+    assert 0 < unsure.sum() < len(m)
+    ref = is_cloude_physical(m, method="eigh")  # eigvalsh: the fallback's own verdicts
+    assert np.array_equal(is_cloude_physical(m), ref)
+    # With every pivot "within rounding" everything goes to the eigenvalues: still the same verdicts.
+    monkeypatch.setattr(validity, "_PIVOT_TOL", np.inf)
+    assert np.array_equal(is_cloude_physical(m), ref)
+
+
+def test_closed_form_pivots_are_the_ldl_pivots(rng):
+    # The four pivots are ratios of leading principal minors of 4 (H + rtol m00 I).
+    m = generic_matrices(rng, 400)
+    m = m[m[:, 0, 0] > 0]
+    rtol = 1e-3
+    h = 4 * (coherency_matrix(m) + rtol * m[:, :1, :1] * np.eye(4))
+    minors = np.stack([np.linalg.det(h[:, :k, :k]).real for k in range(1, 5)], axis=1)
+    expected = minors / np.concatenate([np.ones((len(m), 1)), minors[:, :-1]], axis=1)
+    physical, not_physical = validity._cloude_pivots(m, rtol)
+    clear = np.all(np.abs(expected) > 1e-6, axis=1)
+    sylvester = np.all(expected > 0, axis=1)
+    assert np.array_equal(physical[clear], sylvester[clear])
+    assert np.array_equal(not_physical[clear], ~sylvester[clear])
+
+
+def test_closed_form_edge_cases():
+    zero = np.zeros((4, 4))
+    assert not is_cloude_physical(zero) and not is_cloude_physical(zero, method="eigh")
+    assert not is_cloude_physical(-depolarizer(0.0))  # m00 < 0
+    for fn in (is_cloude_physical, is_mueller_physical):
+        for bad in (np.nan, np.inf, -np.inf):
+            m = np.eye(4)
+            m[3, 1] = bad
+            with pytest.raises(ValueError, match="NaN or Inf"):
+                fn(m)
+            with pytest.raises(ValueError, match="NaN or Inf"):
+                fn(m.astype(np.float32))
+    with pytest.raises(ValueError, match="rtol"):
+        is_cloude_physical(np.eye(4), rtol=-1e-6)
+    with pytest.raises(ValueError, match="method"):
+        is_cloude_physical(np.eye(4), method="cholesky")
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_closed_form_is_scale_invariant(dtype):
+    # Verdicts at 1e-300 .. 1e300 (float32: 1e-30 .. 1e30) equal those at scale 1, where the
+    # products of entries would underflow or overflow without the rescaling and the fallback.
+    rng = np.random.default_rng(3)
+    m = np.concatenate([generic_matrices(rng, 2000), pure_depolarizer_mixtures(rng, 2000)])
+    base, _ = eigenvalue_reference(m, 1e-6)
+    assert 0.2 < base.mean() < 0.8
+    scales = (1e-30, 1e30) if dtype == np.float32 else (1e-300, 1e-160, 1e-30, 1e30, 1e160, 1e300)
+    for scale in scales:
+        scaled = (m * scale).astype(dtype)
+        ok = is_cloude_physical(scaled)
+        assert np.array_equal(ok, base), (scale, np.count_nonzero(ok != base))
+    lopsided = np.eye(4)
+    lopsided[0, 0] = 1e-300
+    assert not is_cloude_physical(lopsided) and not is_cloude_physical(np.diag([1e-300, 1, 1, 1]))
+
+
+def test_cloude_implies_givens_kostinski(seed_matrices, rng):
+    # Exactly, a convex sum of Jones systems maps the Stokes cone into itself. Measured at the
+    # same rtol: no exception on generic random matrices and the seed tables.
+    rtol = 1e-6
+    m = np.concatenate([generic_matrices(rng, 40_000), seed_matrices[::4]])
+    cl = is_cloude_physical(m, rtol=rtol)
+    assert 0.05 < cl.mean() < 0.95
+    assert is_givens_kostinski(m[cl], rtol=rtol).all()
+    # With the tolerance, H + rtol m00 I >= 0 makes M + 4 rtol m00 diag(1, 0, 0, 0) physical:
+    # near-pure matrices with small negative eigenvalues pass Cloude at rtol and GK at 4 rtol.
+    mix = pure_depolarizer_mixtures(rng, 20_000)
+    cl = is_cloude_physical(mix, rtol=rtol)
+    assert is_givens_kostinski(mix[cl], rtol=4 * rtol).all()
+    # ... but not always GK at rtol: a polarizer with m01 = m10 = 1 + 1.5 rtol has
+    # lambda_min(H) = -0.75 rtol and |m01| > m00 (1 + rtol).
+    eps = 1.5 * rtol
+    polarizer = linear_polarizer(0.0) * 2
+    polarizer[0, 1] = polarizer[1, 0] = 1 + eps
+    assert coherency_eigenvalues(polarizer)[-1] == pytest.approx(-eps / 2)
+    assert is_cloude_physical(polarizer, rtol=rtol) and is_mueller_physical(polarizer, rtol=rtol)
+    assert not is_givens_kostinski(polarizer, rtol=rtol) and is_givens_kostinski(polarizer, rtol=4 * rtol)
