@@ -6,4 +6,6 @@
 set -euo pipefail
 if command -v blender >/dev/null; then exit 0; fi
 echo "ensure_blender: installing Debian's blender (the old-Blender refusal tests)" >&2
-bash "$(dirname "$0")/apt_install.sh" --no-install-recommends blender
+# Optional: without it the binary tests skip with their reason, so a failed install only warns.
+bash "$(dirname "$0")/apt_install.sh" --no-install-recommends blender \
+  || echo "ensure_blender: could not install Debian's blender; the Blender-binary tests will skip" >&2
