@@ -58,7 +58,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--blend", action="store_true", help="also save a Blender scene with the relightable asset")
     parser.add_argument("--stride", type=int, default=1, choices=[1, 2, 4],
-                        help="decode every s-th pixel, interpolate the rest (faster)")  # fmt: skip
+                        help="decode every s-th pixel, interpolate the rest where smooth (faster)")  # fmt: skip
     parser.add_argument("--resolution", choices=["full", "network"], default="full",
                         help="decode at the capture's resolution (default) or at the network's input size")  # fmt: skip
     parser.add_argument("--card", action="store_true", help="no depth map (the import makes a flat card)")

@@ -29,6 +29,7 @@ from pbrdf.sensor.rig import Rig
 from .data import exposure_radiance, input_radiance, normalize_maps
 from .inputs import apply_inputs
 from .model import PolarInverseModel
+from .model.dense import REFINE_DEG
 
 __all__ = [
     "OUTPUTS",
@@ -234,6 +235,7 @@ def predict(
     radiance: float | None = None,
     stride: int = 1,
     resolution: str = "full",
+    refine_deg: float | None = REFINE_DEG,
 ) -> dict[str, np.ndarray]:
     """Normal, albedo, roughness, metallic ``(H, W, C)`` for nine maps of any size.
 
@@ -250,7 +252,8 @@ def predict(
     exposure-invariant scale with a warning.
     ``stride`` trades accuracy for speed: s > 1 decodes every s-th row and column of the network's
     input grid and interpolates the rest (:meth:`PolarInverseModel.decode_dense`), about s^2 times
-    less decoder work (``headless/bench.py network`` reports time and error per stride).
+    less decoder work (``headless/bench.py network`` reports time and error per stride); the
+    interpolation is edge-aware (``refine_deg``): pixels where it is unreliable are decoded exactly.
 
     Args:
         model: the network.
@@ -263,6 +266,8 @@ def predict(
         radiance: the display radiance in the maps' units, or None (relative radiometry).
         stride: 1, 2 or 4.
         resolution: ``"full"`` (decode at the maps' resolution) or ``"network"`` (at the input size).
+        refine_deg: stride > 1: decode the pixels whose decoded neighbours' normals differ by more
+            than this (degrees), whose BRDF differs, or that the mask's edge cuts; None interpolates all.
 
     Returns:
         ``{"normal": (H, W, 3), "albedo": (H, W, 3), "roughness": (H, W, 1), "metallic": (H, W, 1),
@@ -305,7 +310,7 @@ def predict(
         with torch.no_grad():
             features = model.encode(apply_inputs(normalize_maps(m, k, radiance=scale), inputs), k)
             pixel_maps = apply_inputs(normalize_maps(m_crop, k_crop, radiance=scale), inputs)
-            pred = model.decode_dense(features, pixel_maps, k_crop, stride=stride)
+            pred = model.decode_dense(features, pixel_maps, k_crop, stride=stride, refine_deg=refine_deg)
         _check_finite(pred)
         h, w = mask.shape
         out = {}
@@ -317,7 +322,9 @@ def predict(
         out["mask"] = mask.astype(np.float32)[..., None]
         return out
     with torch.no_grad():
-        pred = model(apply_inputs(normalize_maps(m, k, radiance=radiance), inputs), k, stride=stride)
+        pred = model(
+            apply_inputs(normalize_maps(m, k, radiance=radiance), inputs), k, stride=stride, refine_deg=refine_deg
+        )
     _check_finite(pred)
     # Extend the predictions past the (downsampled) mask with their nearest valid value, so that
     # upsampling never blends in the zeros outside it: thin parts of the full-size mask that the

@@ -161,6 +161,7 @@ def _bench_predict(s: ModelBench) -> dict:
     """:func:`network.infer.predict` with a trained checkpoint on real-path input: time and error per stride."""
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.infer import input_display_radiance, load_input, predict  # noqa: PLC0415
+    from network.model.dense import REFINE_DEG  # noqa: PLC0415
 
     model, ckpt = load_checkpoint(s.checkpoint)
     maps, mask = load_input(s.capture)
@@ -173,12 +174,18 @@ def _bench_predict(s: ModelBench) -> dict:
         "inside the mask of network.infer.load_input (normal angle in degrees, BRDF mean and max abs error)",
     }
     ref = None
-    for stride in sorted(set(s.strides) | {1}):
+    # stride_s: edge-aware (the default refine_deg); stride_s_plain: plain interpolation (refine_deg=None).
+    runs = [(st, refine, f"stride_{st}{suffix}") for st in sorted(set(s.strides) | {1}) for refine, suffix in
+            ([(REFINE_DEG, "")] if st == 1 else [(REFINE_DEG, ""), (None, "_plain")])]  # fmt: skip
+    for stride, refine, name in runs:
+        how = "plain interpolation" if refine is None else f"edge-aware, refine_deg {refine:g}"
         timing, pred = time_call(
-            lambda st=stride: predict(
-                model, maps, mask, inputs=inputs, input_scale=scale, radiance=radiance, stride=st
+            lambda st=stride, r=refine: predict(
+                model, maps, mask, inputs=inputs, input_scale=scale, radiance=radiance, stride=st, refine_deg=r
             ),
-            f"network.infer.predict of {Path(s.capture).name} at stride {stride} (CPU, checkpoint's input variant)",
+            f"network.infer.predict of {Path(s.capture).name} at stride {stride}"
+            + ("" if stride == 1 else f" ({how})")
+            + " (CPU, checkpoint's input variant)",
             repeat=s.repeat,
             warmup=s.warmup,
         )
@@ -187,7 +194,7 @@ def _bench_predict(s: ModelBench) -> dict:
             ref = pred
         else:
             entry["error_vs_stride_1"] = _stride_error(ref, pred, mask)
-        result[f"stride_{stride}"] = entry
+        result[name] = entry
     return result
 
 

@@ -15,7 +15,10 @@ rounding): the fast route gathers features and map values as rows of channels-la
 (:data:`EMBED_ELEMENTS`).
 
 ``stride`` > 1 trades accuracy for time: it decodes every s-th row and column (:func:`grid_pixels`) and fills the
-rest by normalised convolution (:func:`fill_from_decoded`), about s^2 times less decoder work.
+rest by normalised convolution (:func:`fill_from_decoded`), about s^2 times less decoder work. Interpolation is
+edge-aware (``refine_deg``): a filled pixel whose decoded neighbours disagree (:func:`unreliable_fill`: normals more
+than ``refine_deg`` apart, BRDF values more than ``refine_brdf``, or a neighbour missing at the mask's edge) is
+decoded exactly instead.
 
 Example:
     >>> grid_pixels(torch.arange(16), width=4, stride=2)  # rows and columns 1 and 3 of a 4 x 4 image
@@ -26,6 +29,7 @@ Example:
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import torch
@@ -39,12 +43,22 @@ from .maps import NUM_MAPS
 
 __all__ = [
     "EMBED_ELEMENTS",
+    "REFINE_BRDF",
+    "REFINE_DEG",
     "context_pixels",
     "decode_dense",
     "decode_dense_reference",
     "fill_from_decoded",
     "grid_pixels",
+    "unreliable_fill",
 ]
+
+#: Default ``refine_deg`` of :func:`decode_dense`: a strided fill whose decoded neighbours' normals lie more than
+#: this many degrees apart is decoded exactly (docs/measurements/network.md, "Edge-aware strided decoding").
+REFINE_DEG = 4.0
+#: Default ``refine_brdf`` of :func:`decode_dense`: likewise for albedo, roughness or metallic neighbours that
+#: differ by more than this (absolute, per channel).
+REFINE_BRDF = 0.05
 
 #: Dense decoding embeds pixels in pieces whose widest intermediate (an observation MLP's hidden layer, 9 rows per
 #: pixel) has about this many elements (16 MiB in float32), so that a piece stays cache-sized
@@ -120,6 +134,41 @@ def fill_from_decoded(values: Tensor, decoded: Tensor, stride: int) -> tuple[Ten
     return num / den.clamp_min(0.5 / stride**2), den
 
 
+def unreliable_fill(
+    values: Tensor, decoded: Tensor, weight: Tensor, stride: int, refine_deg: float, refine_brdf: float
+) -> Tensor:
+    """Pixels whose :func:`fill_from_decoded` value is unreliable: their decoded neighbours disagree or are missing.
+
+    The neighbours of a pixel are the decoded pixels with nonzero tent weight (within ``stride - 1`` rows and
+    columns). A pixel is flagged where the per-component range of their normals (max - min of x, y, z) has a
+    length above ``2 sin(refine_deg / 2)`` (so any two neighbours more than ``refine_deg`` apart flag it; pairs
+    up to sqrt(3) times closer may too), where any BRDF channel ranges over more than ``refine_brdf``, or where
+    the weight sum is below 1 (a neighbour of the full bilinear stencil is missing: the mask's or image's edge).
+
+    Args:
+        values: (C, H, W) outputs in :data:`~network.model.decoder.OUTPUT_CHANNELS` order (normal first).
+        decoded: (H, W) bool.
+        weight: (H, W) the weight sum from :func:`fill_from_decoded`.
+        stride: The grid spacing.
+        refine_deg: Normal threshold in degrees.
+        refine_brdf: Albedo/roughness/metallic threshold.
+
+    Returns:
+        (H, W) bool.
+    """
+    k = 2 * stride - 1
+    big = torch.finfo(values.dtype).max
+    with torch.autocast(values.device.type, enabled=False):
+        hi = torch.where(decoded, values, -big)[None]
+        lo = torch.where(decoded, -values, -big)[None]
+        span = (F.max_pool2d(hi, k, 1, stride - 1) + F.max_pool2d(lo, k, 1, stride - 1))[0]
+    span = torch.where(weight > 0, span, torch.zeros_like(span))
+    chord = 2 * math.sin(math.radians(refine_deg) / 2)
+    bad = span[:3].square().sum(0) > chord**2
+    bad |= (span[3:] > refine_brdf).any(0)
+    return bad | (weight < 1 - 0.5 / stride**2)
+
+
 def decode_dense(
     decoder: PixelDecoder,
     config: ModelConfig,
@@ -129,6 +178,8 @@ def decode_dense(
     chunk: int | None = None,
     *,
     stride: int = 1,
+    refine_deg: float | None = REFINE_DEG,
+    refine_brdf: float = REFINE_BRDF,
 ) -> dict[str, Tensor]:
     """Decode the masked pixels, in chunks, each attending to a fixed context of masked pixels.
 
@@ -151,6 +202,11 @@ def decode_dense(
             normals); masked pixels with no decoded pixel within s - 1 rows and columns (thin parts of the
             mask) are decoded too. Decoded pixels get exactly their stride-1 values; the decoder does about
             s^2 times less work.
+        refine_deg: Edge-aware stride (s > 1 only): filled pixels whose decoded neighbours disagree
+            (:func:`unreliable_fill` with this normal threshold in degrees and ``refine_brdf``) or are cut by the
+            mask's edge are decoded too, so they get exactly their stride-1 values; None fills every covered
+            pixel by interpolation.
+        refine_brdf: The albedo/roughness/metallic threshold of the refinement.
 
     Returns:
         ``normal`` (B, 3, H, W), ``albedo`` (B, 3, H, W), ``roughness`` (B, 1, H, W), ``metallic`` (B, 1, H, W);
@@ -189,6 +245,10 @@ def decode_dense(
         filled, weight = filled.reshape(filled.shape[0], -1), weight.reshape(-1)
         todo = inside & ~decoded
         covered = todo & (weight > 0)
+        if refine_deg is not None:
+            values = torch.cat([out[k][i] for k in OUTPUT_CHANNELS]).reshape(-1, h, w)
+            bad = unreliable_fill(values, decoded.reshape(h, w), weight.reshape(h, w), stride, refine_deg, refine_brdf)
+            covered &= ~bad.reshape(-1)
         start = 0
         for k, c in OUTPUT_CHANNELS.items():
             part = filled[start : start + c]

@@ -41,7 +41,7 @@ from torch import Tensor, nn
 from network.config import ModelConfig
 
 from .decoder import PixelDecoder
-from .dense import decode_dense, decode_dense_reference
+from .dense import REFINE_DEG, decode_dense, decode_dense_reference
 from .dpt import DPTHead
 from .interleave import InterleavedAttention
 from .maps import NUM_MAPS
@@ -156,7 +156,14 @@ class PolarInverseModel(nn.Module):
         return self.decoder.heads(self.decoder.transform(x, key_mask))
 
     def decode_dense(
-        self, features: Tensor, maps: Tensor, mask: Tensor, chunk: int | None = None, *, stride: int = 1
+        self,
+        features: Tensor,
+        maps: Tensor,
+        mask: Tensor,
+        chunk: int | None = None,
+        *,
+        stride: int = 1,
+        refine_deg: float | None = REFINE_DEG,
     ) -> dict[str, Tensor]:
         """Decode the masked pixels densely: :func:`~network.model.dense.decode_dense` with this model's decoder.
 
@@ -166,6 +173,8 @@ class PolarInverseModel(nn.Module):
             mask: (B, 1, H, W).
             chunk: Query pixels per pixel-transformer call (default ``config.infer_chunk``).
             stride: 1 decodes every masked pixel; s > 1 decodes every s-th row and column and fills the rest.
+            refine_deg: s > 1: also decode the filled pixels whose decoded neighbours' normals differ by more than
+                this (degrees), whose BRDF values differ, or that the mask's edge cuts; None interpolates them all.
 
         Returns:
             ``normal`` (B, 3, H, W), ``albedo`` (B, 3, H, W), ``roughness`` (B, 1, H, W), ``metallic`` (B, 1, H, W);
@@ -174,7 +183,9 @@ class PolarInverseModel(nn.Module):
         Raises:
             ValueError: If ``stride`` is not a positive int.
         """
-        return decode_dense(self.decoder, self.config, features, maps, mask, chunk, stride=stride)
+        return decode_dense(
+            self.decoder, self.config, features, maps, mask, chunk, stride=stride, refine_deg=refine_deg
+        )
 
     def decode_dense_reference(
         self, features: Tensor, maps: Tensor, mask: Tensor, chunk: int | None = None
@@ -194,6 +205,7 @@ class PolarInverseModel(nn.Module):
         generator: torch.Generator | None = None,
         chunk: int | None = None,
         stride: int = 1,
+        refine_deg: float | None = REFINE_DEG,
     ) -> dict[str, Tensor]:
         """Predict normal, albedo, roughness and metallic.
 
@@ -205,6 +217,7 @@ class PolarInverseModel(nn.Module):
             chunk: Dense decoding chunk size (default ``config.infer_chunk``).
             stride: Dense decoding only: decode every ``stride``-th row and column and interpolate the rest
                 (:meth:`decode_dense`); 1 (default) decodes every masked pixel.
+            refine_deg: Edge-aware stride (:meth:`decode_dense`); None turns the refinement off.
 
         Returns:
             With ``pixels`` given, or in training mode (``train_pixels`` random masked pixels per image):
@@ -237,4 +250,4 @@ class PolarInverseModel(nn.Module):
             pixels, valid = sample_pixels(mask, self.config.train_pixels, generator)
             out = self.decode_pixels(features, maps, pixels, valid)
             return {**out, "pixels": pixels, "valid": valid}
-        return self.decode_dense(features, maps, mask, chunk, stride=stride)
+        return self.decode_dense(features, maps, mask, chunk, stride=stride, refine_deg=refine_deg)

@@ -78,7 +78,10 @@ def test_stride_error_of_the_shipped_model_on_real_input():
     assert e2["normal_deg_mean"] == pytest.approx(float(angle.mean()), rel=1e-4, abs=1e-4)
     assert e2["albedo_mae"] == pytest.approx(float(np.abs(one["albedo"] - two["albedo"])[mask].mean()), abs=1e-5)
     # A trained model on real input: an error that grows with the stride (measured 0.2-0.7 and 0.6-1.9 deg).
-    assert 0.01 < e2["normal_deg_mean"] < e4["normal_deg_mean"] < 10.0
+    p2, p4 = (pred[f"stride_{s}_plain"]["error_vs_stride_1"] for s in (2, 4))
+    assert 0.01 < p2["normal_deg_mean"] < p4["normal_deg_mean"] < 10.0
+    # Edge-aware (default) strides: the refinement bounds the tail below the plain interpolation's.
+    assert e2["normal_deg_p99"] <= p2["normal_deg_p99"] and e4["normal_deg_p99"] <= p4["normal_deg_p99"]
     assert e2["normal_deg_mean"] <= e2["normal_deg_p99"] <= e2["normal_deg_max"]
 
 

@@ -16,7 +16,14 @@ from torch.utils.flop_counter import FlopCounterMode
 
 from network.checkpoint import load_checkpoint
 from network.infer import DEFAULT_CHECKPOINT
-from network.model.dense import context_pixels, fill_from_decoded, grid_pixels
+from network.model.dense import (
+    REFINE_BRDF,
+    REFINE_DEG,
+    context_pixels,
+    fill_from_decoded,
+    grid_pixels,
+    unreliable_fill,
+)
 from network.model.flops import estimate_flops
 from tests.helpers import make_model
 
@@ -31,6 +38,13 @@ def smooth_maps(size, batch=1):
     u, v = yy / size, xx / size
     maps = torch.stack([0.3 + 0.2 * torch.sin(3 * u + k) * torch.cos(2 * v - k) for k in range(9)])
     return maps[None].expand(batch, -1, -1, -1).float().contiguous()
+
+
+def halves_maps(size):
+    """:func:`smooth_maps` with a sharp vertical edge off the stride-4 grid: the right part's maps differ."""
+    maps = smooth_maps(size)
+    maps[..., size // 2 + 1 :] = 0.9 - maps[..., size // 2 + 1 :]
+    return maps
 
 
 def disc_mask(size, fraction=0.5):
@@ -171,6 +185,50 @@ class TestStride:
         for key in ("albedo", "roughness", "metallic"):
             err = (ref[key] - got[key]).abs().mean()
             assert float(err) < 0.25 * float((ref[key] - ref[key].mean(1, keepdim=True)).abs().mean()), key
+
+    def test_refined_pixels_exact(self):
+        # Edge-aware stride: the filled pixels that unreliable_fill flags get exactly their stride-1 values, the
+        # others keep the plain interpolation.
+        model = make_model()
+        maps, mask = halves_maps(64), disc_mask(64, 0.6)
+        with torch.no_grad():
+            feats = model.encode(maps, mask)
+            full = model.decode_dense(feats, maps, mask)
+            plain = model.decode_dense(feats, maps, mask, stride=4, refine_deg=None)
+            fast = model.decode_dense(feats, maps, mask, stride=4, refine_deg=REFINE_DEG)
+        assert_valid(fast, mask)
+        idx = torch.nonzero(mask.reshape(-1) > 0).squeeze(1)
+        decoded = torch.zeros(64, 64, dtype=torch.bool)
+        decoded.view(-1)[grid_pixels(idx, 64, 4)] = True
+        decoded.view(-1)[context_pixels(idx, model.config.train_pixels)] = True
+        values = torch.cat([fast[k][0] for k in KEYS])
+        _, weight = fill_from_decoded(values, decoded, 4)
+        bad = unreliable_fill(values, decoded, weight, 4, REFINE_DEG, REFINE_BRDF)
+        filled = (mask[0, 0] > 0) & ~decoded & (weight > 0)
+        refined, kept = filled & bad, filled & ~bad
+        assert 0 < int(refined.sum()) < int(filled.sum())
+        for key in KEYS:
+            torch.testing.assert_close(fast[key][0][:, refined], full[key][0][:, refined], rtol=0, atol=1e-6)
+            assert torch.equal(fast[key][0][:, kept], plain[key][0][:, kept]), key
+            assert torch.equal(fast[key][0][:, decoded], plain[key][0][:, decoded]), key
+
+    def test_refinement_bounds_edge_error(self):
+        # Two halves with different maps: a sharp edge that plain stride-4 interpolation blurs (p99 error above
+        # the threshold) and the edge-aware one decodes (p99 below it).
+        model = make_model()
+        maps, mask = halves_maps(64), torch.ones(1, 1, 64, 64)
+        with torch.no_grad():
+            feats = model.encode(maps, mask)
+            full = model.decode_dense(feats, maps, mask)
+            plain = model.decode_dense(feats, maps, mask, stride=4, refine_deg=None)
+            fast = model.decode_dense(feats, maps, mask, stride=4, refine_deg=2.0)
+
+        def p99(out):
+            cos = (out["normal"] * full["normal"]).sum(1).clamp(-1, 1)
+            return float(torch.quantile(torch.rad2deg(torch.acos(cos)).reshape(-1), 0.99))
+
+        assert p99(plain) > 2.0
+        assert p99(fast) < 2.0
 
     def test_thin_parts_are_decoded(self):
         # Pixels with no decoded pixel within stride - 1 rows and columns are decoded, not left at zero.
