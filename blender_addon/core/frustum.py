@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
+from pbrdf.io.strict_json import read_json_object
 from pbrdf.sensor import projection
 
 __all__ = [
@@ -272,14 +273,7 @@ def read_camera_json(path: str | os.PathLike) -> CaptureCamera:
         ValueError: one line naming the file and the bad field (or the JSON error).
     """
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not valid JSON ({e.msg} at line {e.lineno} column {e.colno})") from None
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: not valid JSON (not UTF-8 text)") from None
-    if not isinstance(doc, dict):
-        raise ValueError(f"{path}: expected a JSON object with intrinsics, width, height, got {type(doc).__name__}")
+    doc = read_json_object(path)
     missing = [k for k in ("intrinsics", "width", "height") if k not in doc]
     if missing:
         raise ValueError(f"{path}: {missing[0]}: missing")

@@ -25,12 +25,13 @@ Example:
 
 from __future__ import annotations
 
-import json
 import os
 import re
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
+
+from pbrdf.io.strict_json import read_json_object
 
 __all__ = [
     "CAMERA_SUFFIX",
@@ -370,13 +371,8 @@ def match_sequence_files(path: str | os.PathLike, *, required: Iterable[str] = (
             cannot number, ambiguous map names.
     """
     path = Path(path)
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: not valid JSON ({e.msg} at line {e.lineno} column {e.colno})") from None
-    except UnicodeDecodeError:
-        raise ValueError(f"{path}: not valid JSON (not UTF-8 text)") from None
-    frames = doc.get("frames") if isinstance(doc, dict) else None
+    doc = read_json_object(path)
+    frames = doc.get("frames")
     if not isinstance(frames, list) or not frames:
         raise ValueError(f"{path}: frames: must be a non-empty list of {{'prefix': ...}} objects")
     prefixes = []

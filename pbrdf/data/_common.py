@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from pbrdf.io.strict_json import read_json_object  # noqa: F401  (its home; dataset and sample read through here)
+
 __all__ = ["check_index", "dumps_json", "check_metadata", "read_json_object", "remove_path"]
 
 
@@ -62,27 +64,6 @@ def check_metadata(metadata: Any, reserved: Sequence[str], what: str) -> dict[st
     if clash:
         raise ValueError(f"{what} may not set the reserved key(s) {clash}")
     return dict(metadata)
-
-
-def read_json_object(path: Path, fmt: str) -> dict[str, Any]:
-    """A JSON object whose ``format`` is ``fmt``; one-line ValueError naming the file otherwise.
-
-    Malformed text, nesting too deep for the parser (RecursionError) and integers of more than
-    4300 digits are all reported as invalid JSON.
-    """
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except RecursionError:
-        raise ValueError(f"{path}: invalid JSON (nested too deeply)") from None
-    except ValueError as e:  # UnicodeDecodeError, JSONDecodeError, too many digits
-        raise ValueError(f"{path}: invalid JSON ({' '.join(str(e).split())})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected a JSON object; got {type(data).__name__}")
-    if data.get("format") != fmt:
-        found = repr(data.get("format"))
-        found = found if len(found) <= 40 else found[:37] + "..."
-        raise ValueError(f"{path}: unsupported format {found}; expected {fmt!r}")
-    return data
 
 
 def remove_path(path: Path) -> None:

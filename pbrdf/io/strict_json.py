@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["to_strict", "dumps_strict", "loads_strict"]
+__all__ = ["to_strict", "dumps_strict", "loads_strict", "read_json_object"]
 
 
 def to_strict(obj: Any) -> Any:
@@ -51,3 +51,25 @@ def _refuse(name: str) -> Any:
 def loads_strict(text: str) -> Any:
     """Parse JSON, refusing ``NaN``, ``Infinity`` and ``-Infinity`` (which :func:`json.loads` accepts)."""
     return json.loads(text, parse_constant=_refuse)
+
+
+def read_json_object(path: str | Path, fmt: str | None = None) -> dict[str, Any]:
+    """A JSON object (whose ``format`` is ``fmt``, when given); one-line ValueError naming the file otherwise.
+
+    Malformed text, nesting too deep for the parser (RecursionError) and integers of more than
+    4300 digits are all reported as invalid JSON.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except RecursionError:
+        raise ValueError(f"{path}: invalid JSON (nested too deeply)") from None
+    except ValueError as e:  # UnicodeDecodeError, JSONDecodeError, too many digits
+        raise ValueError(f"{path}: invalid JSON ({' '.join(str(e).split())})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected a JSON object; got {type(data).__name__}")
+    if fmt is not None and data.get("format") != fmt:
+        found = repr(data.get("format"))
+        found = found if len(found) <= 40 else found[:37] + "..."
+        raise ValueError(f"{path}: unsupported format {found}; expected {fmt!r}")
+    return data

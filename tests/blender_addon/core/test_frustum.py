@@ -198,5 +198,5 @@ class TestCameraJson:
             frustum.read_camera_json(path)
         for text in ("{", "[1, 2]"):
             path = self._write(tmp_path, text)
-            with pytest.raises(ValueError, match=r"cap_camera.json: (not valid JSON|expected a JSON object)"):
+            with pytest.raises(ValueError, match=r"cap_camera.json: (invalid JSON|expected a JSON object)"):
                 frustum.read_camera_json(path)

@@ -192,8 +192,8 @@ class TestSequence:
     @pytest.mark.parametrize(
         ("text", "match"),
         [
-            ("{", "not valid JSON"),
-            ("[]", "frames: must be a non-empty list"),
+            ("{", "invalid JSON"),
+            ("[]", "expected a JSON object; got list"),
             ('{"frames": []}', "frames: must be a non-empty list"),
             ('{"frames": [{"prefix": "a/b"}]}', r"frames\[0\].prefix: must be a file name prefix"),
             ('{"frames": [{"frame": 1}]}', r"frames\[0\].prefix: must be a file name prefix"),
