@@ -1,12 +1,16 @@
 """Scene spec -> Mitsuba 3 scene for one colour channel of the display-camera rig.
 
-The display is an ``area`` emitter on a rectangle (or a curved strip) showing one colour
-channel of the RGB pattern, with a ``polarizer`` sheet 1 mm in front of it; its radiance is
-doubled for the sheet's 50 % loss. Objects carry polarization-aware BSDFs only: ``pplastic``
-(Baek et al. 2018) and ``roughconductor`` for analytic materials and :mod:`.table_bsdf` or
-``measured_polarized`` for pBRDF tables (``principled`` and ``diffuse`` depolarize). The integrator is ``stokes`` around
-``volpath`` (``path`` cannot send shadow rays through the polarizer sheet), with AOVs for the
-ground truth.
+The display shows one colour channel of the RGB pattern. Two equivalent models of its
+polarization: an unpolarized ``area`` emitter on a rectangle (or a curved strip) with a
+``polarizer`` sheet 1 mm in front of it, its radiance doubled for the sheet's 50 % loss (the
+reference, and the only one for curved displays and pattern images); or, for flat displays with
+the built-in patterns, :mod:`.polarized_display`'s emitter, which emits the light the sheet would
+pass and needs no sheet (the default of :mod:`.render`: shadow rays cross no null interface, so
+``path`` works and each pass is about 1.7x faster). Objects carry polarization-aware BSDFs only:
+``pplastic`` (Baek et al. 2018) and ``roughconductor`` for analytic materials and
+:mod:`.table_bsdf` or ``measured_polarized`` for pBRDF tables (``principled`` and ``diffuse``
+depolarize). The integrator is ``stokes`` around ``path`` or ``volpath`` (with the sheet only
+``volpath``: ``path`` cannot send shadow rays through it), with AOVs for the ground truth.
 
 Spectral multiplexing: one ``*_mono_polarized`` pass per colour channel, each with that
 channel's part of the pattern and the material's value at that channel's wavelength
@@ -53,11 +57,13 @@ __all__ = [
     "display_shapes",
     "display_updates",
     "lit_rectangle",
+    "polarized_emitter_possible",
     "sensor_dict",
     "bsdf_dict",
     "mesh_object",
     "mesh_from_arrays",
     "scene_dict",
+    "integrator_dict",
     "channel_updates",
     "alpha_sample",
     "is_convex",
@@ -85,9 +91,10 @@ MIN_ALPHA = 1e-3
 #: to the nearest level in log scale. The plugin compiles its ``alpha_sample`` into the kernel as a
 #: constant, so a continuous value would recompile every sample; any value is unbiased.
 ALPHA_SAMPLE_LEVELS = (0.05, 0.1, 0.2, 0.4, 0.8)
-#: ``max_depth`` of direct light only (camera -> object -> display) per integrator: ``volpath``
-#: does not count the polarizer sheet (a null interface) as a bounce, ``path`` does (measured:
-#: ``path`` at 2 renders black). One more adds one interreflection.
+#: ``max_depth`` of direct light only (camera -> object -> display) per integrator, with the
+#: polarizer sheet: ``volpath`` does not count the sheet (a null interface) as a bounce, ``path``
+#: does (measured: ``path`` at 2 renders black). Without the sheet (:mod:`.polarized_display`)
+#: both need 2. One more adds one interreflection.
 DIRECT_LIGHT_DEPTH = {"volpath": 2, "path": 3}
 #: Volume over convex-hull volume above which a closed mesh counts as convex.
 CONVEX_VOLUME_RATIO = 0.999
@@ -254,8 +261,25 @@ def _emitter_to_world(display: DisplaySpec, rect: tuple[float, float, float, flo
     return np.asarray(display.display_to_world()) @ local
 
 
-def display_shapes(display: DisplaySpec, channel: int) -> dict[str, Any]:
+def polarized_emitter_possible(display: DisplaySpec) -> bool:
+    """Whether the display can be rendered as :mod:`.polarized_display` (no sheet) in mono passes.
+
+    A flat display whose colour channels each light one full rectangle (the built-in patterns),
+    fully polarized; curved displays and pattern images keep the sheet.
+    """
+    return (
+        display.curvature_radius is None
+        and display.degree_of_polarization == 1.0
+        and display.pattern in BUILTIN_RECTANGLE_PATTERNS
+        and all(lit_rectangle(display, c) is not None for c in range(3))
+    )
+
+
+def display_shapes(display: DisplaySpec, channel: int, *, polarized_emitter: bool = False) -> dict[str, Any]:
     """The emitting display surface and its polarizer sheet, for one colour channel.
+
+    With ``polarized_emitter`` (only where :func:`polarized_emitter_possible`) the lit rectangle
+    carries :mod:`.polarized_display`'s emitter instead, and there is no sheet.
 
     On a flat display whose channel lights one rectangle (the built-in patterns), only that
     rectangle emits, with constant radiance (no texture lookups, and a parameter update switches
@@ -273,6 +297,17 @@ def display_shapes(display: DisplaySpec, channel: int) -> dict[str, Any]:
             "degree_of_polarization < 1 is not rendered yet; the default display is fully polarized"
         )
     to_world = np.asarray(display.display_to_world())
+    if polarized_emitter:
+        if not polarized_emitter_possible(display):
+            raise ValueError("the polarized display emitter needs a flat display with a built-in pattern")
+        from . import polarized_display  # noqa: PLC0415
+
+        polarized_display.register()
+        rect = lit_rectangle(display, channel)
+        absorbing = np.cross(display.normal_world(), display.polarization_direction_world())
+        emitter = polarized_display.emitter_dict(display.radiance, absorbing)
+        return {"display": {"type": "rectangle", "to_world": scalar_transform(_emitter_to_world(display, rect)),
+                            "emitter": emitter}}  # fmt: skip
     sheet_bsdf = {"type": "polarizer", "theta": -math.degrees(display.polarization_angle)}
     if display.curvature_radius is None:
         scale = np.diag([display.width / 2, display.height / 2, 1.0, 1.0])
@@ -439,7 +474,7 @@ def is_convex(vertices: NDArray, faces: NDArray) -> bool:
     return bool(hull > 0 and volume / hull > CONVEX_VOLUME_RATIO)
 
 
-def auto_max_depth(meshes: list, integrator: str = "volpath") -> int:
+def auto_max_depth(meshes: list, integrator: str = "volpath", *, sheet: bool = True) -> int:
     """The path length limit a scene needs: direct light only where no object can see another or itself.
 
     That is one closed convex object (:func:`is_convex`); otherwise one interreflection.
@@ -449,8 +484,9 @@ def auto_max_depth(meshes: list, integrator: str = "volpath") -> int:
     Args:
         meshes: ``(vertices, faces, ...)`` per object (:func:`.passes.world_meshes`).
         integrator: ``"volpath"`` or ``"path"`` (:data:`DIRECT_LIGHT_DEPTH`).
+        sheet: whether the display has its polarizer sheet (else :mod:`.polarized_display`).
     """
-    direct = DIRECT_LIGHT_DEPTH[integrator]
+    direct = DIRECT_LIGHT_DEPTH[integrator] if sheet else DIRECT_LIGHT_DEPTH["volpath"]
     if len(meshes) == 1 and is_convex(meshes[0][0], meshes[0][1]):
         return direct
     return direct + 1
@@ -514,6 +550,22 @@ def mesh_object(
     return mesh_from_arrays(name, vertices_world, faces, {"bsdf": mi.load_dict(bsdf)}, normals=normals_world)
 
 
+def integrator_dict(integrator: str, max_depth: int, *, aovs: bool = True) -> dict:
+    """The ``stokes`` integrator around ``integrator``, with the ground-truth AOVs (:data:`AOVS`) or without.
+
+    ``direct`` is direct light only (``max_depth`` unused), one emitter and one BSDF sample per
+    camera sample as ``path`` at depth 2, with less per-path bookkeeping (about 15 % faster).
+    More emitter samples per camera sample were tried and left out: they trade BSDF samples for
+    light samples, which a glossy metal pays for (docs/measurements/headless.md).
+    """
+    inner: dict = {"type": integrator, "max_depth": max_depth}
+    if integrator == "direct":
+        inner = {"type": "direct"}
+    if aovs:
+        inner = {"type": "aov", "aovs": AOVS, "integrator": inner}
+    return {"type": "stokes", "nested": inner}
+
+
 def scene_dict(
     display: DisplaySpec,
     camera: CameraSpec,
@@ -526,6 +578,7 @@ def scene_dict(
     integrator: str = "volpath",
     sampler: str = "independent",
     aovs: bool = True,
+    polarized_emitter: bool = False,
 ) -> dict:
     """The full Mitsuba scene dict for one colour channel.
 
@@ -542,15 +595,13 @@ def scene_dict(
             ``"path"`` (for benchmarks).
         sampler: Mitsuba sampler plugin name.
         aovs: add the ground-truth AOVs (:data:`AOVS`).
+        polarized_emitter: the display as :mod:`.polarized_display` without the sheet.
     """
-    inner: dict = {"type": integrator, "max_depth": max_depth}
-    if aovs:
-        inner = {"type": "aov", "aovs": AOVS, "integrator": inner}
     scene = {
         "type": "scene",
-        "integrator": {"type": "stokes", "nested": inner},
+        "integrator": integrator_dict(integrator, max_depth, aovs=aovs),
         "sensor": sensor_dict(camera, window, spp, sampler=sampler),
-        **display_shapes(display, channel),
+        **display_shapes(display, channel, polarized_emitter=polarized_emitter),
     }
     for name, obj in objects.items():
         if name in scene:

@@ -27,6 +27,7 @@ __all__ = [
     "world_meshes",
     "render_window",
     "aov_result",
+    "INTEGRATORS",
 ]
 
 _VARIANT_CACHE: dict[str, str] = {}
@@ -41,14 +42,21 @@ class RenderSettings:
         spp: samples per pixel per colour pass.
         max_depth: path length limit, or None (default) to choose it from the scene
             (:func:`.mitsuba_scene.auto_max_depth`: direct light only for one closed convex
-            object, which sees neither itself nor another, else one interreflection). With
-            ``volpath`` 2 is direct light only and 3 adds one interreflection; ``path`` counts
-            the polarizer sheet as a bounce and needs one more.
+            object, which sees neither itself nor another, else one interreflection). 2 is direct
+            light only and 3 adds one interreflection, except for ``path`` through the polarizer
+            sheet, which counts the sheet as a bounce and needs one more.
         crop: render only the objects' screen-space bounding box (True) or the full sensor at
             the same sampling (benchmarks).
         margin: border around the bounding box, as a fraction of its size.
-        integrator: ``"volpath"`` (default) or ``"path"`` (benchmarks only: it cannot see the
-            display through the polarizer sheet with next-event estimation).
+        display: ``"emitter"`` (default): the display as :mod:`.polarized_display`'s polarized
+            emitter where the display allows it (flat, built-in pattern;
+            :func:`.mitsuba_scene.polarized_emitter_possible`), else with the sheet;
+            ``"sheet"``: always the unpolarized emitter behind a ``polarizer`` sheet (the
+            reference model; same images to noise).
+        integrator: ``"auto"`` (default: without the sheet ``direct`` where direct light is all
+            (``max_depth`` 2), else ``path``; ``volpath`` with the sheet), ``"direct"`` (without
+            the sheet only), ``"volpath"`` or ``"path"`` (with the sheet for benchmarks only: it
+            cannot see the display through the sheet with next-event estimation).
         sampler: Mitsuba sampler. ``multijitter`` (stratified, default) reaches 3.4 % relative
             RMSE at 16 spp where ``independent`` needs about 150 spp (headless/bench.py render).
         variant: Mitsuba variant, or None to choose (:func:`choose_variant`).
@@ -60,7 +68,8 @@ class RenderSettings:
     max_depth: int | None = None
     crop: bool = True
     margin: float = 0.06
-    integrator: str = "volpath"
+    display: str = "emitter"
+    integrator: str = "auto"
     sampler: str = "multijitter"
     variant: str | None = None
     noise: bool = True
@@ -72,8 +81,28 @@ class RenderSettings:
             raise ValueError(f"spp must be >= 1, got {self.spp}")
         if self.max_depth is not None and self.max_depth < 1:
             raise ValueError(f"max_depth must be None or >= 1, got {self.max_depth}")
-        if self.integrator not in ("volpath", "path"):
-            raise ValueError(f"integrator must be 'volpath' or 'path', got {self.integrator!r}")
+        if self.integrator not in INTEGRATORS:
+            raise ValueError(f"integrator must be one of {INTEGRATORS}, got {self.integrator!r}")
+        if self.display not in ("emitter", "sheet"):
+            raise ValueError(f"display must be 'emitter' or 'sheet', got {self.display!r}")
+
+    def integrator_for(self, sheet: bool, max_depth: int | None = None) -> str:
+        """The integrator used with or without the polarizer sheet, and at ``max_depth`` if known.
+
+        ``"auto"`` is ``volpath`` with the sheet, and without it ``direct`` at the direct-light
+        depth (``max_depth`` 2) and ``path`` otherwise.
+        """
+        if self.integrator == "direct" and sheet:
+            raise ValueError("integrator 'direct' cannot light the scene through the polarizer sheet; use 'volpath'")
+        if self.integrator != "auto":
+            return self.integrator
+        if sheet:
+            return "volpath"
+        return "direct" if max_depth == ms.DIRECT_LIGHT_DEPTH["volpath"] else "path"
+
+
+#: Accepted ``RenderSettings.integrator`` values.
+INTEGRATORS = ("auto", "direct", "path", "volpath")
 
 
 @dataclass
@@ -93,6 +122,9 @@ class RenderResult:
             (``jit_compile``; 0 when every kernel was compiled by an earlier sample).
         max_depth: the path length limit rendered with (chosen from the scene when the
             settings left it None).
+        integrator: the integrator rendered with (``path`` or ``volpath``).
+        display: the display model rendered with: ``"emitter"`` (:mod:`.polarized_display`)
+            or ``"sheet"``.
     """
 
     stokes: NDArray[np.float32]
@@ -104,6 +136,8 @@ class RenderResult:
     variant: str
     seconds: dict = field(default_factory=dict)
     max_depth: int | None = None
+    integrator: str = ""
+    display: str = ""
 
     @property
     def mask(self) -> NDArray[np.bool_]:

@@ -69,27 +69,35 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
     its kernels depend on. With the sensor and material choices of :mod:`.mitsuba_scene`, the
     kernels compiled for the first sample of a process serve every later one with the same
     resolution, ``spp``, ``max_depth`` and BSDF types (``seconds["jit_compile"]`` is then 0).
+    The display is :mod:`.polarized_display`'s emitter where it can be (``settings.display``),
+    and only the first pass renders the AOVs.
 
     Args:
         spec: validated scene spec (rig, objects, materials).
-        settings: resolution, samples, cropping, variant; ``max_depth`` None chooses it from the
-            scene (:func:`.mitsuba_scene.auto_max_depth`).
+        settings: resolution, samples, cropping, display model, integrator, variant;
+            ``max_depth`` None chooses it from the scene (:func:`.mitsuba_scene.auto_max_depth`).
 
     Returns:
-        :class:`RenderResult` on the crop window, with the ``max_depth`` used.
+        :class:`RenderResult` on the crop window, with the ``max_depth``, integrator and display
+        model used.
     """
     settings = settings or RenderSettings()
     variant = settings.variant or choose_variant()
     mi = set_variant(variant)
     meshes = world_meshes(spec)
+    rig = spec.rig
+    spectral = "spectral" in variant
+    polarized_emitter = settings.display == "emitter" and not spectral and ms.polarized_emitter_possible(rig.display)
+    sheet = not polarized_emitter
     max_depth = settings.max_depth
     if max_depth is None:
-        max_depth = ms.auto_max_depth(meshes, settings.integrator)
-    if "spectral" in variant:  # the fallback without LLVM, and cross-checks
+        base = settings.integrator if settings.integrator in ("path", "volpath") else settings.integrator_for(sheet)
+        max_depth = ms.auto_max_depth(meshes, "path" if base == "direct" else base, sheet=sheet)
+    integrator = settings.integrator_for(sheet, max_depth)
+    if spectral:  # the fallback without LLVM, and cross-checks
         result = render_stokes_spectral(spec, dataclasses.replace(settings, max_depth=max_depth), variant=variant)
         result.max_depth = max_depth
         return result
-    rig = spec.rig
     cam = rig.camera
     window = render_window(spec, settings, meshes)
     materials = {m.name: m for m in spec.materials}
@@ -103,7 +111,8 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
         return mi.load_dict(
             ms.scene_dict(
                 rig.display, cam, window, objs, channel,
-                spp=settings.spp, max_depth=max_depth, integrator=settings.integrator, sampler=settings.sampler,
+                spp=settings.spp, max_depth=max_depth, integrator=integrator, sampler=settings.sampler,
+                polarized_emitter=polarized_emitter,
             )
         )  # fmt: skip
 
@@ -135,16 +144,35 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
                     params = mi.traverse(scene)
                 else:
                     params.update(updates)
-            img = np.asarray(mi.render(scene, seed=(int(spec.seed) * 3 + c) % 2**32, spp=settings.spp))
-            # Mono layout: [Y, S0 x3, S1 x3, S2 x3, S3 x3, AOVs...].
+            # The AOVs come from the first pass; the others skip them (a primary ray and seven
+            # film channels less per sample).
+            integ = None if c == 0 else _plain_integrator(integrator, max_depth)
+            img = np.asarray(
+                mi.render(scene, integrator=integ, seed=(int(spec.seed) * 3 + c) % 2**32, spp=settings.spp)
+            )
+            # Mono layout: [Y, S0 x3, S1 x3, S2 x3, S3 x3, AOVs (first pass)...].
             stokes[:, :, c, :] = img[:, :, [1, 4, 7, 10]]
             if c == 0:  # AOVs from the first pass, with that scene's shape ids
                 aovs = aov_result(img[:, :, 13:], scene, spec, names, [m[3] for m in meshes])
             seconds[f"pass_{'RGB'[c]}"] = time.perf_counter() - t0
     seconds["jit_compile"] = compile_timer.seconds
     return RenderResult(
-        stokes=stokes, window=window, variant=variant, seconds=seconds, max_depth=max_depth, **aovs
+        stokes=stokes, window=window, variant=variant, seconds=seconds, max_depth=max_depth,
+        integrator=integrator, display="emitter" if polarized_emitter else "sheet", **aovs,
     )  # fmt: skip
+
+
+_PLAIN_INTEGRATORS: dict[tuple[str, str, int], object] = {}
+
+
+def _plain_integrator(integrator: str, max_depth: int):
+    """The ``stokes`` integrator without AOVs, one object per variant and setting (its kernels are reused)."""
+    import mitsuba as mi  # noqa: PLC0415
+
+    key = (mi.variant(), integrator, max_depth)
+    if key not in _PLAIN_INTEGRATORS:
+        _PLAIN_INTEGRATORS[key] = mi.load_dict(ms.integrator_dict(integrator, max_depth, aovs=False))
+    return _PLAIN_INTEGRATORS[key]
 
 
 class _CompileTimer:

@@ -201,9 +201,10 @@ def render_stokes_spectral(
     window = passes.render_window(spec, settings, meshes)
     materials = {m.name: m for m in spec.materials}
     names = [f"object_{i}" for i in range(len(spec.objects))]
+    integrator = settings.integrator_for(sheet=True)  # spectral variants keep the sheet
     max_depth = settings.max_depth
     if max_depth is None:  # chosen from the scene, as the mono passes do
-        max_depth = ms.auto_max_depth(meshes, settings.integrator)
+        max_depth = ms.auto_max_depth(meshes, integrator)
 
     seconds: dict[str, float] = {}
     t0 = time.perf_counter()
@@ -215,7 +216,7 @@ def render_stokes_spectral(
     inner = {
         "type": "aov",
         "aovs": ms.AOVS,
-        "integrator": {"type": settings.integrator, "max_depth": max_depth},
+        "integrator": {"type": integrator, "max_depth": max_depth},
     }
     scene = mi.load_dict({
         "type": "scene",
@@ -239,5 +240,7 @@ def render_stokes_spectral(
         window=window,
         variant=variant,
         seconds=seconds,
+        integrator=integrator,
+        display="sheet",
         **aovs,
     )

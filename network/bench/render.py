@@ -8,11 +8,13 @@ pBRDF table material (``headless/bench.py render`` builds both). Per scene:
 * a reference: the default configuration at ``ref_spp`` samples per pixel, rendered in chunks
   (distinct seeds, averaged; the chunk is the largest benchmark ``spp`` when it divides
   ``ref_spp``, so the reference reuses that point's compiled kernels);
-* three configurations, each timed at a few ``spp`` under :mod:`network.bench.timing`, one
+* four configurations, each timed at a few ``spp`` under :mod:`network.bench.timing`, one
   ``render_stokes`` call (the three colour passes of one dataset sample) per timed call:
-  ``default`` (the renderer's defaults: ``volpath``, ``multijitter``, only the crop window,
-  ``max_depth`` chosen from the scene), ``naive_path`` (``path``, ``independent``, the full
-  frame) and ``naive_volpath`` (``volpath``, ``independent``, the full frame).
+  ``default`` (the renderer's defaults: the polarized display emitter, ``direct`` where direct
+  light is all and ``path`` otherwise, ``multijitter``, only the crop window, ``max_depth``
+  chosen from the scene), ``sheet`` (the same with the display behind its polarizer sheet and
+  ``volpath``: the previous default), ``naive_path`` (sheet, ``path``, ``independent``, the full
+  frame) and ``naive_volpath`` (sheet, ``volpath``, ``independent``, the full frame).
 
 Error: relative RMSE of the unpol and LP maps against the reference over the reference's object
 pixels (CP, a ratio with its own scale, as its RMSE apart). The reference has noise of its own,
@@ -46,14 +48,23 @@ __all__ = ["run", "fit_to_target", "TARGET_ERROR", "CONFIGS"]
 TARGET_ERROR = 0.02
 #: Configuration name -> (settings changed from the renderer's defaults, what it renders in words).
 CONFIGS = {
-    "default": ({}, "volpath (shadow rays through the polarizer sheet), multijitter, crop window, max_depth auto"),
+    "default": (
+        {},
+        "polarized display emitter (no sheet), integrator auto (direct where direct light is all, else path), "
+        "multijitter, crop window, max_depth auto",
+    ),
+    "sheet": (
+        {"display": "sheet"},
+        "display behind a polarizer sheet, volpath (shadow rays through the sheet), multijitter, crop window, "
+        "max_depth auto",
+    ),
     "naive_path": (
-        {"integrator": "path", "sampler": "independent", "crop": False},
-        "path (no shadow rays through the sheet), independent sampler, full frame, max_depth auto",
+        {"display": "sheet", "integrator": "path", "sampler": "independent", "crop": False},
+        "sheet, path (no shadow rays through the sheet), independent sampler, full frame, max_depth auto",
     ),
     "naive_volpath": (
-        {"sampler": "independent", "crop": False},
-        "volpath, independent sampler, full frame, max_depth auto",
+        {"display": "sheet", "integrator": "volpath", "sampler": "independent", "crop": False},
+        "sheet, volpath, independent sampler, full frame, max_depth auto",
     ),
 }
 
@@ -147,7 +158,7 @@ def _scene(render, name: str, spec, *, resolution, ref_spp, spp, repeat, warmup,
         "configs": {},
     }
     for cfg, (changes, label) in CONFIGS.items():
-        if cfg != "default" and not naive:
+        if cfg.startswith("naive") and not naive:
             continue
         settings = dataclasses.replace(base, **changes)
         entry: dict = {"what": label, "settings": {k: getattr(settings, k) for k in ("integrator", "sampler", "crop")}}
