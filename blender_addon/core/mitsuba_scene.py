@@ -6,11 +6,12 @@ polarization: an unpolarized ``area`` emitter on a rectangle (or a curved strip)
 reference, and the only one for curved displays and pattern images); or, for flat displays with
 the built-in patterns, :mod:`.polarized_display`'s emitter, which emits the light the sheet would
 pass and needs no sheet (the default of :mod:`.render`: shadow rays cross no null interface, so
-``path`` works and each pass is about 1.7x faster). Objects carry polarization-aware BSDFs only:
-``pplastic`` (Baek et al. 2018) and ``roughconductor`` for analytic materials and
-:mod:`.table_bsdf` or ``measured_polarized`` for pBRDF tables (``principled`` and ``diffuse``
-depolarize). The integrator is ``stokes`` around ``path`` or ``volpath`` (with the sheet only
-``volpath``: ``path`` cannot send shadow rays through it), with AOVs for the ground truth.
+``path`` and ``direct`` work and passes are faster; docs/measurements/headless.md). Objects
+carry polarization-aware BSDFs only: ``pplastic`` (Baek et al. 2018) and ``roughconductor`` for
+analytic materials and :mod:`.table_bsdf` or ``measured_polarized`` for pBRDF tables
+(``principled`` and ``diffuse`` depolarize). The integrator is ``stokes`` around ``direct``,
+``path`` or ``volpath`` (with the sheet only ``volpath``: the others cannot send shadow rays
+through it), with AOVs for the ground truth.
 
 Spectral multiplexing: one ``*_mono_polarized`` pass per colour channel, each with that
 channel's part of the pattern and the material's value at that channel's wavelength
@@ -554,9 +555,9 @@ def integrator_dict(integrator: str, max_depth: int, *, aovs: bool = True) -> di
     """The ``stokes`` integrator around ``integrator``, with the ground-truth AOVs (:data:`AOVS`) or without.
 
     ``direct`` is direct light only (``max_depth`` unused), one emitter and one BSDF sample per
-    camera sample as ``path`` at depth 2, with less per-path bookkeeping (about 15 % faster).
-    More emitter samples per camera sample were tried and left out: they trade BSDF samples for
-    light samples, which a glossy metal pays for (docs/measurements/headless.md).
+    camera sample as ``path`` at depth 2, with less per-path bookkeeping. More emitter samples per
+    camera sample were tried and left out: they trade BSDF samples for light samples, which a
+    glossy metal pays for (docs/measurements/headless.md).
     """
     inner: dict = {"type": integrator, "max_depth": max_depth}
     if integrator == "direct":
