@@ -17,8 +17,8 @@ rounding): the fast route gathers features and map values as rows of channels-la
 ``stride`` > 1 trades accuracy for time: it decodes every s-th row and column (:func:`grid_pixels`) and fills the
 rest by normalised convolution (:func:`fill_from_decoded`), about s^2 times less decoder work. Interpolation is
 edge-aware (``refine_deg``): a filled pixel whose decoded neighbours disagree (:func:`unreliable_fill`: normals more
-than ``refine_deg`` apart, BRDF values more than ``refine_brdf``, or a neighbour missing at the mask's edge) is
-decoded exactly instead.
+than ``refine_deg`` apart, BRDF values more than ``refine_brdf``) where the grid's second differences do not show
+a smooth field, or with a neighbour missing at the mask's edge, is decoded exactly instead.
 
 Example:
     >>> grid_pixels(torch.arange(16), width=4, stride=2)  # rows and columns 1 and 3 of a 4 x 4 image
@@ -140,10 +140,16 @@ def unreliable_fill(
     """Pixels whose :func:`fill_from_decoded` value is unreliable: their decoded neighbours disagree or are missing.
 
     The neighbours of a pixel are the decoded pixels with nonzero tent weight (within ``stride - 1`` rows and
-    columns). A pixel is flagged where the per-component range of their normals (max - min of x, y, z) has a
+    columns). A pixel is a candidate where the per-component range of their normals (max - min of x, y, z) has a
     length above ``2 sin(refine_deg / 2)`` (so any two neighbours more than ``refine_deg`` apart flag it; pairs
-    up to sqrt(3) times closer may too), where any BRDF channel ranges over more than ``refine_brdf``, or where
-    the weight sum is below 1 (a neighbour of the full bilinear stencil is missing: the mask's or image's edge).
+    up to sqrt(3) times closer may too), or where any BRDF channel ranges over more than ``refine_brdf``. A
+    candidate is cleared where the values are smooth instead: linear interpolation between grid pixels ``s``
+    apart errs by at most ``|f''| s^2 / 8``, so the second differences of the decoded grid (:func:`grid_pixels`)
+    along rows and columns, ``(|d_xx| + |d_yy|) / 8`` at each of the grid pixels around it, estimate its error,
+    which must stay below a quarter of the thresholds (1 deg for the default 4). A uniformly curved surface
+    passes; a crease or a jump between grid pixels makes the second difference as large as the jump and stays
+    flagged. Where a second difference is missing (mask or image edge) the candidate stays flagged, and so does
+    every pixel whose weight sum is below 1 (a neighbour of the full bilinear stencil is missing).
 
     Args:
         values: (C, H, W) outputs in :data:`~network.model.decoder.OUTPUT_CHANNELS` order (normal first).
@@ -158,15 +164,30 @@ def unreliable_fill(
     """
     k = 2 * stride - 1
     big = torch.finfo(values.dtype).max
+    chord = 2 * math.sin(math.radians(refine_deg) / 2)
     with torch.autocast(values.device.type, enabled=False):
         hi = torch.where(decoded, values, -big)[None]
         lo = torch.where(decoded, -values, -big)[None]
         span = (F.max_pool2d(hi, k, 1, stride - 1) + F.max_pool2d(lo, k, 1, stride - 1))[0]
-    span = torch.where(weight > 0, span, torch.zeros_like(span))
-    chord = 2 * math.sin(math.radians(refine_deg) / 2)
-    bad = span[:3].square().sum(0) > chord**2
-    bad |= (span[3:] > refine_brdf).any(0)
-    return bad | (weight < 1 - 0.5 / stride**2)
+        span = torch.where(weight > 0, span, torch.zeros_like(span))
+        candidate = (span[:3].square().sum(0) > chord**2) | (span[3:] > refine_brdf).any(0)
+        # Interpolation error estimated at each grid pixel from its second differences (inf where missing).
+        o = stride // 2
+        g, ok = values[:, o::stride, o::stride], decoded[o::stride, o::stride]
+        d2 = torch.zeros_like(g)
+        have = torch.zeros_like(ok)
+        have[1:-1, 1:-1] = ok[1:-1, 1:-1] & ok[:-2, 1:-1] & ok[2:, 1:-1] & ok[1:-1, :-2] & ok[1:-1, 2:]
+        inner = g[:, 1:-1, 1:-1]
+        d2[:, 1:-1, 1:-1] = (g[:, 1:-1, :-2] - 2 * inner + g[:, 1:-1, 2:]).abs() + (
+            g[:, :-2, 1:-1] - 2 * inner + g[:, 2:, 1:-1]
+        ).abs()
+        err = d2 / 8
+        rough = (err[:3].square().sum(0) > (chord / 4) ** 2) | (err[3:] > refine_brdf / 4).any(0) | ~have
+        # Spread each grid pixel's verdict to the pixels within its tent reach.
+        node = torch.zeros_like(decoded, dtype=values.dtype)
+        node[o::stride, o::stride] = rough.to(values.dtype)
+        near_rough = F.max_pool2d(node[None, None], k, 1, stride - 1)[0, 0] > 0
+    return (candidate & near_rough) | (weight < 1 - 0.5 / stride**2)
 
 
 def decode_dense(

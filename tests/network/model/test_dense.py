@@ -230,6 +230,50 @@ class TestStride:
         assert p99(plain) > 2.0
         assert p99(fast) < 2.0
 
+    @staticmethod
+    def _sphere_and_crease(h=96, w=96, s=4):
+        """Analytic normal fields on a grid decoded every ``s`` pixels: a sphere of radius 36 px seen from its pole
+        (up to 72 deg from the view; neighbouring grid pixels 6-20 deg apart), decoded inside 0.95 of its radius,
+        and a crease (two flat halves 20 deg apart along a line between grid columns); constant BRDF channels."""
+        r = torch.arange(h, dtype=torch.float64)
+        yy, xx = torch.meshgrid(r, torch.arange(w, dtype=torch.float64), indexing="ij")
+        u, v = (xx - w / 2) / 36.0, (yy - h / 2) / 36.0
+        inside = u**2 + v**2 < 0.95**2
+        sphere = torch.stack([u, v, torch.sqrt((1 - u**2 - v**2).clamp_min(0))])
+        t = math.radians(10.0)
+        crease = torch.where(xx < w / 2 + 0.5, 1.0, -1.0) * math.sin(t)
+        crease = torch.stack([crease, torch.zeros_like(xx), torch.full_like(xx, math.cos(t))])
+        brdf = torch.full((5, h, w), 0.3, dtype=torch.float64)
+        grid = torch.zeros(h * w, dtype=torch.bool)
+        grid[grid_pixels(torch.arange(h * w), w, s)] = True
+        grid = grid.reshape(h, w)
+        return [(torch.cat([sphere, brdf]).float(), grid & inside), (torch.cat([crease, brdf]).float(), grid)]
+
+    def test_refinement_spares_smooth_curvature_and_catches_creases(self):
+        # Linear interpolation of a uniformly curved field is accurate to a fraction of a degree, so the
+        # curvature test clears most of what the range test alone would decode; a crease between grid pixels stays.
+        s = 4
+        chord = 2 * math.sin(math.radians(REFINE_DEG) / 2)
+        for (field, decoded), smooth in zip(self._sphere_and_crease(s=s), (True, False), strict=True):
+            filled, weight = fill_from_decoded(field, decoded, s)
+            bad = unreliable_fill(field, decoded, weight, s, REFINE_DEG, REFINE_BRDF)
+            todo = ~decoded & (weight >= 1 - 0.5 / s**2)  # full stencils
+            n_fill = F.normalize(filled[:3], dim=0)
+            err = torch.rad2deg(torch.acos((n_fill * F.normalize(field[:3], dim=0)).sum(0).clamp(-1, 1)))
+            kept = todo & ~bad
+            if smooth:
+                # The range test alone flags nearly all of the sphere (neighbours more than 4 deg apart).
+                hi = torch.where(decoded, field, -1e30)[None]
+                lo = torch.where(decoded, -field, -1e30)[None]
+                span = (F.max_pool2d(hi, 2 * s - 1, 1, s - 1) + F.max_pool2d(lo, 2 * s - 1, 1, s - 1))[0]
+                range_flags = todo & (span[:3].square().sum(0) > chord**2)
+                assert int(range_flags.sum()) > 0.9 * int(todo.sum())
+                assert int((todo & bad).sum()) < 0.5 * int(todo.sum())
+                assert float(err[kept].max()) < 1.0
+            else:
+                assert bool(bad[:, 47:50][todo[:, 47:50]].all())  # every fill of the cells the crease cuts
+                assert float(err[kept].max()) < 1e-3  # the rest lies on the flat halves
+
     def test_thin_parts_are_decoded(self):
         # Pixels with no decoded pixel within stride - 1 rows and columns are decoded, not left at zero.
         model = make_model()
