@@ -45,6 +45,7 @@ __all__ = [
     "EMBED_ELEMENTS",
     "REFINE_BRDF",
     "REFINE_DEG",
+    "SMOOTH_SHARE",
     "context_pixels",
     "decode_dense",
     "decode_dense_reference",
@@ -59,6 +60,11 @@ REFINE_DEG = 4.0
 #: Default ``refine_brdf`` of :func:`decode_dense`: likewise for albedo, roughness or metallic neighbours that
 #: differ by more than this (absolute, per channel).
 REFINE_BRDF = 0.05
+
+#: A fill flagged by the range test is kept where the interpolation error estimated from the grid's second
+#: differences is below this share of ``refine_deg`` (as a chord) and ``refine_brdf``: 0.25 deg and 0.003 for the
+#: defaults (docs/measurements/network.md, "Curvature-aware refinement").
+SMOOTH_SHARE = 1 / 16
 
 #: Dense decoding embeds pixels in pieces whose widest intermediate (an observation MLP's hidden layer, 9 rows per
 #: pixel) has about this many elements (16 MiB in float32), so that a piece stays cache-sized
@@ -146,7 +152,8 @@ def unreliable_fill(
     candidate is cleared where the values are smooth instead: linear interpolation between grid pixels ``s``
     apart errs by at most ``|f''| s^2 / 8``, so the second differences of the decoded grid (:func:`grid_pixels`)
     along rows and columns, ``(|d_xx| + |d_yy|) / 8`` at each of the grid pixels around it, estimate its error,
-    which must stay below a quarter of the thresholds (1 deg for the default 4). A uniformly curved surface
+    which must stay below :data:`SMOOTH_SHARE` of the thresholds (0.25 deg for the default 4). A uniformly curved
+    surface
     passes; a crease or a jump between grid pixels makes the second difference as large as the jump and stays
     flagged. Where a second difference is missing (mask or image edge) the candidate stays flagged, and so does
     every pixel whose weight sum is below 1 (a neighbour of the full bilinear stencil is missing).
@@ -182,7 +189,8 @@ def unreliable_fill(
             g[:, :-2, 1:-1] - 2 * inner + g[:, 2:, 1:-1]
         ).abs()
         err = d2 / 8
-        rough = (err[:3].square().sum(0) > (chord / 4) ** 2) | (err[3:] > refine_brdf / 4).any(0) | ~have
+        tol = SMOOTH_SHARE * chord
+        rough = (err[:3].square().sum(0) > tol**2) | (err[3:] > SMOOTH_SHARE * refine_brdf).any(0) | ~have
         # Spread each grid pixel's verdict to the pixels within its tent reach.
         node = torch.zeros_like(decoded, dtype=values.dtype)
         node[o::stride, o::stride] = rough.to(values.dtype)

@@ -231,13 +231,13 @@ class TestStride:
         assert p99(fast) < 2.0
 
     @staticmethod
-    def _sphere_and_crease(h=96, w=96, s=4):
-        """Analytic normal fields on a grid decoded every ``s`` pixels: a sphere of radius 36 px seen from its pole
-        (up to 72 deg from the view; neighbouring grid pixels 6-20 deg apart), decoded inside 0.95 of its radius,
+    def _sphere_and_crease(h=128, w=128, s=4, radius=48.0):
+        """Analytic normal fields on a grid decoded every ``s`` pixels: a sphere of radius 48 px seen from its pole
+        (up to 72 deg from the view; neighbouring grid pixels 5-15 deg apart), decoded inside 0.95 of its radius,
         and a crease (two flat halves 20 deg apart along a line between grid columns); constant BRDF channels."""
         r = torch.arange(h, dtype=torch.float64)
         yy, xx = torch.meshgrid(r, torch.arange(w, dtype=torch.float64), indexing="ij")
-        u, v = (xx - w / 2) / 36.0, (yy - h / 2) / 36.0
+        u, v = (xx - w / 2) / radius, (yy - h / 2) / radius
         inside = u**2 + v**2 < 0.95**2
         sphere = torch.stack([u, v, torch.sqrt((1 - u**2 - v**2).clamp_min(0))])
         t = math.radians(10.0)
@@ -268,10 +268,11 @@ class TestStride:
                 span = (F.max_pool2d(hi, 2 * s - 1, 1, s - 1) + F.max_pool2d(lo, 2 * s - 1, 1, s - 1))[0]
                 range_flags = todo & (span[:3].square().sum(0) > chord**2)
                 assert int(range_flags.sum()) > 0.9 * int(todo.sum())
-                assert int((todo & bad).sum()) < 0.5 * int(todo.sum())
-                assert float(err[kept].max()) < 1.0
+                assert int((todo & bad).sum()) < 0.5 * int(todo.sum())  # measured 38 %, the rim
+                assert float(err[kept].max()) < 0.5  # measured 0.14 deg
             else:
-                assert bool(bad[:, 47:50][todo[:, 47:50]].all())  # every fill of the cells the crease cuts
+                c = field.shape[-1] // 2  # the crease lies between columns c and c + 1, inside the cell c - 1 .. c + 1
+                assert bool(bad[:, c - 1 : c + 2][todo[:, c - 1 : c + 2]].all())  # every fill of that cell
                 assert float(err[kept].max()) < 1e-3  # the rest lies on the flat halves
 
     def test_thin_parts_are_decoded(self):
