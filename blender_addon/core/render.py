@@ -287,6 +287,8 @@ def synthesize_sample(
         "intrinsics": result.window.intrinsics(spec.rig.camera).tolist(),
         "variant": result.variant,
         "max_depth": result.max_depth,
+        "integrator": result.integrator,
+        "display_model": result.display,
         "seconds": {**result.seconds, "camera_and_decode": t_camera},
         "mask_fraction": float(mask.mean()),
     }

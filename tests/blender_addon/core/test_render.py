@@ -249,6 +249,8 @@ def test_synthesized_sample_is_valid_and_decodes_to_the_rendered_stokes():
     sample, meta = render.synthesize_sample(spec, res, rng=np.random.default_rng(0), noise=False, keep_stokes=True)
     dataset.validate_sample(sample, meta)
     assert sample["maps"].shape == (48, 48, 9)
+    # The sidecar says how it was rendered: the blob is one convex object, lit directly by the emitter.
+    assert (meta["display_model"], meta["integrator"], meta["max_depth"]) == ("emitter", "direct", 2)
     m = sample["mask"]
     # Noise-free camera: the decoded maps are the rendered unpol = s0 + s1 and LP = -s1 up to
     # 12-bit steps and the decoder's interpolation, which redistributes but does not bias them:
