@@ -25,6 +25,7 @@ from pbrdf.io.atomic import atomic_open
 from .config import ModelConfig
 from .data import checkpoint_input_scale
 from .inputs import checkpoint_inputs
+from .model.layers import skip_init
 from .model.polar_model import PolarInverseModel
 
 __all__ = [
@@ -116,7 +117,8 @@ def load_checkpoint(path: str | Path) -> tuple[PolarInverseModel, dict]:
     if not isinstance(ckpt, dict):
         raise ValueError(f"{path}: not a model checkpoint (holds a {type(ckpt).__name__}, not a dict)")
     try:
-        model = PolarInverseModel(ModelConfig.from_dict(ckpt["config"]))
+        with skip_init():  # the random init would be overwritten at once
+            model = PolarInverseModel(ModelConfig.from_dict(ckpt["config"]))
         model.load_state_dict(ckpt["model"])
         ckpt["inputs"] = checkpoint_inputs(ckpt)
         ckpt["input_scale"] = checkpoint_input_scale(ckpt)

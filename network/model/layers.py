@@ -8,6 +8,9 @@ Sequences are laid out ``(L, S, C)``: L independent sequences of S tokens of wid
 
 from __future__ import annotations
 
+import contextlib
+from collections.abc import Iterator
+
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
@@ -19,8 +22,49 @@ __all__ = [
     "Mlp",
     "init_linear_",
     "multi_head_attention",
+    "skip_init",
     "trunc_normal_",
 ]
+
+#: ``torch.nn.init`` fill functions that :func:`skip_init` turns into no-ops (torch's layers call them from
+#: ``reset_parameters``).
+_TORCH_INIT_FILLS = (
+    "uniform_", "normal_", "trunc_normal_", "constant_", "ones_", "zeros_", "eye_", "dirac_", "xavier_uniform_",
+    "xavier_normal_", "kaiming_uniform_", "kaiming_normal_", "orthogonal_", "sparse_",
+)  # fmt: skip
+_skipping = 0
+
+
+@contextlib.contextmanager
+def skip_init() -> Iterator[None]:
+    """Construct modules without filling their parameters, for weights that are loaded right after.
+
+    Inside the block :func:`trunc_normal_` and :func:`init_linear_` do nothing, and neither do the ``torch.nn.init``
+    fill functions that torch's layers call from ``reset_parameters``: parameters keep what ``torch.empty`` left, so
+    every one must be overwritten (``load_state_dict`` with ``strict=True`` checks that each is). Buffers that
+    constructors compute (not fill at random) are unaffected. The ``torch.nn.init`` functions are swapped for the
+    block, so do not construct modules in other threads meanwhile.
+
+    Example:
+        >>> with skip_init():
+        ...     layer = nn.Linear(4, 4)
+        >>> _ = layer.load_state_dict(nn.Linear(4, 4).state_dict())
+    """
+    global _skipping
+    saved = {name: getattr(nn.init, name) for name in _TORCH_INIT_FILLS if hasattr(nn.init, name)}
+    _skipping += 1
+    try:
+        for name in saved:
+            setattr(nn.init, name, _keep)
+        yield
+    finally:
+        _skipping -= 1
+        for name, fn in saved.items():
+            setattr(nn.init, name, fn)
+
+
+def _keep(tensor: Tensor, *args, **kwargs) -> Tensor:
+    return tensor
 
 
 def multi_head_attention(q: Tensor, k: Tensor, v: Tensor, key_padding_mask: Tensor | None = None) -> Tensor:
@@ -63,7 +107,7 @@ def trunc_normal_(tensor: Tensor, std: float = 0.02, bound: float = 2.0) -> Tens
         True
     """
     with torch.no_grad():
-        if tensor.is_meta:
+        if tensor.is_meta or _skipping:
             return tensor
         tensor.normal_(0.0, std)
         for _ in range(100):
@@ -84,6 +128,8 @@ def init_linear_(module: nn.Module, std: float = 0.02) -> None:
         module: The module tree to initialise in place.
         std: Standard deviation of the linear weights.
     """
+    if _skipping:
+        return
     for sub in module.modules():
         if isinstance(sub, nn.Linear):
             trunc_normal_(sub.weight, std)
