@@ -501,10 +501,9 @@ def _table_bsdf(material: MaterialSpec) -> bool:
     import mitsuba as mi  # noqa: PLC0415
 
     from . import table_bsdf  # noqa: PLC0415
+    from .mono_plugins import is_mono_jit  # noqa: PLC0415
 
-    variant = mi.variant() or ""
-    mono_jit = variant.endswith("_mono_polarized") and not variant.startswith("scalar")
-    return mono_jit and table_bsdf.uniform_axes(material.table)
+    return is_mono_jit(mi.variant() or "") and table_bsdf.uniform_axes(material.table)
 
 
 def channel_updates(

@@ -27,11 +27,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from .mono_plugins import register_once
+
 __all__ = ["PLUGIN", "register", "emitter_dict"]
 
 #: Mitsuba plugin name of this emitter (registered per variant by :func:`register`).
 PLUGIN = "pdir_polarized_display"
-_REGISTERED: set[str] = set()
 
 
 def emitter_dict(radiance: float, absorbing_axis: Any) -> dict:
@@ -50,16 +51,7 @@ def emitter_dict(radiance: float, absorbing_axis: Any) -> dict:
 
 def register() -> None:
     """Register :data:`PLUGIN` with Mitsuba for the current (mono-polarized JIT) variant, once."""
-    import mitsuba as mi  # noqa: PLC0415
-
-    variant = mi.variant()
-    if variant in _REGISTERED:
-        return
-    if not (variant.endswith("_mono_polarized") and not variant.startswith("scalar")):
-        raise RuntimeError(f"{PLUGIN} is for the *_mono_polarized JIT variants, not {variant!r}")
-    cls = _emitter_class()
-    mi.register_emitter(PLUGIN, lambda props: cls(props))
-    _REGISTERED.add(variant)
+    register_once(PLUGIN, "emitter", _emitter_class)
 
 
 def _emitter_class() -> type:

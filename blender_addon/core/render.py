@@ -91,8 +91,8 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
     sheet = not polarized_emitter
     max_depth = settings.max_depth
     if max_depth is None:
-        base = settings.integrator if settings.integrator in ("path", "volpath") else settings.integrator_for(sheet)
-        max_depth = ms.auto_max_depth(meshes, "path" if base == "direct" else base, sheet=sheet)
+        # Only path through the sheet counts the sheet as a bounce; without it every integrator needs 2.
+        max_depth = ms.auto_max_depth(meshes, settings.integrator_for(sheet) if sheet else "path", sheet=sheet)
     integrator = settings.integrator_for(sheet, max_depth)
     if spectral:  # the fallback without LLVM, and cross-checks
         result = render_stokes_spectral(spec, dataclasses.replace(settings, max_depth=max_depth), variant=variant)

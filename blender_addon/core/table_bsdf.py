@@ -29,6 +29,8 @@ from numpy.typing import NDArray
 
 from pbrdf.io.tensorfile import read_tensor_file
 
+from .mono_plugins import register_once
+
 __all__ = ["PLUGIN", "COSINE_WEIGHT", "channel_matrices", "uniform_axes", "register"]
 
 #: Mitsuba plugin name of this BSDF (registered per variant by :func:`register`).
@@ -36,7 +38,6 @@ PLUGIN = "pdir_table"
 #: Share of cosine-weighted hemisphere samples in the importance sampling (the plugin's value).
 COSINE_WEIGHT = 0.1
 _AXES = ("phi_d", "theta_d", "theta_h")
-_REGISTERED: set[str] = set()
 
 
 def _axes(fields: dict) -> list[NDArray[np.float64]]:
@@ -79,16 +80,7 @@ def channel_matrices(
 
 def register() -> None:
     """Register :data:`PLUGIN` with Mitsuba for the current (mono-polarized JIT) variant, once."""
-    import mitsuba as mi  # noqa: PLC0415
-
-    variant = mi.variant()
-    if variant in _REGISTERED:
-        return
-    if not (variant.endswith("_mono_polarized") and not variant.startswith("scalar")):
-        raise RuntimeError(f"{PLUGIN} is for the *_mono_polarized JIT variants, not {variant!r}")
-    cls = _bsdf_class()
-    mi.register_bsdf(PLUGIN, lambda props: cls(props))
-    _REGISTERED.add(variant)
+    register_once(PLUGIN, "bsdf", _bsdf_class)
 
 
 def _bsdf_class() -> type:

@@ -153,9 +153,8 @@ def unreliable_fill(
     apart errs by at most ``|f''| s^2 / 8``, so the second differences of the decoded grid (:func:`grid_pixels`)
     along rows and columns, ``(|d_xx| + |d_yy|) / 8`` at each of the grid pixels around it, estimate its error,
     which must stay below :data:`SMOOTH_SHARE` of the thresholds (0.25 deg for the default 4). A uniformly curved
-    surface
-    passes; a crease or a jump between grid pixels makes the second difference as large as the jump and stays
-    flagged. Where a second difference is missing (mask or image edge) the candidate stays flagged, and so does
+    surface passes; a crease or a jump between grid pixels makes the second difference as large as the jump and
+    stays flagged. Where a second difference is missing (mask or image edge) the candidate stays flagged, and so does
     every pixel whose weight sum is below 1 (a neighbour of the full bilinear stencil is missing).
 
     Args:
@@ -178,7 +177,8 @@ def unreliable_fill(
         span = (F.max_pool2d(hi, k, 1, stride - 1) + F.max_pool2d(lo, k, 1, stride - 1))[0]
         span = torch.where(weight > 0, span, torch.zeros_like(span))
         candidate = (span[:3].square().sum(0) > chord**2) | (span[3:] > refine_brdf).any(0)
-        # Interpolation error estimated at each grid pixel from its second differences (inf where missing).
+        # Interpolation error estimated at each grid pixel from its second differences; a grid pixel without
+        # both neighbours in a direction counts as rough.
         o = stride // 2
         g, ok = values[:, o::stride, o::stride], decoded[o::stride, o::stride]
         d2 = torch.zeros_like(g)

@@ -167,8 +167,8 @@ def fit_disney(
     where the optimiser used to stop. Of eight starts (metallic 0 and 1 times roughness 0.1, 0.3,
     0.55, 0.85, plus ``init``), each with the albedo solved in closed form, the three of lowest
     robust cost are refined by ``scipy.optimize.least_squares`` (trf) with the analytic Jacobian
-    of the model; the lowest robust cost wins. Deterministic. Samples with either direction at or below the horizon are
-    ignored; negative values count as 0.
+    of the model; the lowest robust cost wins. Deterministic. Samples with either direction at or
+    below the horizon are ignored; negative values count as 0.
 
     The fit only sees the samples: a lobe much sharper than their spacing (e.g. a roughness-0.03
     spike on a near-Lambertian material) can fall between them. Sample the mirror directions
