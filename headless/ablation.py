@@ -51,6 +51,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stage", choices=["all", "train", "evaluate"], default="all", help="what to do (default all)")
     parser.add_argument("--limit", type=int, help="score only the first N test scenes")
     parser.add_argument("--jobs", type=int, default=1, help="evaluation processes (default 1)")
+    parser.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu", help="training device (cpu)")
     parser.add_argument("--train-stats", type=Path, help="training means for the constant row "
                         "(default OUT/train_stats.json, computed from train-engine once)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
@@ -69,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
         cfg = ablation.AblationConfig(
             splits=args.input, out=args.out, scenes=args.scenes, steps=args.steps, batch_size=args.batch_size,
             seed=args.seed, config=args.config, overrides={**ablation.DEFAULT_OVERRIDES, **dict(args.overrides)},
-            runs=tuple(r for r in args.runs.split(",") if r), limit=args.limit, jobs=args.jobs,
+            runs=tuple(r for r in args.runs.split(",") if r), limit=args.limit, jobs=args.jobs, device=args.device,
         )  # fmt: skip
         stats = None
         if args.stage != "train":

@@ -2,7 +2,8 @@
 
     python headless/bench.py decode [--height 2048 --width 2448] [--repeat 5] [--out FILE] [--quick]
     python headless/bench.py render [--resolution 384] [--ref-spp 1024] [--spp 4 8 16 32 64]
-                                    [--scenes analytic table] [--table FILE] [--out FILE]
+                                    [--scenes analytic table] [--table FILE] [--variant llvm|cuda]
+                                    [--out FILE]
     python headless/bench.py pbrdf [--count 40] [--out FILE]
     python headless/bench.py network [--configs toy small] [--paper] [--strides 1 2 4] [--threads 2]
                                      [--device cpu|cuda] [--input CAPTURE] [--out FILE]
@@ -121,6 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scenes to render (default: both)")  # fmt: skip
     r.add_argument("--table", type=Path, help=f"pBRDF tensor file of the table scene (default: the {TABLE_SEED!r} "
                    "seed material tabulated on the seeds' grid)")  # fmt: skip
+    r.add_argument("--variant", default="llvm", help="Mitsuba variant or alias: llvm (default), cuda, auto "
+                   "(cuda when Dr.Jit has a CUDA backend), or a *_mono_polarized name")  # fmt: skip
     _common(r, repeat=1)
     q = add("pbrdf", "PCA error vs components, validity-filter throughput, expansion speed", "network.bench.expansion")
     q.add_argument("--count", type=int, default=40, help="tables generated to time the expansion (default 40)")
@@ -170,7 +173,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
             scenes = render_scenes(args.scenes, args.table, Path(tmp))
             return render.run(
                 renderer, scenes, resolution=args.resolution, ref_spp=args.ref_spp, spp=tuple(args.spp),
-                naive=["analytic"] if args.quick else None, **common,
+                naive=["analytic"] if args.quick else None, variant=args.variant, **common,
             )  # fmt: skip
     if args.what == "pbrdf":
         from network.bench import expansion  # noqa: PLC0415

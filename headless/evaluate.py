@@ -76,6 +76,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--train-stats", type=Path, help="training means for the constant row (--split)")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="--split: worker processes (default: 2, or 1 on a one-core machine)")  # fmt: skip
+    parser.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu",
+                        help="--split: the model's device (default cpu; cuda: in this process, no --jobs)")  # fmt: skip
     parser.add_argument("--write-train-stats", type=Path, metavar="FILE", help="compute training means from --input")
     parser.add_argument("--input", type=Path, metavar="DIR", help="rendered dataset with ground truth (required)")
     parser.add_argument("--white-data", type=Path, help="the same scenes rendered with the white pattern")
@@ -137,6 +139,7 @@ def _evaluate_splits(args: argparse.Namespace) -> int:
 
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.constant import STATS_FILE, load_statistics  # noqa: PLC0415
+    from network.distributed import resolve_device  # noqa: PLC0415
     from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
     from network.split_eval import evaluate_split, split_markdown, write_split_results  # noqa: PLC0415
     from pbrdf.data.splits import get_split, test_splits  # noqa: PLC0415
@@ -144,6 +147,7 @@ def _evaluate_splits(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     root = args.input or Path("out/splits")
     try:
+        device = resolve_device(args.device)  # first: a missing GPU is the one error worth reporting
         if args.checkpoint and len(args.checkpoint) > 1:
             raise ValueError("--split scores one checkpoint")
         ckpt_path = Path(args.checkpoint[0]) if args.checkpoint else Path(DEFAULT_CHECKPOINT)
@@ -155,8 +159,10 @@ def _evaluate_splits(args: argparse.Namespace) -> int:
             )
         stats = load_statistics(args.train_stats or ckpt_path.parent / STATS_FILE)
         model, ckpt = load_checkpoint(ckpt_path)
+        model.to(device)
+        jobs = args.jobs if device.type == "cpu" else 1  # one GPU model; the workers would each load one on CPU
         results = [
-            evaluate_split(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=args.jobs,
+            evaluate_split(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=jobs,
                            checkpoint_path=ckpt_path)
             for f in folders
         ]  # fmt: skip

@@ -96,6 +96,8 @@ class AblationConfig:
         runs: which runs (default all, in :data:`RUNS` order).
         limit: score only the first ``limit`` test scenes (None: all).
         jobs: evaluation worker processes.
+        device: training device (``"cpu"``, ``"cuda"`` or ``"auto"``); CPU by default so that a
+            table made on one machine can be reproduced on another.
     """
 
     splits: Path
@@ -110,6 +112,7 @@ class AblationConfig:
     runs: tuple[str, ...] = tuple(r.name for r in RUNS)
     limit: int | None = None
     jobs: int = 1
+    device: str = "cpu"
 
     def __post_init__(self) -> None:
         unknown = [r for r in self.runs if r not in _RUN]
@@ -169,7 +172,7 @@ def train_runs(cfg: AblationConfig, *, progress: bool = True, log: Callable[[str
             TrainConfig(
                 data=data, indices=tuple(indices), out=out, config=cfg.config, overrides=dict(cfg.overrides),
                 steps=cfg.steps, batch_size=cfg.batch_size, lr=cfg.lr, seed=cfg.seed, inputs=spec.inputs,
-                checkpoint_every=max(1, min(50, cfg.steps)), resume=True, tensorboard=False, device="cpu",
+                checkpoint_every=max(1, min(50, cfg.steps)), resume=True, tensorboard=False, device=cfg.device,
             ),
             progress=progress,
         )  # fmt: skip

@@ -256,7 +256,7 @@ def predict(
     interpolation is edge-aware (``refine_deg``): pixels where it is unreliable are decoded exactly.
 
     Args:
-        model: the network.
+        model: the network, on any device (the maps are moved to it, the results come back).
         maps: ``(H, W, 9)`` nine maps (:data:`pbrdf.sensor.decode.NINE_MAP_NAMES` order): finite,
             the CP maps in ``[-1, 1]``; the radiance maps (unpol, LP) at any scale (they are
             normalised; peaks above ``2**64`` are first scaled down by a power of two, exactly).
@@ -297,8 +297,9 @@ def predict(
     if resolution not in RESOLUTIONS:
         raise ValueError(f"resolution must be one of {', '.join(RESOLUTIONS)}; got {resolution!r}")
     size = model.config.image_size
-    m_crop = torch.from_numpy(np.ascontiguousarray(maps[y0:y1, x0:x1].transpose(2, 0, 1)))[None].float()
-    k_crop = torch.from_numpy(mask[y0:y1, x0:x1].astype(np.float32))[None, None]
+    device = next(model.parameters()).device  # the model's device (CPU or GPU); results come back as numpy
+    m_crop = torch.from_numpy(np.ascontiguousarray(maps[y0:y1, x0:x1].transpose(2, 0, 1)))[None].float().to(device)
+    k_crop = torch.from_numpy(mask[y0:y1, x0:x1].astype(np.float32))[None, None].to(device)
     m = F.interpolate(m_crop, size=(size, size), mode="bilinear", align_corners=False)
     k = F.interpolate(k_crop, size=(size, size), mode="nearest")
     model.eval()
@@ -316,7 +317,7 @@ def predict(
         out = {}
         for name, c in OUTPUTS.items():
             full = np.zeros((h, w, c), np.float32)
-            full[y0:y1, x0:x1] = pred[name][0].permute(1, 2, 0).numpy()
+            full[y0:y1, x0:x1] = pred[name][0].permute(1, 2, 0).cpu().numpy()
             full[~mask] = 0.0
             out[name] = full
         out["mask"] = mask.astype(np.float32)[..., None]
@@ -331,11 +332,11 @@ def predict(
     # network's grid lost still get a prediction (and normals stay unit length).
     from scipy import ndimage  # noqa: PLC0415
 
-    invalid = k[0, 0].numpy() == 0
+    invalid = k[0, 0].cpu().numpy() == 0
     if invalid.all():
         raise ValueError("the mask vanishes at the network's input size: nothing to reconstruct")
     _, (iy, ix) = ndimage.distance_transform_edt(invalid, return_indices=True)
-    iy, ix = torch.from_numpy(iy), torch.from_numpy(ix)
+    iy, ix = torch.from_numpy(iy).to(device), torch.from_numpy(ix).to(device)
     h, w = mask.shape
     out = {}
     for name, c in OUTPUTS.items():
@@ -344,7 +345,7 @@ def predict(
         if name == "normal":
             x = x / x.norm(dim=0, keepdim=True).clamp_min(1e-8)
         full = np.zeros((h, w, c), np.float32)
-        full[y0:y1, x0:x1] = x.permute(1, 2, 0).numpy()
+        full[y0:y1, x0:x1] = x.permute(1, 2, 0).cpu().numpy()
         full[~mask] = 0.0
         out[name] = full
     out["mask"] = mask.astype(np.float32)[..., None]

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import subprocess
 from collections.abc import Collection, Mapping
 
 import numpy as np
@@ -134,9 +135,11 @@ def fit_to_target(points: list[dict], ref_var: float, target: float = TARGET_ERR
     return out
 
 
-def _scene(render, name: str, spec, *, resolution, ref_spp, spp, repeat, warmup, seed, naive: bool) -> dict:
+def _scene(
+    render, name: str, spec, *, resolution, ref_spp, spp, repeat, warmup, seed, naive: bool, variant: str
+) -> dict:
     spec = dataclasses.replace(spec, seed=seed)
-    base = render.RenderSettings(resolution=resolution, spp=1)
+    base = render.RenderSettings(resolution=resolution, spp=1, variant=variant)
     chunk = max(spp) if ref_spp % max(spp) == 0 else 64
     ref_timing, ref = time_call(
         lambda: _render_avg(render, spec, base, ref_spp, chunk),
@@ -230,6 +233,7 @@ def run(
     warmup: int = 1,
     seed: int = 0,
     naive: Collection[str] | None = None,
+    variant: str = "llvm",
 ) -> dict:
     """Run the benchmark.
 
@@ -244,6 +248,7 @@ def run(
         warmup: untimed renders per point before them (the first compiles that point's kernels).
         seed: point ``spp`` renders with seed ``seed + spp``.
         naive: scenes that also get the naive configurations (default: all).
+        variant: Mitsuba variant or alias of ``choose_variant`` (``llvm``, ``cuda``, ``auto``).
 
     Returns:
         The JSON-ready result: ``scenes`` -> name -> ``description``, ``reference``,
@@ -253,12 +258,13 @@ def run(
         ``seconds_per_sample_at_2pct``, the fits) and ``speedup_default_over_<naive>_at_2pct``;
         ``timing_rule``, ``machine``.
     """
+    variant = render.choose_variant(variant)
     result: dict = {
         "benchmark": "render",
         "resolution": resolution,
         "reference_spp": ref_spp,
         "spp": list(spp),
-        "variant": render.choose_variant(),
+        "variant": variant,
         "target_rel_rmse_unpol_lp": TARGET_ERROR,
         "timing_rule": RULE,
         "scenes": {},
@@ -266,8 +272,18 @@ def run(
     for name, (spec, description) in scenes.items():
         entry = _scene(
             render, name, spec, resolution=resolution, ref_spp=ref_spp, spp=tuple(spp), repeat=repeat,
-            warmup=warmup, seed=seed, naive=naive is None or name in naive,
+            warmup=warmup, seed=seed, naive=naive is None or name in naive, variant=variant,
         )  # fmt: skip
         result["scenes"][name] = {"description": description, **entry}
-    result["machine"] = machine()
+    result["machine"] = machine(**({"gpu": _gpu_name()} if variant.startswith("cuda") else {}))
     return result
+
+
+def _gpu_name() -> str:
+    """The first GPU's name from ``nvidia-smi`` (``unknown`` where it does not answer)."""
+    try:
+        cmd = ["nvidia-smi", "--query-gpu=name", "--format=csv,noheader"]
+        out = subprocess.run(cmd, capture_output=True, text=True, check=False)
+        return out.stdout.splitlines()[0].strip() if out.returncode == 0 and out.stdout.strip() else "unknown"
+    except OSError:
+        return "unknown"

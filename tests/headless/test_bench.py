@@ -103,3 +103,14 @@ def test_bench_render_scenes_and_argument_checks(tmp_path):
     for bad in (["--spp", "16", "4"], ["--spp", "4", "--ref-spp", "2"]):
         proc = _run("headless/bench.py", "render", *bad)
         assert proc.returncode == 2 and "--spp must be ascending" in proc.stderr
+
+
+def test_bench_render_cuda_without_a_gpu_is_one_error_line():
+    """--variant cuda on a machine whose Dr.Jit has no CUDA backend: exit 2 and one line, no traceback."""
+    import drjit as dr
+
+    if dr.has_backend(dr.JitBackend.CUDA):
+        pytest.skip("this machine has a CUDA backend")
+    proc = _run("headless/bench.py", "render", "--quick", "--quiet", "--variant", "cuda")
+    assert proc.returncode == 2 and proc.stdout == ""
+    assert proc.stderr.strip().count("\n") == 0 and "CUDA backend" in proc.stderr

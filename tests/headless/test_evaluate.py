@@ -31,3 +31,14 @@ def test_checkpoint_variants():
         evaluate._checkpoints(["full=a.pt", "b.pt"])
     with pytest.raises(ValueError, match="given twice"):
         evaluate._checkpoints(["full=a.pt", "full=b.pt"])
+
+
+def test_split_on_a_missing_gpu_is_one_error_line(tmp_path, capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        return
+    code = evaluate.main(["--split", "test", "--input", str(tmp_path), "--device", "cuda", "--quiet"])
+    lines = capsys.readouterr().err.strip().splitlines()
+    expected = "error: device cuda: CUDA is not available on this machine (use --device cpu or auto)"
+    assert code == 2 and lines == [expected]
