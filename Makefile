@@ -11,7 +11,7 @@ MODELS_STAMP := $(VENV)/.testmodels-ok
 BLENDER_STAMP := $(VENV)/.blender-ok
 OUT ?= out
 
-.PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets train-data train-engine-model ablation-data ablation
+.PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets train-data train-engine-model ship-engine-model ablation-data ablation
 
 help:  ## list targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -69,12 +69,12 @@ format: setup  ## apply ruff formatting and safe fixes
 	$(VENV)/bin/ruff check --fix .
 	$(VENV)/bin/ruff format .
 
-# The shipped model (models/small/MODEL_CARD.md): 158 training scenes (seed 100) and 12 held-out
-# scenes (seed 9000) at 128x128, `small` at 128 px input, batch 4, constant lr 2e-4.
+# The first model (shipped until 2026-11-24, now superseded by train-engine-model): 158 training
+# scenes (seed 100) and 12 held-out scenes (seed 9000) at 128x128, `small` at 128 px, batch 4.
 MODEL_DATA := $(OUT)/model-data
 MODEL_RUN := $(OUT)/model-small
 MODEL_STEPS ?= 700
-train-model: setup  ## reproduce models/small/model.pt: render data, train `small`, evaluate on held-out scenes
+train-model: setup  ## the first 128-px model (superseded): render data, train `small`, evaluate on held-out scenes
 	$(PY) headless/render.py --split train --out $(MODEL_DATA)/train --resume --quiet
 	$(PY) headless/render.py --split val --out $(MODEL_DATA)/val --resume --quiet
 	$(PY) headless/train.py --input $(MODEL_DATA)/train --val $(MODEL_DATA)/val --config small \
@@ -82,7 +82,6 @@ train-model: setup  ## reproduce models/small/model.pt: render data, train `smal
 	    --steps $(MODEL_STEPS) --batch-size 4 --lr 2e-4 --min-lr-ratio 1.0 --seed 0 --checkpoint-every 25 \
 	    --out $(MODEL_RUN) --resume
 	$(PY) headless/evaluate.py --checkpoint $(MODEL_RUN)/model.pt --input $(MODEL_DATA)/val --out $(MODEL_RUN)/eval
-	cp $(MODEL_RUN)/model.pt models/small/model.pt
 
 # The data engine's model (issue 14): `small` at 192 px with a 16 x 16 token grid, calibrated input,
 # trained on train-engine, selected on val-engine only (best.pt). About 7 s per step on 2 CPU cores:
@@ -97,6 +96,12 @@ train-engine-model: setup  ## train the data engine's model (resumable chunks; n
 	    --steps $(ENGINE_STEPS) --stop-after $(ENGINE_STOP) --batch-size 4 --lr 2e-4 --lr-warmup 100 --min-lr-ratio 0.1 \
 	    --seed 0 --input-scale calibrated --checkpoint-every 100 --val-samples 16 --out $(ENGINE_RUN) --resume --quiet
 	$(PY) tools/plot_training.py $(ENGINE_RUN) --out docs/measurements/curves/engine-small
+
+ship-engine-model: setup  ## score the engine run's best.pt on the test splits and copy it to models/small
+	$(PY) headless/evaluate.py --write-train-stats $(ENGINE_RUN)/train_stats.json --input $(SPLITS_DIR)/train-engine
+	$(PY) headless/evaluate.py --split test --input $(SPLITS_DIR) --checkpoint $(ENGINE_RUN)/best.pt --out $(ENGINE_RUN)/eval-test
+	cp $(ENGINE_RUN)/best.pt models/small/model.pt
+	cp $(ENGINE_RUN)/train_stats.json models/small/train_stats.json
 
 # The paper's Table 3 at this scale (network/ablation.py): six runs with one budget, scored on
 # test-scenes (white: its white twin). Resumable; ABLATION_SCENES training scenes per run.

@@ -61,7 +61,7 @@ def test_training_forward_is_timed_with_gradients():
 @needs_shipped
 def test_stride_error_of_the_shipped_model_on_real_input():
     from network.checkpoint import load_checkpoint
-    from network.infer import load_input, predict
+    from network.infer import input_display_radiance, load_input, predict
     from network.metrics import normal_angle_deg
 
     result = model.run(configs=("toy",), strides=(2, 4), train=False, reference=False, warmup=0)
@@ -73,7 +73,12 @@ def test_stride_error_of_the_shipped_model_on_real_input():
     net, ckpt = load_checkpoint(model.SHIPPED_CHECKPOINT)
     maps, mask = load_input(model.EXAMPLE_CAPTURE)
     assert pred["masked_pixels"] == int(mask.sum()) > 1000
-    one, two = (predict(net, maps, mask, inputs=ckpt.get("inputs", "full"), stride=s) for s in (1, 2))
+    how = {
+        "inputs": ckpt.get("inputs", "full"),
+        "input_scale": ckpt.get("input_scale", "exposure-invariant"),
+        "radiance": input_display_radiance(model.EXAMPLE_CAPTURE),
+    }
+    one, two = (predict(net, maps, mask, stride=s, **how) for s in (1, 2))
     angle = normal_angle_deg(one["normal"], two["normal"])[mask]
     assert e2["normal_deg_mean"] == pytest.approx(float(angle.mean()), rel=1e-4, abs=1e-4)
     assert e2["albedo_mae"] == pytest.approx(float(np.abs(one["albedo"] - two["albedo"])[mask].mean()), abs=1e-5)
