@@ -4,7 +4,8 @@
 #   bash tools/gpu_machine.sh setup bench dataset paper ablation
 #
 # setup:    unpack the Python packages the machine lacks (mitsuba, drjit, trimesh, xatlas,
-#           OpenEXR for CPython 3.12) from .whl/site.tar.xz into /tmp/site; check the CUDA variant.
+#           OpenEXR for CPython 3.12) from .whl/site.tar.xz, and any .whl/*.whl (pyamg, which the
+#           evaluation's depth metric needs), into /tmp/site; check the CUDA variant.
 # bench:    headless/bench.py render --variant cuda and network --device cuda (paper, bf16).
 # dataset:  the train-engine split rendered with the CUDA variant by SHARDS processes: samples/s.
 # paper:    `paper` at 384 px with bf16 on scenes rendered here, scored on the test splits
@@ -53,6 +54,7 @@ for stage in "$@"; do
     case $stage in
     setup)
         if [ ! -d /tmp/site/mitsuba ]; then mkdir -p /tmp/site && tar -xJf .whl/site.tar.xz -C /tmp/site; fi
+        for w in .whl/*.whl; do [ -e "$w" ] && $PY -m zipfile -e "$w" /tmp/site; done  # e.g. pyamg (depth metric)
         nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader
         $PY -c "from blender_addon.core.passes import choose_variant; print('variant', choose_variant('cuda'))"
         ;;
