@@ -77,7 +77,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
                         help="--split: worker processes (default: 2, or 1 on a one-core machine)")  # fmt: skip
     parser.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu",
-                        help="--split: the model's device (default cpu; cuda: in this process, no --jobs)")  # fmt: skip
+                        help="--split: the model's device (default cpu; every --jobs worker uses it)")  # fmt: skip
     parser.add_argument("--write-train-stats", type=Path, metavar="FILE", help="compute training means from --input")
     parser.add_argument("--input", type=Path, metavar="DIR", help="rendered dataset with ground truth (required)")
     parser.add_argument("--white-data", type=Path, help="the same scenes rendered with the white pattern")
@@ -160,9 +160,8 @@ def _evaluate_splits(args: argparse.Namespace) -> int:
         stats = load_statistics(args.train_stats or ckpt_path.parent / STATS_FILE)
         model, ckpt = load_checkpoint(ckpt_path)
         model.to(device)
-        jobs = args.jobs if device.type == "cpu" else 1  # one GPU model; the workers would each load one on CPU
         results = [
-            evaluate_split(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=jobs,
+            evaluate_split(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=args.jobs,
                            checkpoint_path=ckpt_path)
             for f in folders
         ]  # fmt: skip

@@ -286,8 +286,8 @@ def evaluate_split(
         lpips: compute albedo LPIPS (default: when its weights are installed).
         require_test: refuse anything but a test split.
         progress: show a progress bar.
-        jobs: worker processes (each loads ``checkpoint_path`` and runs one torch thread); scenes
-            are independent, so the rows are the same for any ``jobs``.
+        jobs: worker processes (each loads ``checkpoint_path`` onto ``model``'s device and runs one
+            torch thread); scenes are independent, so the rows are the same for any ``jobs``.
         checkpoint_path: the checkpoint file (needed with ``jobs > 1``).
 
     Returns:
@@ -320,7 +320,8 @@ def evaluate_split(
         import multiprocessing  # noqa: PLC0415
         from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
 
-        init = (str(checkpoint_path), variant, str(root), dict(stats), bool(lpips))
+        device = str(next(model.parameters()).device)  # every worker puts its copy where the model is
+        init = (str(checkpoint_path), variant, str(root), dict(stats), bool(lpips), device)
         ctx = multiprocessing.get_context("spawn")  # never fork a process that has run torch
         with ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_worker_init, initargs=init) as pool:
             for row in pool.map(_worker_row, indices):
@@ -351,12 +352,13 @@ def evaluate_split(
 _WORKER: dict[str, Any] = {}
 
 
-def _worker_init(checkpoint_path: str, variant: str, root: str, stats: dict, lpips: bool) -> None:
-    """Load the model once per worker process, with one torch thread (the workers share the cores)."""
+def _worker_init(checkpoint_path: str, variant: str, root: str, stats: dict, lpips: bool, device: str) -> None:
+    """Load the model once per worker process on ``device``, with one torch thread (the workers share the cores)."""
     from .checkpoint import load_checkpoint  # noqa: PLC0415
 
     torch.set_num_threads(1)
     model, ckpt = load_checkpoint(checkpoint_path)
+    model.to(device)
     _WORKER.update(model=model, variant=variant, scale=ckpt["input_scale"], root=Path(root), stats=stats, lpips=lpips)
 
 

@@ -93,7 +93,7 @@ for stage in "$@"; do
         $PY headless/evaluate.py --write-train-stats "$DATA/paper/train_stats.json" --input "$DATA/train-384"
         cp "$DATA/paper/log.csv" "$OUT/paper_log.csv"
         cp "$DATA/paper/val.csv" "$OUT/paper_val.csv"
-        $PY headless/evaluate.py --split test --input "$DATA" --device cuda --checkpoint "$DATA/paper/best.pt" --quiet \
+        $PY headless/evaluate.py --split test --input "$DATA" --device cuda --jobs 12 --checkpoint "$DATA/paper/best.pt" --quiet \
             --out "$OUT/paper_eval"
         ;;
     ablation)
