@@ -35,11 +35,21 @@ render_split() {
     stamp "rendered $split: $(ls "$DATA/$split/samples" | grep -c '\.exr$') samples in $((SECONDS - t0)) s"
 }
 
-pbrdfs() {  # the pBRDF libraries of train-data and test-sets (same seeds as the Makefile)
-    [ -f "$DATA/pbrdfs-train/materials.json" ] ||
-        $PY headless/expand_pbrdf.py --out "$DATA/pbrdfs-train" --count 200 --seed 12000 --quiet
-    [ -f "$DATA/pbrdfs-test/materials.json" ] ||
-        $PY headless/expand_pbrdf.py --out "$DATA/pbrdfs-test" --count 24 --seed 22000 --quiet
+# The pBRDF libraries of train-data ("train") and test-sets ("test"), with the Makefile's seeds.
+pbrdfs() {
+    local which count seed
+    for which in "$@"; do
+        if [ "$which" = train ]; then count=200 seed=12000; else count=24 seed=22000; fi
+        [ -f "$DATA/pbrdfs-$which/materials.json" ] ||
+            $PY headless/expand_pbrdf.py --out "$DATA/pbrdfs-$which" --count $count --seed $seed --quiet
+    done
+}
+
+# Shard $4 of $2 scenes at 384 px (train-engine's settings, run seed $3) into $DATA/$1.
+render_384() {
+    $PY headless/render.py --out "$DATA/$1" --count "$2" --seed "$3" --resolution 384 --spp 16 --shapes train \
+        --objects 1-3 --pbrdfs "$DATA/pbrdfs-train" --table-fraction 0.5 --variant cuda --shard "$4/$SHARDS" \
+        --resume --quiet
 }
 
 test_sets() {
@@ -64,28 +74,24 @@ for stage in "$@"; do
             --quiet --out "$OUT/network_cuda.json" >/dev/null
         ;;
     dataset)
-        pbrdfs
+        pbrdfs train
         COUNT=${COUNT:-160}
         render_split train-engine --count "$COUNT" --pbrdfs "$DATA/pbrdfs-train" 2>&1 | tee "$OUT/dataset.txt"
         ;;
     paper)
-        pbrdfs
-        # 384 px scenes of the engine's distribution (train-engine's settings at the paper's size).
+        pbrdfs train test
         t0=$SECONDS
         for k in $(seq 0 $((SHARDS - 1))); do
-            $PY headless/render.py --out "$DATA/train-384" --count "${PAPER_SCENES:-512}" --seed 30000 \
-                --resolution 384 --spp 16 --shapes train --objects 1-3 --pbrdfs "$DATA/pbrdfs-train" \
-                --table-fraction 0.5 --variant cuda --shard "$k/$SHARDS" --resume --quiet &
-            $PY headless/render.py --out "$DATA/val-384" --count 32 --seed 31000 --resolution 384 --spp 16 \
-                --shapes train --objects 1-3 --pbrdfs "$DATA/pbrdfs-train" --table-fraction 0.5 --variant cuda \
-                --shard "$k/$SHARDS" --resume --quiet &
+            render_384 train-384 "${PAPER_SCENES:-512}" 30000 "$k" &
+            render_384 val-384 32 31000 "$k" &
         done
         wait
         stamp "rendered train-384 and val-384 in $((SECONDS - t0)) s"
         test_sets >"$OUT/test_sets.txt" 2>&1 &
         # A lease is short: training stops after PAPER_SECONDS (best.pt is the best validated so far).
-        timeout "${PAPER_SECONDS:-270}" $PY headless/train.py --input "$DATA/train-384" --val "$DATA/val-384" --config paper --bf16 --device cuda \
-            --steps "${PAPER_STEPS:-600}" --batch-size 4 --lr 2e-4 --lr-warmup 50 --min-lr-ratio 0.1 --seed 0 \
+        timeout "${PAPER_SECONDS:-270}" $PY headless/train.py --input "$DATA/train-384" --val "$DATA/val-384" \
+            --config paper --bf16 --device cuda --steps "${PAPER_STEPS:-600}" --batch-size 4 --lr 2e-4 \
+            --lr-warmup 50 --min-lr-ratio 0.1 --seed 0 \
             --input-scale calibrated --checkpoint-every 100 --val-samples 16 --workers 6 --out "$DATA/paper" \
             --resume --quiet --no-tensorboard || echo "training ended by the time limit (status $?)"
         wait
@@ -93,15 +99,15 @@ for stage in "$@"; do
         $PY headless/evaluate.py --write-train-stats "$DATA/paper/train_stats.json" --input "$DATA/train-384"
         cp "$DATA/paper/log.csv" "$OUT/paper_log.csv"
         cp "$DATA/paper/val.csv" "$OUT/paper_val.csv"
-        $PY headless/evaluate.py --split test --input "$DATA" --device cuda --jobs 12 --checkpoint "$DATA/paper/best.pt" --quiet \
-            --out "$OUT/paper_eval"
+        $PY headless/evaluate.py --split test --input "$DATA" --device cuda --jobs 12 \
+            --checkpoint "$DATA/paper/best.pt" --quiet --out "$OUT/paper_eval"
         ;;
     ablation)
-        # Training only: the six runs train side by side on the GPU; their weights come back as
-        # float16 ($OUT/ablation_RUN.pt, tools/gpu_machine.sh unpack_ablation) and are scored on
-        # the canonical test splits by `headless/ablation.py --stage evaluate` on any machine.
-        [ -f "$DATA/pbrdfs-train/materials.json" ] ||
-            $PY headless/expand_pbrdf.py --out "$DATA/pbrdfs-train" --count 200 --seed 12000 --quiet
+        # Training only: the six runs train side by side on the GPU. Their weights come back as
+        # float16 ($OUT/ablation_RUN.pt); copied to out/ablation/RUN/model.pt on any machine
+        # (loading casts them back to float32), `headless/ablation.py --stage evaluate` scores them
+        # on the canonical test splits.
+        pbrdfs train
         render_split train-engine --count "${ABL_RENDER:-1200}" --pbrdfs "$DATA/pbrdfs-train" | tail -1
         render_split train-engine-white --count "${ABL_SCENES:-300}" --pbrdfs "$DATA/pbrdfs-train" | tail -1
         t0=$SECONDS
