@@ -108,7 +108,9 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="what", required=True, metavar="{decode,render,pbrdf,network}")
 
     def add(name: str, summary: str, module: str) -> argparse.ArgumentParser:
-        return sub.add_parser(name, help=summary, description=f"{summary[0].upper()}{summary[1:]} ({module}).")
+        # help= is %-formatted by argparse, description= is not
+        description = f"{summary[0].upper()}{summary[1:]} ({module}).".replace("%%", "%")
+        return sub.add_parser(name, help=summary, description=description)
 
     p = add("decode", "raw HDR bracket -> nine maps, against polanalyser", "network.bench.decode")
     p.add_argument("--height", type=int, default=2048, help="raw height in pixels (default 2048)")

@@ -382,7 +382,7 @@ def sensor_dict(camera: CameraSpec, window: CropWindow, spp: int, *, sampler: st
     }  # fmt: skip
 
 
-def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = None) -> dict:
+def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = None, linear_light: bool = False) -> dict:
     """Polarization-aware Mitsuba BSDF of a material, for one colour channel or spectral.
 
     Args:
@@ -391,6 +391,8 @@ def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = No
             spectral variants, where per-channel values become spectra through ``spectrum``.
         spectrum: ``spectrum(values_rgb, kind)`` -> Mitsuba spectrum for ``kind`` ``"reflectance"``
             or ``"ior"`` (required when ``channel`` is None).
+        linear_light: all light reaching the material has ``S3 = 0`` (direct light from the
+            display, the ``direct`` integrator): a table BSDF skips its Mueller matrix's last column.
     """
 
     def value(rgb: tuple[float, float, float], kind: str) -> Any:
@@ -427,6 +429,7 @@ def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = No
                 "filename": str(material.table),
                 "wavelength": CHANNEL_WAVELENGTHS_NM[channel],
                 "alpha_sample": max(alpha, ALPHA_SAMPLE_LEVELS[0]),
+                "linear_light": bool(linear_light),
             }
         out = {"type": "measured_polarized", "filename": str(material.table), "alpha_sample": alpha_sample(alpha)}
         if channel is not None:

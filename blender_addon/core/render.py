@@ -103,9 +103,14 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
     materials = {m.name: m for m in spec.materials}
     names = [f"object_{i}" for i in range(len(spec.objects))]
 
+    # Direct light only comes from the linearly polarized display (S3 = 0): tables skip a column.
+    linear_light = integrator == "direct"
+
     def build(channel: int):
         objs = {
-            name: ms.mesh_object(name, v, f, n, ms.bsdf_dict(materials[obj.material], channel), two_sided=two)
+            name: ms.mesh_object(
+                name, v, f, n, ms.bsdf_dict(materials[obj.material], channel, linear_light=linear_light), two_sided=two
+            )
             for name, obj, (v, f, n, two) in zip(names, spec.objects, meshes, strict=True)
         }
         return mi.load_dict(

@@ -1,21 +1,29 @@
 """A pBRDF table at one wavelength as a Mitsuba BSDF for the ``*_mono_polarized`` passes.
 
 The mono passes of :mod:`.render` render one colour channel at a time, so a table is only ever
-evaluated at that channel's wavelength. This BSDF interpolates the table along wavelength once,
-in numpy (:func:`channel_matrices`), and keeps the 16 Mueller entries in four 4-channel Dr.Jit
-3-D textures over ``(phi_d, theta_d, theta_h)``: one trilinear fetch each, where Mitsuba's
-``measured_polarized`` runs a 4-D ``Marginal2D`` lookup (four interval searches and 16 corners)
-per entry. Everything else follows the plugin (``src/bsdfs/measured_polarized.cpp``, Mitsuba
-3.9): the standard frame and Rusinkiewicz angles, the plane-of-reflection Stokes frames rotated
-into Mitsuba's implicit bases, a zero matrix where the interpolated ``m00`` is NaN,
-``m00 >= 0``, times ``cos theta_o``; importance sampling mixes 10 % cosine-weighted and 90 %
-GGX visible-normal samples of roughness ``alpha_sample``. The evaluation equals the plugin's to
-float32 round-off and renders are the same to 1e-6 (tested).
+evaluated at that channel's wavelength. This BSDF interpolates the table along wavelength once, in
+numpy (:func:`channel_matrices`), and keeps the 16 Mueller entries of each grid cell together in
+one flat Dr.Jit array over ``(phi_d, theta_d, theta_h)``: one trilinear interpolation (8 corners,
+one gather per entry and corner), where Mitsuba's ``measured_polarized`` runs a 4-D ``Marginal2D``
+lookup (four interval searches and 16 corners) per entry. Everything else follows the plugin
+(``src/bsdfs/measured_polarized.cpp``, Mitsuba 3.9): the standard frame and Rusinkiewicz angles,
+the plane-of-reflection Stokes frames rotated into Mitsuba's implicit bases, a zero matrix where
+the interpolated ``m00`` is NaN, ``m00 >= 0``, times ``cos theta_o``; importance sampling mixes 10 %
+cosine-weighted and 90 % GGX visible-normal samples of roughness ``alpha_sample``. The evaluation
+equals the plugin's to float32 round-off and renders are the same to 1e-6 (tested).
 
-Unlike the plugin's, its data and ``alpha_sample`` are JIT parameters (``mi.traverse``: ``m0``
-to ``m3`` and ``alpha_sample``): switching the channel is a parameter update, and neither the
-table nor the roughness is compiled into Dr.Jit's kernels. Axes must be uniform (texture
-coordinates are affine in the angles; :func:`uniform_axes`); other tables use the plugin.
+Entries that cannot matter are not fetched (:func:`needed_entries`): those below
+:data:`NEGLIGIBLE` times ``m00`` in every cell and band (the circular-linear couplings ``m03,
+m13, m30, m31`` of the generated tables stay below 1e-3 of it), and with
+``linear_light`` the last column, which only multiplies incident ``S3``: direct light from the
+linearly polarized display has ``S3 = 0``. Each table lookup reads 16 values at 8 corners, most of
+the BSDF's cost; a generated table needs 10 of the 16 in direct light.
+
+Unlike the plugin's, its data and ``alpha_sample`` are JIT parameters (``mi.traverse``: ``data``
+and ``alpha_sample``): switching the channel is a parameter update, and neither the table's
+values nor the roughness is compiled into Dr.Jit's kernels (only which entries it fetches). Axes
+must be uniform (grid indices are affine in the angles; :func:`uniform_axes`); other tables use
+the plugin.
 Its speed against the plugin's is in docs/measurements/headless.md.
 """
 
@@ -31,12 +39,15 @@ from pbrdf.io.tensorfile import read_tensor_file
 
 from .mono_plugins import register_once
 
-__all__ = ["PLUGIN", "COSINE_WEIGHT", "channel_matrices", "uniform_axes", "register"]
+__all__ = ["PLUGIN", "COSINE_WEIGHT", "NEGLIGIBLE", "channel_matrices", "needed_entries", "uniform_axes", "register"]
 
 #: Mitsuba plugin name of this BSDF (registered per variant by :func:`register`).
 PLUGIN = "pdir_table"
 #: Share of cosine-weighted hemisphere samples in the importance sampling (the plugin's value).
 COSINE_WEIGHT = 0.1
+#: Entries below this fraction of ``m00`` in every cell are not fetched: they change no Stokes
+#: component by more than 0.2 % of S0, a tenth of the renders' 2 % noise target.
+NEGLIGIBLE = 2e-3
 _AXES = ("phi_d", "theta_d", "theta_h")
 
 
@@ -78,6 +89,30 @@ def channel_matrices(
     return np.ascontiguousarray(out.reshape(*out.shape[:3], 16)), _axes(fields)
 
 
+def needed_entries(path: str | os.PathLike, *, linear_light: bool = False) -> tuple[int, ...]:
+    """Row-major indices of the Mueller entries the BSDF must fetch from a table.
+
+    An entry is left out where its magnitude is at most :data:`NEGLIGIBLE` times ``|m00|`` in
+    every cell and band (non-finite values count as needed), and with
+    ``linear_light`` the last column (3, 7, 11, 15) is left out as well: it multiplies the
+    incident ``S3``, which is 0 for light that is unpolarized or linearly polarized. ``m00`` is
+    always fetched (its NaN marks invalid cells).
+
+    Returns:
+        sorted entry indices in ``0..15``.
+    """
+    m = np.asarray(read_tensor_file(path)["M"], dtype=np.float64)
+    m = m.reshape(-1, 16)
+    finite = np.isfinite(m)
+    a = np.abs(np.where(finite, m, 0.0))
+    floor = 1e-12 * a[:, 0].max()  # float round-off where m00 is 0
+    needed = (a > NEGLIGIBLE * a[:, :1] + floor).any(axis=0) | ~finite.all(axis=0)
+    needed[0] = True
+    if linear_light:
+        needed[[3, 7, 11, 15]] = False
+    return tuple(int(e) for e in np.flatnonzero(needed))
+
+
 def register() -> None:
     """Register :data:`PLUGIN` with Mitsuba for the current (mono-polarized JIT) variant, once."""
     register_once(PLUGIN, "bsdf", _bsdf_class)
@@ -92,7 +127,7 @@ def _bsdf_class() -> type:
         return mi.Vector3f(cos * v.x - sin * v.y, sin * v.x + cos * v.y, v.z)
 
     class TableBSDF(mi.BSDF):
-        """``pdir_table``: properties ``filename``, ``wavelength`` (nm), ``alpha_sample`` (default 0.1)."""
+        """``pdir_table``: ``filename``, ``wavelength`` (nm), ``alpha_sample`` (0.1), ``linear_light`` (false)."""
 
         def __init__(self, props: Any) -> None:
             mi.BSDF.__init__(self, props)
@@ -107,6 +142,8 @@ def _bsdf_class() -> type:
             self.origin = dr.opaque(mi.Vector3f, [float(a[0]) for a in axes])
             self.inv_step = dr.opaque(mi.Vector3f, [float((len(a) - 1) / (a[-1] - a[0])) for a in axes])
             self.alpha = dr.opaque(mi.Float, float(props.get("alpha_sample", 0.1)))
+            # Fixed per table: a table with other negligible entries compiles its own kernel.
+            self.entries = needed_entries(props["filename"], linear_light=bool(props.get("linear_light", False)))
 
         def traverse(self, callback) -> None:
             callback.put("data", self.data, mi.ParamFlags.NonDifferentiable)
@@ -123,14 +160,14 @@ def _bsdf_class() -> type:
                 i0 = mi.UInt32(dr.clip(mi.Int32(dr.floor(t)), 0, mi.Int32(self.size[k]) - 2))
                 lower.append(i0)
                 weight.append(dr.clip(t - mi.Float(i0), 0.0, 1.0))
-            entries = [mi.Float(0.0) for _ in range(16)]
+            entries = [mi.Float(0.0) for _ in range(16)]  # literal zeros where not fetched
             for corner in range(8):
                 bit = [(corner >> k) & 1 for k in range(3)]
                 w = mi.Float(1.0)
                 for k in range(3):
                     w = w * (weight[k] if bit[k] else 1.0 - weight[k])
                 index = ((lower[0] + bit[0]) * self.size[1] + lower[1] + bit[1]) * self.size[2] + lower[2] + bit[2]
-                for e in range(16):
+                for e in self.entries:
                     entries[e] = dr.fma(w, dr.gather(mi.Float, self.data, index * 16 + e, active), entries[e])
             return entries
 

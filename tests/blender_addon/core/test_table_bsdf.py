@@ -116,3 +116,58 @@ def test_channel_matrices_interpolate_between_bands(gold_table):
     np.testing.assert_allclose(table_bsdf.channel_matrices(gold_table, 400.0)[0].reshape(expected.shape),
                                t.M[..., 0, :, :], rtol=1e-6)  # fmt: skip
     assert [len(a) for a in axes] == [9, 7, 16]
+
+
+@pytest.fixture(scope="module")
+def tiny_coupling_table(gold_table, tmp_path_factory):
+    """The gold table with a negligible m30 (up to 5e-4 of m00 in each cell, as in the generated
+    tables) and a small but real m02 (up to 1 %)."""
+    t = table.load_table(gold_table, mmap=False)
+    m = t.M.copy()
+    peak = np.abs(m[..., 0, 0]).max()
+    assert np.abs(m[..., [0, 0, 1, 2, 3, 3], [2, 3, 2, 1, 0, 1]]).max() < 1e-12 * peak  # the seed's zeros
+    rng = np.random.default_rng(7)
+    m[..., 3, 0] = 5e-4 * m[..., 0, 0] * rng.uniform(-1, 1, m.shape[:-2])
+    m[..., 0, 2] = 1e-2 * m[..., 0, 0] * rng.uniform(-1, 1, m.shape[:-2])
+    path = tmp_path_factory.mktemp("tables") / "tiny.pbsdf"
+    table.save_table(path, table.PBRDFTable(t.phi_d, t.theta_d, t.theta_h, t.wavelengths, m), for_mitsuba=True)
+    return path
+
+
+def test_needed_entries_leave_out_only_what_cannot_matter(gold_table, tiny_coupling_table, tmp_path):
+    # gold: every entry but the structural zeros m02 m03 m12 m13 m20 m21 m30 m31
+    gold = (0, 1, 4, 5, 10, 11, 14, 15)
+    assert table_bsdf.needed_entries(gold_table) == gold
+    assert table_bsdf.needed_entries(gold_table, linear_light=True) == (0, 1, 4, 5, 10, 14)
+    # m02 at 1 % is needed, m30 at 5e-4 is not
+    assert table_bsdf.needed_entries(tiny_coupling_table) == (0, 1, 2, 4, 5, 10, 11, 14, 15)
+    t = table.load_table(tiny_coupling_table, mmap=False)
+    m = t.M.copy()
+    m[0, 0, 0, 0, 2, 1] = np.nan  # a NaN bin kept (not written for Mitsuba): m21 counts as needed
+    nan_path = tmp_path / "nan.pbsdf"
+    table.save_table(nan_path, table.PBRDFTable(t.phi_d, t.theta_d, t.theta_h, t.wavelengths, m))
+    assert table_bsdf.needed_entries(nan_path) == (0, 1, 2, 4, 5, 9, 10, 11, 14, 15)
+
+
+def test_linear_light_leaves_the_response_to_linear_light_unchanged(mono, tiny_coupling_table):
+    """With ``linear_light`` the BSDF maps unpolarized and linearly polarized light as the plugin
+    does (to the negligible m30, 5e-4 of S0), while circularly polarized light is no longer reflected right:
+    the skipped column only ever multiplies S3."""
+    props = {"filename": str(tiny_coupling_table), "wavelength": 532.0, "alpha_sample": 0.2}
+    ours = mi.load_dict({"type": table_bsdf.PLUGIN, **props, "linear_light": True})
+    plugin = mi.load_dict({"type": "measured_polarized", **props})
+    wi, wo = _directions(4000, 8), _directions(4000, 9)
+    a, _ = _eval_pdf(ours, wi, wo, mi.TransportMode.Radiance)
+    b, _ = _eval_pdf(plugin, wi, wo, mi.TransportMode.Radiance)
+    ok = np.isfinite(b).all(axis=(0, 1))
+    a, b = a[..., ok], b[..., ok]
+    scale = np.abs(b[0, 0]).max()
+    rng = np.random.default_rng(10)
+    psi = rng.uniform(0, np.pi, a.shape[-1])
+    linear = np.stack([np.ones_like(psi), np.cos(2 * psi), np.sin(2 * psi), np.zeros_like(psi)])
+    out_a, out_b = np.einsum("ijn,jn->in", a, linear), np.einsum("ijn,jn->in", b, linear)
+    # float32 round-off (2e-4 of the largest m00, test above) and the skipped m30
+    assert np.all(np.abs(out_a - out_b) < 5e-4 * np.abs(out_b[0]) + 2e-4 * scale)
+    assert np.abs(out_a - out_b)[3].max() > 1e-6 * scale  # m30 was indeed skipped
+    circular = np.array([1.0, 0.0, 0.0, 1.0])
+    assert np.abs(np.einsum("ijn,j->in", a - b, circular)).max() > 0.05 * scale
