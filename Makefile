@@ -106,12 +106,13 @@ ship-engine-model: setup  ## score the engine run's best.pt on the test splits a
 # The paper's Table 3 at this scale (network/ablation.py): six runs with one budget, scored on
 # test-scenes (white: its white twin). Resumable; ABLATION_SCENES training scenes per run.
 ABLATION_SCENES ?= 500
+ABLATION_JOBS ?= 2
 ABLATION_OUT := $(OUT)/ablation
 ablation-data: setup  ## render what the ablation needs beyond train-data and test-sets (white twins)
 	$(PY) headless/render.py --split train-engine-white --count $(ABLATION_SCENES) --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/train-engine-white --resume --quiet
 	$(PY) headless/render.py --split test-scenes-white --pbrdfs $(SPLITS_DIR)/pbrdfs-test --out $(SPLITS_DIR)/test-scenes-white --resume --quiet
 ablation: ablation-data  ## train and score the six ablation runs; writes $(OUT)/ablation/ablation.md
-	$(PY) headless/ablation.py --input $(SPLITS_DIR) --out $(ABLATION_OUT) --scenes $(ABLATION_SCENES) --steps 500 --quiet
+	$(PY) headless/ablation.py --input $(SPLITS_DIR) --out $(ABLATION_OUT) --scenes $(ABLATION_SCENES) --steps 500 --jobs $(ABLATION_JOBS) --quiet
 
 # The fixed test splits (pbrdf/data/splits.py): rendered once, read only by the final evaluation.
 SPLITS_DIR := $(OUT)/splits

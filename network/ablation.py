@@ -41,12 +41,15 @@ from pbrdf.data import dataset as pdataset
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.strict_json import dumps_strict
 
+from .statistics import bootstrap_ci
+
 __all__ = [
     "DEFAULT_OVERRIDES",
     "RUNS",
     "AblationConfig",
     "ablation_markdown",
     "evaluate_runs",
+    "paired_gain",
     "run_ablation",
     "run_indices",
     "scene_kind",
@@ -212,14 +215,65 @@ _COLUMNS = (
 )
 
 
+def _per_scene(results: Mapping[str, Any], run: str, key: str) -> dict[int, float]:
+    r = results.get(run) or {}
+    out = {}
+    for row in r.get("per_scene", ()):
+        v = (row.get("ours") or {}).get(key)
+        if v is not None and math.isfinite(v):
+            out[int(row["index"])] = float(v)
+    return out
+
+
 def _mean(results: Mapping[str, Any], run: str, key: str) -> float | None:
     r = results.get(run)
     v = r["methods"]["ours"][key]["mean"] if r else None
     return v if v is not None and math.isfinite(v) else None
 
 
+def paired_gain(
+    results: Mapping[str, Any], before: str, after: str, key: str
+) -> tuple[float, tuple[float, float] | None] | None:
+    """How much run ``after`` lowers a metric against run ``before``, with a paired 95 % interval.
+
+    The runs are scored on the same scenes (``white``'s twin split has the same scene indices), so
+    the per-scene differences are paired: the interval is the bootstrap over scenes of their mean,
+    much tighter than comparing two unpaired intervals. Without per-scene rows the difference of
+    the means is returned with no interval.
+
+    Args:
+        results: ablation results (``run -> evaluate_split`` dict).
+        before: the run without the factor.
+        after: the run with it.
+        key: metric key of ``methods.ours`` (lower is better).
+
+    Returns:
+        ``(gain, (low, high))``, gain = before - after (positive: ``after`` is better); None when a
+        run or the metric is missing.
+
+    Example:
+        >>> def r(vals):
+        ...     return {"per_scene": [{"index": i, "ours": {"m": v}} for i, v in enumerate(vals)],
+        ...             "methods": {"ours": {"m": {"mean": sum(vals) / len(vals)}}}}
+        >>> gain, (lo, hi) = paired_gain({"a": r([3.0, 5.0, 7.0, 9.0]), "b": r([2.0, 4.1, 5.9, 8.0])}, "a", "b", "m")
+        >>> round(gain, 2), bool(0.8 < lo < hi < 1.2)
+        (1.0, True)
+    """
+    a, b = _per_scene(results, before, key), _per_scene(results, after, key)
+    common = sorted(a.keys() & b.keys())
+    if common:
+        diffs = [a[i] - b[i] for i in common]
+        return sum(diffs) / len(diffs), bootstrap_ci(diffs, seed=0)
+    va, vb = _mean(results, before, key), _mean(results, after, key)
+    return None if va is None or vb is None else (va - vb, None)
+
+
 def trend_lines(results: Mapping[str, Any]) -> list[str]:
     """The paper's two trends checked on the results (one line each; says when a run is missing).
+
+    Each step's gain comes with its paired 95 % interval over scenes (:func:`paired_gain`) when the
+    results have per-scene rows, and the line says whether the largest gain is separated from the
+    next one by more than that noise.
 
     Example:
         >>> def r(n, m):
@@ -236,19 +290,32 @@ def trend_lines(results: Mapping[str, Any]) -> list[str]:
         ("normal_mae", "deg", "spectral multiplexing"),
         ("metallic_rmse", "", "circular polarization"),
     ):
-        gains = {}
+        gains: dict[str, tuple[float, tuple[float, float] | None]] = {}
         for a, b, what in steps:
-            va, vb = _mean(results, a, key), _mean(results, b, key)
-            if va is not None and vb is not None:
-                gains[what] = va - vb
+            g = paired_gain(results, a, b, key)
+            if g is not None:
+                gains[what] = g
         metric = "normal MAE" if key == "normal_mae" else "metallic RMSE"
         if len(gains) < 3:
             out.append(f"not checked: {paper} lowers {metric} most (needs the white, spectral, polar and full runs)")
             continue
-        best = max(gains, key=gains.get)
-        detail = ", ".join(f"{w} {g:+.{2 if unit else 3}f}{' ' + unit if unit else ''}" for w, g in gains.items())
+        nd = 2 if unit else 3
+        suffix = " " + unit if unit else ""
+
+        def fmt(g: float, ci: tuple[float, float] | None, nd: int = nd, suffix: str = suffix) -> str:
+            band = f" [{ci[0]:+.{nd}f}, {ci[1]:+.{nd}f}]" if ci is not None else ""
+            return f"{g:+.{nd}f}{suffix}{band}"
+
+        best = max(gains, key=lambda w: gains[w][0])
+        detail = ", ".join(f"{w} {fmt(*g)}" for w, g in gains.items())
         verdict = "holds" if best == paper else "does not hold"
-        out.append(f"{verdict}: {paper} lowers {metric} most ({detail}; a positive value lowers the error)")
+        note = "a positive value lowers the error"
+        if all(ci is not None for _, ci in gains.values()):
+            note += "; paired 95 % intervals over scenes"
+            lo = gains[best][1][0]  # type: ignore[index]
+            if lo <= 0:
+                note += f"; {best}'s interval includes 0, so the ranking is within noise"
+        out.append(f"{verdict}: {paper} lowers {metric} most ({detail}; {note})")
     return out
 
 

@@ -33,6 +33,34 @@ def test_trend_lines_say_when_a_trend_does_not_hold():
     assert ablation.trend_lines({"full": row(1, 1)})[0].startswith("not checked")
 
 
+def test_trend_lines_pair_the_scenes():
+    """Scene difficulty dwarfs a 1 deg gain; pairing the scenes still resolves it, and a zero-mean step is noise."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    hard = rng.uniform(10, 50, 40)  # per-scene difficulty, shared by every run
+
+    def row(mae, metal):
+        scenes = [{"index": i, "ours": {"normal_mae": float(a), "metallic_rmse": float(b)}}
+                  for i, (a, b) in enumerate(zip(mae, metal, strict=True))]  # fmt: skip
+        means = {"normal_mae": {"mean": float(np.mean(mae))}, "metallic_rmse": {"mean": float(np.mean(metal))}}
+        return {"per_scene": scenes, "methods": {"ours": means}}
+
+    noise = lambda s: rng.normal(0, s, 40)  # noqa: E731
+    runs = {"white": (hard + 1.0, 0.3 + noise(0.01)), "spectral": (hard + noise(0.1), 0.3 + noise(0.01))}
+    runs["polar"] = (runs["spectral"][0] + noise(0.1), runs["spectral"][1] + noise(0.05))
+    runs["full"] = (runs["polar"][0] + noise(0.1), runs["polar"][1] + noise(0.05))
+    res = {k: row(*v) for k, v in runs.items()}
+    normal, metal = ablation.trend_lines(res)
+    gain, (lo, hi) = ablation.paired_gain(res, "white", "spectral", "normal_mae")
+    # Unpaired, the 40-scene means' standard errors (about 1.8 deg each) swamp the 1 deg step.
+    assert np.std(hard) / np.sqrt(40) > 1.5
+    assert 0.9 < lo < gain < hi < 1.1
+    assert normal.startswith("holds: spectral multiplexing") and "within noise" not in normal
+    assert "paired 95 % intervals over scenes" in normal
+    assert "interval includes 0, so the ranking is within noise" in metal
+
+
 @pytest.fixture(scope="module")
 def splits(tmp_path_factory, pbrdf_library):
     """Tiny stand-ins for train-engine, test-scenes and their white twins (32 px, 4 spp)."""
