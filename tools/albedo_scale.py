@@ -48,7 +48,7 @@ def main(argv: list[str] | None = None) -> int:
             maps, auto = load_input(raw)
             radiance = input_display_radiance(raw)
             pred = predict(net, maps, auto, radiance=radiance, **how)
-            region = auto & (sample["object"] >= 0) & (sample["metallic"][..., 0] < 0.5)
+            region = auto & (sample["object"] >= 0) & (sample["metallic"] < 0.5)
             if region.sum() < 100:
                 continue
             rows.append(
