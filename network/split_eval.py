@@ -170,11 +170,14 @@ def predict_scene(
     stats: Mapping[str, Any],
     *,
     input_scale: str = "exposure-invariant",
+    baseline: bool = True,
 ) -> ScenePredictions:
     """Run every method on one sample's raw brackets exactly as on a user's capture folder.
 
     ``variant`` and ``input_scale`` are the checkpoint's; the display radiance comes from the
     capture's ``capture.json`` (:func:`network.infer.input_display_radiance`), as for a user.
+    ``baseline=False`` leaves out photometric stereo (``preds["baseline"]`` is empty), for
+    diagnostics of the model alone.
 
     Raises:
         ValueError: the sample has no raw brackets, or its decoded grid differs from the truth.
@@ -204,8 +207,8 @@ def predict_scene(
         except ValueError:  # a mask that vanishes at the network's grid: nothing was reconstructed
             ours = None
         preds["ours"] = _fill_nearest(ours, auto, region) if ours is not None else constant
-        if (meta.get("rig") or {}).get("display", {}).get("pattern", "rgb_halves") == "white":
-            preds["baseline"] = {}  # colour photometric stereo needs the colour regions: n/a under white light
+        if not baseline or (meta.get("rig") or {}).get("display", {}).get("pattern", "rgb_halves") == "white":
+            preds["baseline"] = {}  # not asked for, or n/a: colour photometric stereo needs the colour regions
         else:
             preds["baseline"] = _fill_nearest(baseline_predict(maps, auto, meta), auto, region)
     else:

@@ -21,46 +21,39 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from tools._capture_scenes import add_arguments, capture_scenes, load  # noqa: E402
+
 
 def main(argv: list[str] | None = None) -> int:
     """Run the diagnosis; returns the exit status."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--input", type=Path, nargs="+",
-                        default=[Path("out/splits/test-procedural"), Path("out/splits/test-meshes")])  # fmt: skip
-    parser.add_argument("--limit", type=int, default=24, help="scenes per split (default 24)")
-    parser.add_argument("--checkpoint", type=Path, help="default: the shipped model")
+    add_arguments(parser, [Path("out/splits/test-procedural"), Path("out/splits/test-meshes")], 24)
     args = parser.parse_args(argv)
 
-    import torch
-
-    from network.checkpoint import load_checkpoint
-    from network.infer import DEFAULT_CHECKPOINT, input_display_radiance, load_input, predict
+    from network.data import checkpoint_input_scale
+    from network.infer import input_display_radiance, predict
+    from network.inputs import checkpoint_inputs
     from pbrdf.data import dataset as pdataset
 
-    torch.set_num_threads(2)
-    net, ckpt = load_checkpoint(args.checkpoint or DEFAULT_CHECKPOINT)
-    how = {"inputs": ckpt.get("inputs", "full"), "input_scale": ckpt.get("input_scale", "exposure-invariant")}
+    net, ckpt, stats = load(args.checkpoint)
+    how = {"inputs": checkpoint_inputs(ckpt), "input_scale": checkpoint_input_scale(ckpt)}
     rows, probes = [], []
     for root in args.input:
-        for i in sorted(pdataset.completed_indices(root, verify_hash=False))[: args.limit]:
-            sample, _ = pdataset.read_sample(root, i)
-            raw = pdataset.sample_paths(root, i).raw
-            maps, auto = load_input(raw)
-            radiance = input_display_radiance(raw)
-            pred = predict(net, maps, auto, radiance=radiance, **how)
-            region = auto & (sample["object"] >= 0) & (sample["metallic"] < 0.5)
-            if region.sum() < 100:
+        for scene in capture_scenes(net, ckpt, stats, root, args.limit):
+            region = scene.auto_mask & scene.region & (scene.gt["metallic"] < 0.5)
+            if scene.ours is None or region.sum() < 100:
                 continue
-            rows.append(
-                (pred["albedo"][region].mean(), sample["albedo"][region].mean(), np.median(sample["depth"][region]))
-            )
+            truth = scene.gt["albedo"][region].mean()
+            rows.append((scene.ours["albedo"][region].mean(), truth, np.median(scene.gt["depth"][region])))
             if len(probes) < 3:
+                radiance = input_display_radiance(pdataset.sample_paths(root, scene.index).raw)
                 levels = []
                 for k in (0.25, 0.5, 1.0, 2.0, 4.0):
-                    scaled = maps.copy()
+                    scaled = scene.maps.copy()
                     scaled[..., :6] *= k
-                    levels.append(float(predict(net, scaled, auto, radiance=radiance, **how)["albedo"][auto].mean()))
-                probes.append((f"{root.name}/{i}", levels))
+                    pred = predict(net, scaled, scene.auto_mask, radiance=radiance, **how)
+                    levels.append(float(pred["albedo"][scene.auto_mask].mean()))
+                probes.append((f"{root.name}/{scene.index}", levels))
     pred, truth, depth = np.array(rows).T
     a, b = np.polyfit(np.log(truth), np.log(pred), 1)
     x = np.c_[np.log(truth), np.log(depth), np.ones(len(truth))]

@@ -15,11 +15,15 @@ from __future__ import annotations
 
 import argparse
 import sys
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from tools._capture_scenes import add_arguments, capture_scenes, load  # noqa: E402
 
 SPLITS = ("test-procedural", "test-meshes", "test-pbrdf", "test-scenes")
 
@@ -34,53 +38,41 @@ def _summary(rows: list[tuple[float, float]]) -> str:
     return f"{len(rows):4d} objects  r = {r:+.2f}  RMSE {rmse:.3f}  (constant {const:.3f})"
 
 
-def object_rows(root: Path, limit: int, net: object, how: dict) -> list[dict]:
+def object_rows(scenes: Iterable[Any]) -> list[dict]:
     """One row per object with at least 100 pixels in the automatic mask: scene, object, kind, means.
+
+    Args:
+        scenes: :class:`network.split_eval.ScenePredictions` (``tools/_capture_scenes.py``).
 
     Returns:
         dicts with ``scene`` (index), ``object`` (id in the sidecar's object list), ``kind``
         (``"metal"`` where the object's mean true metallic is >= 0.5, else ``"dielectric"``), and
         ``pred`` and ``truth``, the mean predicted and true roughness over those pixels.
     """
-    from network.infer import input_display_radiance, load_input, predict
-    from pbrdf.data import dataset as pdataset
-
     rows = []
-    for i in sorted(pdataset.completed_indices(root, verify_hash=False))[:limit]:
-        sample, _ = pdataset.read_sample(root, i)
-        raw = pdataset.sample_paths(root, i).raw
-        maps, auto = load_input(raw)
-        pred = predict(net, maps, auto, radiance=input_display_radiance(raw), **how)
-        for obj in np.unique(sample["object"][sample["object"] >= 0]):
-            region = auto & (sample["object"] == obj)
+    for scene in scenes:
+        if scene.ours is None or scene.objects is None:
+            continue
+        for obj in np.unique(scene.objects[scene.objects >= 0]):
+            region = scene.auto_mask & (scene.objects == obj)
             if region.sum() < 100:
                 continue
-            kind = "metal" if sample["metallic"][region].mean() >= 0.5 else "dielectric"
-            rows.append({"scene": i, "object": int(obj), "kind": kind,
-                         "pred": float(pred["roughness"][..., 0][region].mean()),
-                         "truth": float(sample["roughness"][region].mean())})  # fmt: skip
+            kind = "metal" if scene.gt["metallic"][region].mean() >= 0.5 else "dielectric"
+            rows.append({"scene": scene.index, "object": int(obj), "kind": kind,
+                         "pred": float(scene.ours["roughness"][..., 0][region].mean()),
+                         "truth": float(scene.gt["roughness"][region].mean())})  # fmt: skip
     return rows
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the diagnosis; returns the exit status."""
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--input", type=Path, nargs="+", default=[Path("out/splits") / s for s in SPLITS])
-    parser.add_argument("--limit", type=int, default=48, help="scenes per split (default 48)")
-    parser.add_argument("--checkpoint", type=Path, help="default: the shipped model")
+    add_arguments(parser, [Path("out/splits") / s for s in SPLITS], 48)
     args = parser.parse_args(argv)
-
-    import torch
-
-    from network.checkpoint import load_checkpoint
-    from network.infer import DEFAULT_CHECKPOINT
-
-    torch.set_num_threads(2)
-    net, ckpt = load_checkpoint(args.checkpoint or DEFAULT_CHECKPOINT)
-    how = {"inputs": ckpt.get("inputs", "full"), "input_scale": ckpt.get("input_scale", "exposure-invariant")}
+    model, ckpt, stats = load(args.checkpoint)
     pooled: dict[str, list[tuple[float, float]]] = {"dielectric": [], "metal": []}
     for root in args.input:
-        rows = object_rows(root, args.limit, net, how)
+        rows = object_rows(capture_scenes(model, ckpt, stats, root, args.limit))
         for kind in pooled:
             found = [(r["pred"], r["truth"]) for r in rows if r["kind"] == kind]
             print(f"{root.name:16s} {kind:10s} {_summary(found)}")

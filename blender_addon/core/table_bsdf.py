@@ -29,6 +29,7 @@ Its speed against the plugin's is in docs/measurements/headless.md.
 
 from __future__ import annotations
 
+import functools
 import os
 from typing import Any
 
@@ -101,6 +102,12 @@ def needed_entries(path: str | os.PathLike, *, linear_light: bool = False) -> tu
     Returns:
         sorted entry indices in ``0..15``.
     """
+    st = os.stat(path)  # the answer is cached per file version: every colour pass of every scene asks
+    return _needed_entries(os.path.realpath(path), st.st_mtime_ns, st.st_size, bool(linear_light))
+
+
+@functools.lru_cache(maxsize=256)
+def _needed_entries(path: str, mtime_ns: int, size: int, linear_light: bool) -> tuple[int, ...]:
     m = np.asarray(read_tensor_file(path)["M"], dtype=np.float64)
     m = m.reshape(-1, 16)
     finite = np.isfinite(m)

@@ -29,13 +29,13 @@ def split(tmp_path_factory):
 
 
 def test_roughness_rows_match_the_sidecar_materials(split, capsys):
-    from network.checkpoint import load_checkpoint
-    from network.infer import DEFAULT_CHECKPOINT
     from pbrdf.data import dataset as pdataset
+    from tools._capture_scenes import capture_scenes, load
 
     tool = _tool("roughness_corr")
-    net, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
-    rows = tool.object_rows(split, 6, net, {"inputs": ckpt["inputs"], "input_scale": ckpt["input_scale"]})
+    scenes = list(capture_scenes(*load(None), split, 6))
+    assert all(sc.preds["baseline"] == {} for sc in scenes)  # the model alone: photometric stereo not run
+    rows = tool.object_rows(scenes)
     assert rows, "no object with 100 masked pixels"
     kinds = set()
     for row in rows:
