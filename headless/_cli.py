@@ -38,8 +38,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+import warnings
 from collections.abc import Callable
 from typing import NoReturn
+
+from pbrdf.io.errors import one_line
 
 __all__ = [
     "DEPRECATION",
@@ -47,7 +50,7 @@ __all__ = [
     "add_deprecated_positional",
     "in_blender_binary",
     "model_override",
-    "one_line",
+    "held_warnings",
     "refuse_old_blender",
     "require",
     "run_main",
@@ -153,15 +156,41 @@ def script_args(argv: list[str]) -> list[str]:
     return argv[argv.index("--") + 1 :] if "--" in argv else argv[1:]
 
 
-def one_line(exc: BaseException | Warning | str, limit: int = 500) -> str:
-    """An exception (or warning) as one line: its message with whitespace collapsed, else its type name.
+def held_warnings(work: Callable[[], int], *, status: int = 2) -> int:
+    """Run ``work`` with warnings held back: one ``error:`` line on bad input, else each warning once.
+
+    The convention of every script that reads a user's files: a ``ValueError`` or ``OSError`` (bad
+    input, a missing file) prints exactly one ``error:`` line and nothing else, and returns
+    ``status``; on success each distinct warning prints as one ``warning:`` line after the work.
+
+    Args:
+        work: the script's work; returns its exit status.
+        status: the status returned on bad input.
+
+    Returns:
+        ``work()``'s status, or ``status``.
 
     Example:
-        >>> one_line(ValueError("bad\\n  value")), one_line(KeyError())
-        ('bad value', 'KeyError')
+        >>> import contextlib, io, warnings
+        >>> err = io.StringIO()
+        >>> def bad() -> int:
+        ...     warnings.warn("held")
+        ...     raise ValueError("capture.json:\\n missing key")
+        >>> with contextlib.redirect_stderr(err):
+        ...     held_warnings(bad)
+        2
+        >>> err.getvalue()
+        'error: capture.json: missing key\\n'
     """
-    text = " ".join(str(exc).split()) or type(exc).__name__
-    return text if len(text) <= limit else text[: limit - 3] + "..."
+    with warnings.catch_warnings(record=True) as caught:
+        try:
+            code = work()
+        except (ValueError, OSError) as exc:
+            print(f"error: {one_line(exc)}", file=sys.stderr)
+            return status
+    for message in dict.fromkeys(one_line(w.message) for w in caught):
+        print(f"warning: {message}", file=sys.stderr)
+    return code
 
 
 def in_blender_binary() -> bool:

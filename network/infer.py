@@ -23,6 +23,7 @@ from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import dataset as pdataset
 from pbrdf.io.atomic import fsync_path, temporary_path
+from pbrdf.io.errors import NothingToReconstruct
 from pbrdf.io.exr import write_exr
 from pbrdf.sensor.rig import Rig
 
@@ -90,7 +91,7 @@ def load_input(path: str | Path, *, require_object: bool = False) -> tuple[np.nd
     if path.suffix in (".exr", ".json") and path.exists():
         sample, _ = pdataset.read_sample(path, keys=("maps", "mask"))
         if require_object and not sample["mask"].any():
-            raise ValueError(f"{path}: the sample's mask is empty: nothing to reconstruct")
+            raise NothingToReconstruct(f"{path}: the sample's mask is empty: nothing to reconstruct")
         return sample["maps"], sample["mask"]
     raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
 
@@ -214,7 +215,7 @@ def mask_bbox(mask: np.ndarray, margin: float = 0.05) -> tuple[int, int, int, in
     """
     ys, xs = np.nonzero(mask)
     if ys.size == 0:
-        raise ValueError("the mask is empty: nothing to reconstruct")
+        raise NothingToReconstruct("the mask is empty: nothing to reconstruct")
     h, w = mask.shape
     cy, cx = (ys.min() + ys.max() + 1) / 2, (xs.min() + xs.max() + 1) / 2
     side = max(ys.max() - ys.min() + 1, xs.max() - xs.min() + 1) * (1 + 2 * margin)
@@ -286,7 +287,7 @@ def predict(
         raise ValueError(f"maps: the CP maps (R_CP, G_CP, B_CP) must lie in [-1, 1]; got |CP| up to {cp:.3g}")
     y0, x0, y1, x1 = mask_bbox(mask)
     if not np.any(maps[mask]):
-        raise ValueError("maps are zero on every mask pixel: nothing to reconstruct")
+        raise NothingToReconstruct("maps are zero on every mask pixel: nothing to reconstruct")
     radiance = input_radiance(input_scale, radiance)
     peak = float(np.abs(maps[..., :6]).max())
     if peak > _RADIANCE_PEAK:  # float32 sums of 3e38 overflow: scale maps and radiance alike
@@ -305,7 +306,7 @@ def predict(
     model.eval()
     if resolution == "full":
         if not bool(k.any()):
-            raise ValueError("the mask vanishes at the network's input size: nothing to reconstruct")
+            raise NothingToReconstruct("the mask vanishes at the network's input size: nothing to reconstruct")
         # One scale at both resolutions: the one the encoder's (resized) input defines.
         scale = radiance if radiance is not None else exposure_radiance(m, k)
         with torch.no_grad():
@@ -334,7 +335,7 @@ def predict(
 
     invalid = k[0, 0].cpu().numpy() == 0
     if invalid.all():
-        raise ValueError("the mask vanishes at the network's input size: nothing to reconstruct")
+        raise NothingToReconstruct("the mask vanishes at the network's input size: nothing to reconstruct")
     _, (iy, ix) = ndimage.distance_transform_edt(invalid, return_indices=True)
     iy, ix = torch.from_numpy(iy).to(device), torch.from_numpy(ix).to(device)
     h, w = mask.shape

@@ -34,6 +34,7 @@ from pbrdf.data import dataset as pdataset
 from pbrdf.data.splits import SPLITS, dataset_split, require_role
 from pbrdf.geometry.normal_integration import integrate_normals
 from pbrdf.io.atomic import atomic_write_text
+from pbrdf.io.errors import NothingToReconstruct
 from pbrdf.io.strict_json import dumps_strict
 
 from . import metrics
@@ -204,7 +205,7 @@ def predict_scene(
                 model, x.permute(1, 2, 0).contiguous().numpy(), auto, inputs=variant, input_scale=input_scale,
                 radiance=input_display_radiance(raw),
             )  # fmt: skip
-        except ValueError:  # a mask that vanishes at the network's grid: nothing was reconstructed
+        except NothingToReconstruct:  # a mask that vanishes at the network's grid: nothing was reconstructed
             ours = None
         preds["ours"] = _fill_nearest(ours, auto, region) if ours is not None else constant
         if not baseline or (meta.get("rig") or {}).get("display", {}).get("pattern", "rgb_halves") == "white":

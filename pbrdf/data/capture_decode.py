@@ -24,6 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbrdf.data.capture import Capture, _open_image, load_capture, validate_capture
+from pbrdf.io.errors import NothingToReconstruct
 from pbrdf.sensor.decode import Decoded, decode
 from pbrdf.sensor.foreground import capture_foreground
 
@@ -236,5 +237,5 @@ def check_usable(decoded: DecodedCapture, capture: Capture, *, need_object: bool
         else:
             reason = f"{decoded.foreground_source} covers no measured pixel"
         if need_object:
-            raise ValueError(f"{where}: nothing to reconstruct: {reason}")
+            raise NothingToReconstruct(f"{where}: nothing to reconstruct: {reason}")
         warnings.warn(f"{where}: {reason}", CaptureWarning, stacklevel=2)
