@@ -24,6 +24,8 @@ import bpy
 from bpy.app.handlers import persistent
 from bpy.props import EnumProperty, PointerProperty, StringProperty
 
+from pbrdf.io.errors import one_line
+
 from . import prefs
 from .core import reconstruction
 from .pbr_import import PBRImportWarning, import_pbr_maps
@@ -73,10 +75,6 @@ def reconstruction_python(context: bpy.types.Context | None = None) -> Path:
     )
 
 
-def _one_line(text: object) -> str:
-    return " ".join(str(text).split()) or "unknown error"
-
-
 def _abspath(path: str) -> str:
     return bpy.path.abspath(path.strip()) if path.strip() else ""
 
@@ -105,7 +103,7 @@ def _start_job(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context):
         job = _new_job(op, context)
         job.start()
     except (ValueError, OSError, RuntimeError) as e:
-        op.report({"ERROR"}, _one_line(e))
+        op.report({"ERROR"}, one_line(e))
         return None
     return job
 
@@ -116,7 +114,7 @@ def _finish(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context, job) ->
         op.report({"WARNING"}, f"Reconstruction of {job.name} cancelled; nothing written")
         return {"CANCELLED"}
     if job.state != "done":
-        op.report({"ERROR"}, _one_line(f"Reconstruction of {job.name} failed: {job.error}"))
+        op.report({"ERROR"}, one_line(f"Reconstruction of {job.name} failed: {job.error}"))
         return {"CANCELLED"}
     relief = not job.card
     with warnings.catch_warnings(record=True) as caught:
@@ -126,11 +124,11 @@ def _finish(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context, job) ->
                 context, job.outputs, use_depth=relief, normal_space="OBJECT" if relief else "TANGENT", name=job.name
             )
         except (ValueError, OSError) as e:
-            op.report({"ERROR"}, _one_line(f"Reconstructed {job.name}, but the import failed: {e}"))
+            op.report({"ERROR"}, one_line(f"Reconstructed {job.name}, but the import failed: {e}"))
             return {"CANCELLED"}
     for w in caught:
         if issubclass(w.category, PBRImportWarning):
-            op.report({"WARNING"}, _one_line(w.message))
+            op.report({"WARNING"}, one_line(w.message))
     obj["pdir_capture"] = str(job.capture)
     what = f"relief mesh, {len(obj.data.vertices)} vertices" if relief else "card"
     op.report({"INFO"}, f"Reconstructed {job.name} in {job.elapsed:.0f} s: {obj.name!r} ({what}); maps in {job.out}")
@@ -303,7 +301,7 @@ class PDIR_PT_reconstruct(SidebarPanel, bpy.types.Panel):
         try:
             reconstruction_python(context)
         except (RuntimeError, ValueError) as e:
-            layout.label(text=_one_line(e), icon="ERROR")
+            layout.label(text=one_line(e), icon="ERROR")
 
 
 @persistent

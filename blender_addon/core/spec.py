@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from pbrdf.io.strict_json import read_json_object
 from pbrdf.sensor.rig import (
     IDENTITY4,
     Rig,
@@ -33,7 +34,6 @@ from pbrdf.sensor.rig import (
     _as_int,
     _as_matrix4,
     _as_vec,
-    _read_json,
     atomic_write_text,
 )
 
@@ -413,7 +413,7 @@ class SceneSpec:
             FileNotFoundError: no such file.
             ValueError: invalid JSON or content; the message starts with the path.
         """
-        data = _read_json(path, "scene")
+        data = read_json_object(path, what="scene file")
         try:
             return cls.from_dict(data)
         except ValueError as e:

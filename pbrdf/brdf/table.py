@@ -58,6 +58,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from pbrdf._checks import as_unit_vectors
 from pbrdf.brdf.rusinkiewicz import directions_from_rusinkiewicz, reflection_frame_x, rusinkiewicz_from_directions
+from pbrdf.io.errors import one_line
 from pbrdf.io.tensorfile import read_tensor_file, write_tensor_file
 from pbrdf.polar.mueller import rotate_mueller_basis, stokes_basis
 
@@ -97,10 +98,6 @@ _AXIS_RANGES = {
 
 # Bytes reduced per step by nan_mask and resample.
 _CHUNK_BYTES = 64 << 20
-
-
-def _one_line(text: str) -> str:
-    return " ".join(str(text).split())
 
 
 # --- the table type --------------------------------------------------------------------------------
@@ -257,7 +254,7 @@ def save_table(path: str | os.PathLike, table: PBRDFTable, *, for_mitsuba: bool 
         try:
             text = json.dumps({"name": table.name, "metadata": table.metadata}, sort_keys=True, allow_nan=False)
         except (TypeError, ValueError) as e:
-            raise ValueError(f"table metadata must be JSON-serialisable: {_one_line(str(e))}") from None
+            raise ValueError(f"table metadata must be JSON-serialisable: {one_line(e)}") from None
         fields[_META_FIELD] = np.frombuffer(text.encode("utf-8"), dtype=np.uint8)
     return write_tensor_file(path, fields, chunk_fns={"M": _zero_nan_bins} if for_mitsuba else None)
 
@@ -309,7 +306,7 @@ def load_table(path: str | os.PathLike, *, mmap: bool = True) -> PBRDFTable:
             meta = json.loads(bytes(np.asarray(fields[_META_FIELD], dtype=np.uint8)).decode("utf-8"))
             name, metadata = meta.get("name"), dict(meta.get("metadata") or {})
         except (ValueError, AttributeError) as e:
-            raise ValueError(f"{p}: field {_META_FIELD!r} is not a JSON object: {_one_line(str(e))}") from None
+            raise ValueError(f"{p}: field {_META_FIELD!r} is not a JSON object: {one_line(e)}") from None
     try:
         return PBRDFTable(axes["phi_d"], axes["theta_d"], axes["theta_h"], wvls, m, name=name, metadata=metadata)
     except ValueError as e:

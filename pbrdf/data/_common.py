@@ -1,6 +1,6 @@
 """Helpers shared by :mod:`pbrdf.data.sample` and :mod:`pbrdf.data.dataset` (private).
 
-Index checks, JSON text with numpy values, format-tagged JSON objects and removal of a sample's
+Index checks, JSON text with numpy values and removal of a sample's
 files or folders.
 """
 
@@ -14,9 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from pbrdf.io.strict_json import read_json_object  # noqa: F401  (its home; dataset and sample read through here)
-
-__all__ = ["check_index", "dumps_json", "check_metadata", "read_json_object", "remove_path"]
+__all__ = ["check_index", "dumps_json", "check_metadata", "remove_path"]
 
 
 def check_index(index: Any) -> int:

@@ -49,7 +49,6 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -58,7 +57,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf.io.atomic import fsync_path, temporary_path
+from pbrdf.io.atomic import atomic_folder
 from pbrdf.sensor.camera import CAMERA_RANGES, CameraModel
 from pbrdf.sensor.rig import Rig
 
@@ -127,10 +126,7 @@ def _raw_file_name(exposure: float, suffix: str) -> str:
 def _write_raw(path: Path, raw: NDArray[np.uint16], file_format: str) -> None:
     """Write one ``(H, W)`` uint16 raw to ``path`` as PNG, TIFF or npy (exact, lossless)."""
     if file_format == "npy":
-        with open(path, "wb") as f:
-            np.save(f, np.ascontiguousarray(raw, dtype=np.uint16), allow_pickle=False)
-            f.flush()
-            os.fsync(f.fileno())
+        np.save(path, np.ascontiguousarray(raw, dtype=np.uint16), allow_pickle=False)
         return
     from PIL import Image
 
@@ -140,10 +136,7 @@ def _write_raw(path: Path, raw: NDArray[np.uint16], file_format: str) -> None:
     img = Image.fromarray(np.ascontiguousarray(raw, dtype="<u2"))
     if img.mode != "I;16":  # pragma: no cover - guards against a Pillow behaviour change
         raise OSError(f"{path}: Pillow made a {img.mode!r} image from uint16 data, expected 'I;16'")
-    with open(path, "wb") as f:
-        img.save(f, format="PNG" if file_format == "png" else "TIFF")
-        f.flush()
-        os.fsync(f.fileno())
+    img.save(path, format="PNG" if file_format == "png" else "TIFF")
 
 
 def _check_frame(raw: NDArray, where: str, white_level: int) -> NDArray[np.uint16]:
@@ -219,10 +212,10 @@ def save_capture(
 ) -> Path:
     """Write a capture folder atomically: raws (one file per exposure) plus ``capture.json``.
 
-    Everything is written into a temporary sibling folder that is renamed into place at the end,
-    so an interrupted run leaves either no folder or a complete one (never a half-written
-    capture). With ``overwrite=True`` an existing folder is first renamed aside and deleted after
-    the new one is in place.
+    Everything is written into a temporary sibling folder that is renamed into place at the end
+    (:func:`pbrdf.io.atomic.atomic_folder`), so an interrupted run leaves either no folder or a
+    complete one (never a half-written capture). With ``overwrite=True`` an existing folder is
+    first renamed aside and deleted after the new one is in place.
 
     Args:
         folder: target folder; its parent must exist. It may exist only if empty (or with
@@ -286,53 +279,11 @@ def save_capture(
     if not parent.is_dir():
         raise FileNotFoundError(f"{parent}: parent folder of the capture does not exist")
 
-    tmp = _make_sibling(target, "tmp")
-    try:
+    with atomic_folder(target) as tmp:
         for name, raw in zip(names, r, strict=True):
             _write_raw(tmp / name, raw, file_format)
-        with open(tmp / CAPTURE_JSON, "w", encoding="utf-8") as f:
-            f.write(text + "\n")
-            f.flush()
-            os.fsync(f.fileno())
-        fsync_path(tmp, directory=True)
-        _move_into_place(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    fsync_path(parent, directory=True)
+        (tmp / CAPTURE_JSON).write_text(text + "\n", encoding="utf-8")
     return target
-
-
-def _make_sibling(target: Path, tag: str) -> Path:
-    """Create a new, uniquely named hidden folder next to ``target`` (usual permissions)."""
-    for _ in range(100):
-        path = temporary_path(target, tag)
-        try:
-            path.mkdir()
-        except FileExistsError:  # pragma: no cover - 32 random bits collided
-            continue
-        return path
-    raise FileExistsError(f"{target.parent}: cannot create a temporary folder")  # pragma: no cover
-
-
-def _move_into_place(tmp: Path, target: Path) -> None:
-    """Rename the finished ``tmp`` folder to ``target``, replacing an existing one."""
-    if not target.exists():
-        os.replace(tmp, target)
-        return
-    if not any(target.iterdir()):
-        target.rmdir()
-        os.replace(tmp, target)
-        return
-    old = _make_sibling(target, "old")
-    old.rmdir()
-    os.replace(target, old)
-    try:
-        os.replace(tmp, target)
-    except BaseException:
-        os.replace(old, target)  # put the previous capture back
-        raise
-    shutil.rmtree(old, ignore_errors=True)
 
 
 def _read_raw(path: Path) -> NDArray:

@@ -32,10 +32,11 @@ from typing import Any
 import numpy as np
 
 from pbrdf.data import sample as _sample
-from pbrdf.data._common import check_index, check_metadata, dumps_json, read_json_object, remove_path
+from pbrdf.data._common import check_index, check_metadata, dumps_json, remove_path
 from pbrdf.data.sample import *  # noqa: F403 (re-exported: the public names of pbrdf.data.sample)
 from pbrdf.data.sample import SAMPLES_DIR, check_complete, parse_sample_name, sample_paths
 from pbrdf.io.atomic import atomic_write_text, remove_leftovers, temporary_target
+from pbrdf.io.strict_json import read_json_object
 
 __all__ = [
     "MANIFEST_FORMAT",

@@ -63,10 +63,11 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
-from pbrdf.data._common import check_index, check_metadata, dumps_json, read_json_object, remove_path
+from pbrdf.data._common import check_index, check_metadata, dumps_json, remove_path
 from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, save_capture, validate_capture
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.exr import MissingChannelError, read_exr, stack_channels, write_exr
+from pbrdf.io.strict_json import read_json_object
 from pbrdf.sensor.camera import CameraModel
 from pbrdf.sensor.decode import NINE_MAP_NAMES
 

@@ -28,11 +28,12 @@ Example:
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
+
+from pbrdf.io.strict_json import read_json_object
 
 __all__ = [
     "ROLES",
@@ -228,11 +229,11 @@ test_splits.__test__ = False  # a library function, not a pytest test
 
 
 def _read_json(path: Path) -> dict | None:
+    """The JSON object in ``path``, or None when it is missing or unreadable (a dataset may lack labels)."""
     try:
-        data = json.loads(path.read_text())
+        return read_json_object(path)
     except (OSError, ValueError):
         return None
-    return data if isinstance(data, dict) else None
 
 
 def dataset_split(root: str | os.PathLike) -> str | None:

@@ -1,9 +1,10 @@
-"""Atomic file writes: the one home for "temporary sibling, fsync, rename into place".
+"""Atomic writes: the one home for "temporary sibling, fsync, rename into place".
 
 Every writer of the project (captures, EXR samples, sidecars, manifests, rigs, CLI outputs)
 goes through these helpers, so a killed process leaves either the old file or the new one,
 never half of one, and the leftovers are recognisable (:func:`temporary_target`) and cleaned
-up on resume.
+up on resume. A file is written with :func:`atomic_open` (or :func:`atomic_write_bytes`), a
+set of files or a whole folder with :func:`atomic_folder`.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ __all__ = [
     "remove_leftovers",
     "fsync_path",
     "atomic_open",
+    "atomic_folder",
     "atomic_write_bytes",
     "atomic_write_text",
 ]
@@ -187,3 +189,103 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> Path:
 def atomic_write_text(path: str | os.PathLike, text: str) -> Path:
     """UTF-8 text version of :func:`atomic_write_bytes`."""
     return atomic_write_bytes(path, text.encode("utf-8"))
+
+
+@contextlib.contextmanager
+def atomic_folder(target: str | os.PathLike, *, merge: bool = False) -> Iterator[Path]:
+    """Write a folder's files together: yield an empty staging folder, put its files into place on success.
+
+    The staging folder is a temporary sibling of ``target`` (:func:`temporary_path`, so that
+    :func:`remove_leftovers` recognises one a killed writer left). When the ``with`` block ends
+    without an exception, every file in it is fsynced, then
+
+    * ``merge=False``: the staging folder becomes ``target`` by one rename. An existing
+      ``target`` is first renamed aside (an ``"old"`` sibling) and deleted once the new one is in
+      place (put back if that rename fails), so a reader sees the old folder or the new one.
+    * ``merge=True``: each staged file is renamed into ``target`` (created only now if missing),
+      replacing files of the same name and leaving the others: each file appears whole, all of
+      them after the work succeeded (a crash between two renames can leave some of the new files).
+
+    On any exception (KeyboardInterrupt included) the staging folder is removed and ``target``
+    is untouched: no half-written folder and no temporary one are left.
+
+    Args:
+        target: the folder to write; its parent folders are created if missing.
+        merge: add the files to ``target`` instead of replacing the whole folder.
+
+    Yields:
+        The staging folder (empty), on the same file system as ``target``.
+
+    Raises:
+        NotADirectoryError: ``target`` exists and is not a folder.
+        OSError: the staging folder cannot be created or renamed.
+
+    Example:
+        >>> import tempfile
+        >>> d = Path(tempfile.mkdtemp())
+        >>> with atomic_folder(d / "capture") as tmp:
+        ...     _ = (tmp / "capture.json").write_text("{}")
+        >>> sorted(p.name for p in d.iterdir()), (d / "capture" / "capture.json").read_text()
+        (['capture'], '{}')
+        >>> shutil.rmtree(d)
+    """
+    target = Path(target)
+    if target.is_symlink() or (target.exists() and not target.is_dir()):
+        raise NotADirectoryError(f"{target}: exists and is not a folder")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    staging = _new_folder(target, "tmp")
+    try:
+        yield staging
+        _fsync_tree(staging)
+        if merge:
+            _merge_into(staging, target)
+        else:
+            _replace_folder(staging, target)
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)  # gone after a rename; the leftovers of a failure
+    fsync_path(target.parent, directory=True)
+
+
+def _new_folder(target: Path, kind: str) -> Path:
+    """Create a new, uniquely named temporary sibling folder of ``target``."""
+    for _ in range(100):
+        path = temporary_path(target, kind)
+        try:
+            path.mkdir()
+        except FileExistsError:  # pragma: no cover - 32 random bits collided
+            continue
+        return path
+    raise FileExistsError(f"{target.parent}: cannot create a temporary folder")  # pragma: no cover
+
+
+def _fsync_tree(folder: Path) -> None:
+    """Fsync every file and folder under ``folder`` (the folder included) before it is renamed."""
+    for path in sorted(folder.rglob("*")):
+        fsync_path(path, directory=path.is_dir())
+    fsync_path(folder, directory=True)
+
+
+def _merge_into(staging: Path, target: Path) -> None:
+    """Rename each entry of ``staging`` into ``target`` (created if missing)."""
+    target.mkdir(exist_ok=True)
+    for path in sorted(staging.iterdir()):
+        os.replace(path, target / path.name)
+    fsync_path(target, directory=True)
+
+
+def _replace_folder(staging: Path, target: Path) -> None:
+    """Rename the finished ``staging`` folder to ``target``, replacing an existing one."""
+    if target.is_dir() and not any(target.iterdir()):
+        target.rmdir()
+    if not target.exists():
+        os.replace(staging, target)
+        return
+    old = _new_folder(target, "old")
+    old.rmdir()
+    os.replace(target, old)
+    try:
+        os.replace(staging, target)
+    except BaseException:
+        os.replace(old, target)  # put the previous folder back
+        raise
+    shutil.rmtree(old, ignore_errors=True)

@@ -48,6 +48,7 @@ import OpenEXR
 from numpy.typing import NDArray
 
 from pbrdf.io.atomic import fsync_path, temporary_path
+from pbrdf.io.errors import one_line
 
 __all__ = [
     "COMPRESSIONS",
@@ -261,7 +262,7 @@ def write_exr(
         try:
             exr.write(str(tmp))
         except RuntimeError as e:
-            raise OSError(f"{target}: cannot write EXR: {_one_line(e)}") from e
+            raise OSError(f"{target}: cannot write EXR: {one_line(e)}") from e
         fsync_path(tmp)
         os.replace(tmp, target)
     except BaseException:
@@ -272,13 +273,8 @@ def write_exr(
     return target
 
 
-def _one_line(e: BaseException | str) -> str:
-    text = " ".join(str(e).split())
-    return text or type(e).__name__
-
-
 def _not_readable(path: Path, reason: str) -> ValueError:
-    return ValueError(f"{path}: not a readable EXR file: {_one_line(reason)}")
+    return ValueError(f"{path}: not a readable EXR file: {one_line(reason)}")
 
 
 def _check_file(path: Path) -> None:
@@ -302,7 +298,7 @@ def _check_file(path: Path) -> None:
 
 def _warning_reason(printed: str) -> str:
     """Reason from the warning OpenEXR's binding prints when it cannot decode pixel data."""
-    text = _one_line(printed) if printed.strip() else ""
+    text = one_line(printed) if printed.strip() else ""
     m = _PIXEL_WARNING_RE.search(text)
     if m:
         return f"truncated or corrupt pixel data in part {m.group(1)} ({m.group(2)})"
@@ -316,7 +312,7 @@ def _open(path: Path, **kwargs: bool) -> OpenEXR.File:
         with contextlib.redirect_stdout(out):
             exr = OpenEXR.File(str(path), **kwargs)
     except (RuntimeError, ValueError) as e:
-        raise _not_readable(path, _warning_reason(out.getvalue()) or _one_line(e)) from e
+        raise _not_readable(path, _warning_reason(out.getvalue()) or one_line(e)) from e
     if out.getvalue().strip():
         raise _not_readable(path, _warning_reason(out.getvalue()))
     return exr

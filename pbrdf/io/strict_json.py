@@ -53,13 +53,29 @@ def loads_strict(text: str) -> Any:
     return json.loads(text, parse_constant=_refuse)
 
 
-def read_json_object(path: str | Path, fmt: str | None = None) -> dict[str, Any]:
+def read_json_object(path: str | Path, fmt: str | None = None, *, what: str = "JSON file") -> dict[str, Any]:
     """A JSON object (whose ``format`` is ``fmt``, when given); one-line ValueError naming the file otherwise.
 
-    Malformed text, nesting too deep for the parser (RecursionError) and integers of more than
-    4300 digits are all reported as invalid JSON.
+    The one reader of the project's JSON files. Malformed text, text that is not UTF-8, nesting
+    too deep for the parser (RecursionError) and integers of more than 4300 digits are all
+    reported as invalid JSON.
+
+    Args:
+        path: the file.
+        fmt: the value its ``"format"`` key must have, or None (any).
+        what: the file's kind in the message when it is missing (``"rig file"``).
+
+    Returns:
+        The parsed object.
+
+    Raises:
+        FileNotFoundError: no such file (``"<path>: <what> not found"``).
+        ValueError: not a JSON object (of format ``fmt``); the message starts with the path.
+        OSError: other read errors.
     """
     path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: {what} not found")
     try:
         data = json.loads(path.read_text(encoding="utf-8"))
     except RecursionError:

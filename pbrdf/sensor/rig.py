@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pbrdf.io.atomic import atomic_write_bytes, atomic_write_text
+from pbrdf.io.strict_json import read_json_object
 from pbrdf.sensor import projection
 from pbrdf.sensor.camera import CameraModel
 
@@ -137,18 +138,6 @@ def merge_overrides(base: dict, override: Any, path: str) -> dict:
         else:
             out[key] = value
     return out
-
-
-def _read_json(path: str | os.PathLike, what: str) -> Any:
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: {what} file not found")
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path}: invalid JSON: {e}") from None
-    except UnicodeDecodeError as e:
-        raise ValueError(f"{path}: not a UTF-8 text file: {e}") from None
 
 
 def _rot_x(a: float) -> NDArray[np.float64]:
@@ -585,7 +574,7 @@ class Rig:
             FileNotFoundError: no such file.
             ValueError: invalid JSON, unknown keys or invalid values; the message starts with the path.
         """
-        data = _read_json(path, "rig")
+        data = read_json_object(path, what="rig file")
         try:
             return cls.from_dict(data)
         except ValueError as e:

@@ -1,8 +1,8 @@
-"""pbrdf.data._common: the JSON reader shared by samples and manifests turns every parse failure into one line."""
+"""pbrdf.io.strict_json.read_json_object: the one JSON reader turns every parse failure into one line."""
 
 import pytest
 
-from pbrdf.data._common import read_json_object
+from pbrdf.io.strict_json import read_json_object
 
 
 @pytest.mark.parametrize(
