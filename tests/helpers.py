@@ -38,7 +38,7 @@ def make_sample(rng, *, stokes=False, raw=False):
     }
     sample["albedo"][0, 0] = [0.0, 1.0, 0.5]  # range ends are valid
     metadata = {
-        "rig": {"display_distance_m": 0.4, "pose": np.eye(4)},  # numpy values become JSON lists
+        "rig": {"camera": {"to_world": np.eye(4)}},  # numpy values become JSON lists
         "materials": [{"id": "gold", "disney": {"metallic": 1.0, "roughness": np.float64(0.25)}}],
         "seed": 1234,
         "versions": {"pbrdf": "0.1.0"},

@@ -4,7 +4,7 @@ A capture folder holds
 
 * one single-channel raw IMX250MYR mosaic per exposure, ``(H, W)`` with H and W multiples of 4,
   as a 16-bit grayscale PNG, a 16-bit TIFF or a ``.npy`` array (black level included, values in
-  ``[0, white_level]``), and
+  ``[0, white_level]``; the files: :mod:`pbrdf.data.raw_files`), and
 * ``capture.json``, for example::
 
     {
@@ -18,6 +18,8 @@ A capture folder holds
       "camera_model": {"qwp_angle": 0.0, "qwp_retardance": [1.5708, 1.5708, 1.5708], ...},
       "radiometry": "calibrated",
       "rig": {"display": {"radiance": 1.0}},
+      "intrinsics": [[2200.0, 0.0, 1224.0], [0.0, 2200.0, 1024.0], [0.0, 0.0, 1.0]],
+      "distance_m": 0.7,
       "object": "any further keys are kept as metadata"
     }
 
@@ -39,6 +41,15 @@ default 1.0) were measured, so the decoded maps are in the renderer's radiance u
 then reads absolute albedo. ``"relative"`` (an uncalibrated camera or display) means only ratios
 are meaningful: inference falls back to the exposure-invariant input scale and albedo is relative.
 
+Geometry. The optional ``"rig"`` (a partial rig, :meth:`pbrdf.sensor.rig.Rig.from_dict`; default
+the default rig), ``"intrinsics"`` (the 3x3 pinhole matrix of the raw mosaic's pixel grid;
+default the rig camera's focal length with the principal point at the image centre) and
+``"distance_m"`` (the object's distance along the viewing axis in m) place the pixels in the rig.
+
+This module is the one reader of ``capture.json``: :func:`load_capture` parses and checks every
+key once, the radiometry and geometry keys into :class:`CaptureMeta` (:attr:`Capture.meta`);
+:func:`read_capture_meta` reads that part alone, without the raw frames.
+
 Decoding a folder, with its object mask (``mask.png`` or automatic): :mod:`pbrdf.data.capture_decode`.
 
 Errors: :class:`FileNotFoundError` (missing folder, ``capture.json`` or raw file) and other
@@ -48,8 +59,8 @@ Errors: :class:`FileNotFoundError` (missing folder, ``capture.json`` or raw file
 from __future__ import annotations
 
 import json
+import math
 import os
-import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -57,8 +68,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pbrdf.data.raw_files import RAW_FORMATS, RAW_SUFFIXES, read_raw, write_raw
 from pbrdf.io.atomic import atomic_folder
+from pbrdf.io.strict_json import read_json_object
 from pbrdf.sensor.camera import CAMERA_RANGES, CameraModel
+from pbrdf.sensor.projection import crop_intrinsics, pinhole_intrinsics
 from pbrdf.sensor.rig import Rig
 
 __all__ = [
@@ -66,8 +80,10 @@ __all__ = [
     "CAPTURE_JSON",
     "RADIOMETRY_MODES",
     "display_radiance",
-    "RAW_SUFFIXES",
     "Capture",
+    "CaptureMeta",
+    "parse_intrinsics",
+    "read_capture_meta",
     "save_capture",
     "load_capture",
     "validate_capture",
@@ -79,8 +95,6 @@ CAPTURE_FORMAT = "pdir-capture/1"
 CAPTURE_JSON = "capture.json"
 #: Values of the optional ``"radiometry"`` key (the first is the default).
 RADIOMETRY_MODES = ("calibrated", "relative")
-#: File name suffixes of raw mosaics understood by :func:`load_capture`.
-RAW_SUFFIXES = (".png", ".tif", ".tiff", ".npy")
 #: Keys of ``capture.json`` written by :func:`save_capture`; ``extra`` may not use them.
 _RESERVED_KEYS = (
     "format",
@@ -92,10 +106,50 @@ _RESERVED_KEYS = (
     "pattern_offset",
     "camera_model",
 )
-_FILE_FORMATS = {"png": "png", "tiff": "tiff", "npy": "npy"}
-# Pillow modes of single-channel integer images (16-bit PNG/TIFF open as "I;16"; old Pillow
-# versions and 32-bit TIFFs give "I").
-_GRAY_MODES = ("I;16", "I;16L", "I;16B", "I;16N", "I", "L")
+
+
+@dataclass(frozen=True)
+class CaptureMeta:
+    """The radiometry and geometry keys of ``capture.json``, parsed and checked.
+
+    Attributes:
+        rig: the ``"rig"`` key over the default rig (the default rig without it).
+        radiometry: one of :data:`RADIOMETRY_MODES`.
+        intrinsics: ``K (3, 3)`` of the raw mosaic's pixel grid as given, or None (the rig
+            camera's default: :meth:`raw_intrinsics`).
+        distance_m: the object's distance along the viewing axis in m, or None.
+    """
+
+    rig: Rig = field(default_factory=Rig)
+    radiometry: str = RADIOMETRY_MODES[0]
+    intrinsics: NDArray[np.float64] | None = None
+    distance_m: float | None = None
+
+    @property
+    def radiance(self) -> float | None:
+        """The display radiance in the decoded maps' units, or None for ``"relative"`` radiometry."""
+        return None if self.radiometry == "relative" else float(self.rig.display.radiance)
+
+    def raw_intrinsics(self, raw_shape: tuple[int, int]) -> NDArray[np.float64]:
+        """``K (3, 3)`` of the raw grid ``(H, W)``: the given intrinsics, else the rig camera's default.
+
+        The default has the rig camera's focal length and the principal point at the image centre.
+        """
+        if self.intrinsics is not None:
+            return self.intrinsics.copy()
+        return pinhole_intrinsics(self.rig.camera.focal_length_px, raw_shape[1], raw_shape[0])
+
+    def grid_intrinsics(self, raw_shape: tuple[int, int], grid_shape: tuple[int, int]) -> NDArray[np.float64]:
+        """``K (3, 3)`` of the decoded maps' grid ``(h, w)`` (the half grid: one pixel per 2 x 2 raw block).
+
+        Example:
+            >>> k = CaptureMeta(intrinsics=np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]]))
+            >>> k.grid_intrinsics((48, 64), (24, 32))[:2]
+            array([[50.,  0., 16.],
+                   [ 0., 50., 12.]])
+        """
+        box = (0, 0, int(raw_shape[0]), int(raw_shape[1]))
+        return crop_intrinsics(self.raw_intrinsics(raw_shape), box, (int(grid_shape[0]), int(grid_shape[1])))
 
 
 @dataclass
@@ -110,6 +164,7 @@ class Capture:
         metadata: the keys of ``capture.json`` that are not part of the format (object name,
             date, rig notes, ...).
         raw_files: file names of the raws inside ``folder``, in the order of ``raws``.
+        meta: the radiometry and geometry keys (defaults for an in-memory capture).
     """
 
     raws: NDArray[np.uint16]
@@ -117,26 +172,11 @@ class Capture:
     folder: Path | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
     raw_files: tuple[str, ...] = ()
+    meta: CaptureMeta = field(default_factory=CaptureMeta)
 
 
 def _raw_file_name(exposure: float, suffix: str) -> str:
     return f"raw_{exposure * 1e3:06.1f}ms.{suffix}"
-
-
-def _write_raw(path: Path, raw: NDArray[np.uint16], file_format: str) -> None:
-    """Write one ``(H, W)`` uint16 raw to ``path`` as PNG, TIFF or npy (exact, lossless)."""
-    if file_format == "npy":
-        np.save(path, np.ascontiguousarray(raw, dtype=np.uint16), allow_pickle=False)
-        return
-    from PIL import Image
-
-    # A little-endian uint16 array becomes mode "I;16", which PNG stores as 16-bit grayscale and
-    # TIFF as 16-bit minisblack; both read back bit-exactly. (Pillow 13 rejects an explicit
-    # ``mode="I;16"`` in ``fromarray``; the mode follows from the dtype.)
-    img = Image.fromarray(np.ascontiguousarray(raw, dtype="<u2"))
-    if img.mode != "I;16":  # pragma: no cover - guards against a Pillow behaviour change
-        raise OSError(f"{path}: Pillow made a {img.mode!r} image from uint16 data, expected 'I;16'")
-    img.save(path, format="PNG" if file_format == "png" else "TIFF")
 
 
 def _check_frame(raw: NDArray, where: str, white_level: int) -> NDArray[np.uint16]:
@@ -237,8 +277,8 @@ def save_capture(
         OSError: the folder cannot be written.
     """
     target = Path(folder)
-    if file_format not in _FILE_FORMATS:
-        raise ValueError(f"file_format must be one of {sorted(_FILE_FORMATS)}; got {file_format!r}")
+    if file_format not in RAW_FORMATS:
+        raise ValueError(f"file_format must be one of {sorted(RAW_FORMATS)}; got {file_format!r}")
     extra = dict(extra or {})
     clash = sorted(set(extra) & set(_RESERVED_KEYS))
     if clash:
@@ -281,66 +321,9 @@ def save_capture(
 
     with atomic_folder(target) as tmp:
         for name, raw in zip(names, r, strict=True):
-            _write_raw(tmp / name, raw, file_format)
+            write_raw(tmp / name, raw, file_format)
         (tmp / CAPTURE_JSON).write_text(text + "\n", encoding="utf-8")
     return target
-
-
-def _read_raw(path: Path) -> NDArray:
-    """Read one raw file as an ndarray (any dtype; checked by the caller)."""
-    suffix = path.suffix.lower()
-    if suffix not in RAW_SUFFIXES:
-        raise ValueError(f"{path}: unsupported raw file type {suffix!r}; expected one of {list(RAW_SUFFIXES)}")
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: raw file listed in {CAPTURE_JSON} does not exist")
-    if suffix == ".npy":
-        try:
-            return np.load(path, allow_pickle=False)
-        except (ValueError, EOFError) as e:
-            raise ValueError(f"{path}: not a readable .npy array ({e})") from e
-    from PIL import UnidentifiedImageError
-
-    try:
-        with _open_image(path, "raw") as img:
-            n_frames = getattr(img, "n_frames", 1)
-            if n_frames != 1:
-                raise ValueError(f"{path}: image has {n_frames} frames; expected one raw mosaic per file")
-            bands = len(img.getbands())
-            if bands != 1:
-                raise ValueError(
-                    f"{path}: colour image (mode {img.mode!r}, {bands} channels); expected a "
-                    "single-channel 16-bit raw mosaic"
-                )
-            if img.mode not in _GRAY_MODES:
-                raise ValueError(
-                    f"{path}: image mode {img.mode!r} is not an integer grayscale mode {list(_GRAY_MODES)}"
-                )
-            img.load()
-            return np.array(img)
-    except UnidentifiedImageError as e:
-        raise ValueError(f"{path}: not a readable PNG/TIFF image") from e
-    except (OSError, SyntaxError) as e:
-        if isinstance(e, FileNotFoundError | PermissionError):
-            raise
-        raise ValueError(f"{path}: cannot read image ({e})") from e
-
-
-def _open_image(path: Path, what: str):
-    """``PIL.Image.open(path)``, refusing images that declare too many pixels (one-line ValueError).
-
-    Pillow raises ``DecompressionBombError`` above ``2 * Image.MAX_IMAGE_PIXELS`` (about 179 M
-    pixels) and warns above half that; the warning is not printed (a genuine image of that size
-    loads, a header that only claims it fails on reading), the error names the file.
-    """
-    from PIL import Image
-
-    try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            return Image.open(path)
-    except Image.DecompressionBombError as e:
-        reason = " ".join(str(e).split())
-        raise ValueError(f"{path}: {what} image too large to read ({reason})") from None
 
 
 def _check_bit_depth(raw: NDArray, path: Path, bits: int) -> None:
@@ -374,24 +357,6 @@ def _integer(value: Any, name: str, where: Path) -> int:
             return int(value)
         raise ValueError(f"{where}: {name} must be an integer; got {_short(value)}")
     return value
-
-
-def _read_json(path: Path) -> dict[str, Any]:
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: capture sidecar not found")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as e:
-        raise ValueError(f"{path}: not UTF-8 text ({e})") from e
-    try:
-        meta = json.loads(text)
-    except RecursionError:
-        raise ValueError(f"{path}: invalid JSON (nested too deeply)") from None
-    except ValueError as e:  # JSONDecodeError, or an integer of more than 4300 digits
-        raise ValueError(f"{path}: invalid JSON ({e})") from None
-    if not isinstance(meta, dict):
-        raise ValueError(f"{path}: expected a JSON object at the top level; got {type(meta).__name__}")
-    return meta
 
 
 def _model_from_meta(meta: dict[str, Any], exposures: tuple[float, ...], where: Path) -> CameraModel:
@@ -460,30 +425,63 @@ def load_capture(folder: str | os.PathLike) -> Capture:
     """Load a capture folder written by :func:`save_capture` or by hand (see the module docs).
 
     Frames are sorted by exposure time (the file list follows). All checks of
-    :func:`validate_capture` are applied per file.
+    :func:`validate_capture` are applied per file; a ``.npy`` header is checked before its
+    array is read (a declared size no sensor has is an error, not an allocation).
 
     Args:
         folder: the capture folder holding ``capture.json``.
 
     Returns:
-        :class:`Capture` with ``raws`` ``(E, H, W)`` uint16 and the camera model.
+        :class:`Capture` with ``raws`` ``(E, H, W)`` uint16, the camera model and :class:`CaptureMeta`.
 
     Raises:
         FileNotFoundError: the folder, ``capture.json`` or a listed raw file is missing.
         ValueError: invalid JSON or content (each message names the file).
         OSError: other read errors.
     """
+    root = _capture_folder(folder)
+    jpath = root / CAPTURE_JSON
+    model, names, metadata, meta = _parse_capture_json(jpath)
+    frames = []
+    for n in names:
+        path = root / n
+        if path.suffix.lower() in RAW_SUFFIXES and not path.is_file():
+            raise FileNotFoundError(f"{path}: raw file listed in {CAPTURE_JSON} does not exist")
+        raw = read_raw(path)
+        _check_bit_depth(raw, path, model.sensor.bits)
+        frame = _check_frame(raw, str(path), model.sensor.white_level)
+        if frames and frame.shape != frames[0].shape:
+            raise ValueError(f"{path}: raw shape {frame.shape} differs from {frames[0].shape} of {root / names[0]}")
+        frames.append(frame)
+    raws = np.stack(frames)
+    _check_order(raws, model, names, jpath)
+    return Capture(raws=raws, model=model, folder=root, metadata=metadata, raw_files=tuple(names), meta=meta)
+
+
+def read_capture_meta(folder: str | os.PathLike) -> CaptureMeta:
+    """The radiometry and geometry of a capture folder, without reading its raw frames.
+
+    ``capture.json`` is checked whole, as :func:`load_capture` checks it (same messages).
+
+    Raises:
+        FileNotFoundError: the folder or ``capture.json`` is missing.
+        ValueError: invalid JSON or content (the message names the file).
+    """
+    return _parse_capture_json(_capture_folder(folder) / CAPTURE_JSON)[3]
+
+
+def _capture_folder(folder: str | os.PathLike) -> Path:
     root = Path(folder)
     if not root.exists():
         raise FileNotFoundError(f"{root}: capture folder does not exist")
     if not root.is_dir():
         raise NotADirectoryError(f"{root}: capture path is not a folder")
-    jpath = root / CAPTURE_JSON
-    meta = _read_json(jpath)
+    return root
 
-    fmt = meta.get("format")
-    if fmt != CAPTURE_FORMAT:
-        raise ValueError(f"{jpath}: unsupported format {fmt!r}; expected {CAPTURE_FORMAT!r}")
+
+def _parse_capture_json(jpath: Path) -> tuple[CameraModel, list[str], dict[str, Any], CaptureMeta]:
+    """``capture.json`` parsed and checked: camera model, raw files (by exposure), metadata and meta."""
+    meta = read_json_object(jpath, CAPTURE_FORMAT, what="capture sidecar")
     for key in ("exposures_s", "raw_files"):
         if key not in meta:
             raise ValueError(f"{jpath}: missing required key {key!r}")
@@ -509,20 +507,59 @@ def load_capture(folder: str | os.PathLike) -> Capture:
     exposures = [exposures[k] for k in order]
     names = [names[k] for k in order]
     model = _model_from_meta(meta, tuple(exposures), jpath)
-
-    frames = []
-    for n in names:
-        path = root / n
-        raw = _read_raw(path)
-        _check_bit_depth(raw, path, model.sensor.bits)
-        frame = _check_frame(raw, str(path), model.sensor.white_level)
-        if frames and frame.shape != frames[0].shape:
-            raise ValueError(f"{path}: raw shape {frame.shape} differs from {frames[0].shape} of {root / names[0]}")
-        frames.append(frame)
-    raws = np.stack(frames)
-    _check_order(raws, model, names, jpath)
     metadata = {k: v for k, v in meta.items() if k not in _RESERVED_KEYS}
-    return Capture(raws=raws, model=model, folder=root, metadata=metadata, raw_files=tuple(names))
+    return model, names, metadata, _capture_meta(metadata, jpath)
+
+
+def _capture_meta(metadata: dict[str, Any], where: Path) -> CaptureMeta:
+    """The radiometry and geometry keys of ``capture.json`` (one-line ValueError naming ``where``)."""
+    intrinsics = parse_intrinsics(metadata["intrinsics"], where) if "intrinsics" in metadata else None
+    distance = None
+    if "distance_m" in metadata:
+        distance = _number(metadata["distance_m"], "distance_m", where)
+        if not (math.isfinite(distance) and distance > 0):
+            raise ValueError(f"{where}: distance_m must be > 0, got {distance}")
+    return CaptureMeta(_rig(metadata, where), _radiometry(metadata, where), intrinsics, distance)
+
+
+def parse_intrinsics(value: Any, where: str | os.PathLike) -> NDArray[np.float64]:
+    """A pinhole matrix ``K (3, 3)`` from a JSON value (``capture.json``, a sample sidecar).
+
+    Args:
+        value: the JSON value (nested lists).
+        where: the file, first in the error message.
+
+    Returns:
+        ``(3, 3)`` float64, finite.
+
+    Raises:
+        ValueError: not a finite 3x3 matrix of numbers.
+
+    Example:
+        >>> parse_intrinsics([[100, 0, 32], [0, 100, 24], [0, 0, 1]], "capture.json")[0]
+        array([100.,   0.,  32.])
+    """
+    try:
+        k = np.asarray(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{where}: intrinsics must be a finite 3x3 matrix, got {_short(value, 60)}") from None
+    if k.shape != (3, 3) or not np.all(np.isfinite(k)):
+        raise ValueError(f"{where}: intrinsics must be a finite 3x3 matrix, got shape {k.shape}")
+    return k
+
+
+def _radiometry(metadata: dict[str, Any], where: str | os.PathLike) -> str:
+    mode = metadata.get("radiometry", RADIOMETRY_MODES[0])
+    if mode not in RADIOMETRY_MODES:
+        raise ValueError(f"{where}: radiometry must be one of {list(RADIOMETRY_MODES)}; got {_short(mode)}")
+    return mode
+
+
+def _rig(metadata: dict[str, Any], where: str | os.PathLike) -> Rig:
+    try:
+        return Rig.from_dict(metadata["rig"]) if "rig" in metadata else Rig()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: invalid rig: {exc}") from None
 
 
 def display_radiance(metadata: dict[str, Any], where: str = "capture") -> float | None:
@@ -547,13 +584,6 @@ def display_radiance(metadata: dict[str, Any], where: str = "capture") -> float 
         >>> display_radiance({"radiometry": "relative"}) is None
         True
     """
-    mode = metadata.get("radiometry", RADIOMETRY_MODES[0])
-    if mode not in RADIOMETRY_MODES:
-        raise ValueError(f"{where}: radiometry must be one of {list(RADIOMETRY_MODES)}; got {mode!r}")
-    if mode == "relative":
+    if _radiometry(metadata, where) == "relative":
         return None
-    try:
-        rig = Rig.from_dict(metadata["rig"]) if "rig" in metadata else Rig()
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: invalid rig: {exc}") from None
-    return float(rig.display.radiance)
+    return float(_rig(metadata, where).display.radiance)

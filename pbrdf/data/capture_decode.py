@@ -23,7 +23,8 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from pbrdf.data.capture import Capture, _open_image, load_capture, validate_capture
+from pbrdf.data.capture import Capture, load_capture, validate_capture
+from pbrdf.data.raw_files import open_image
 from pbrdf.io.errors import NothingToReconstruct
 from pbrdf.sensor.decode import Decoded, decode
 from pbrdf.sensor.foreground import capture_foreground
@@ -93,7 +94,7 @@ def load_mask(path: str | os.PathLike, shape: tuple[int, int], raw_shape: tuple[
     if not path.is_file():
         raise FileNotFoundError(f"{path}: mask file does not exist")
     try:
-        with _open_image(path, "mask") as img:
+        with open_image(path, "mask") as img:
             if getattr(img, "n_frames", 1) != 1:
                 raise ValueError(f"{path}: mask has {img.n_frames} frames; expected one greyscale image")
             if img.mode not in _MASK_MODES:

@@ -823,7 +823,7 @@ class TestValidateCapture:
 class TestAtomicSave:
     @staticmethod
     def _failing_writer(monkeypatch, after: int = 1):
-        real = cap._write_raw
+        real = cap.write_raw
         calls = []
 
         def writer(path, raw, file_format):
@@ -832,7 +832,7 @@ class TestAtomicSave:
             calls.append(path)
             real(path, raw, file_format)
 
-        monkeypatch.setattr(cap, "_write_raw", writer)
+        monkeypatch.setattr(cap, "write_raw", writer)
         return calls
 
     @pytest.mark.parametrize("file_format", ["png", "npy"])
@@ -857,7 +857,7 @@ class TestAtomicSave:
         def interrupted(path, raw, file_format):
             raise KeyboardInterrupt
 
-        monkeypatch.setattr(cap, "_write_raw", interrupted)
+        monkeypatch.setattr(cap, "write_raw", interrupted)
         with pytest.raises(KeyboardInterrupt):
             cap.save_capture(tmp_path / "c", *synthetic)
         assert list(tmp_path.iterdir()) == []

@@ -59,7 +59,7 @@ def test_round_trip_exact(tmp_path, rng, stokes, raw):
     assert_samples_equal(got, sample)
     assert got["mask"].dtype == np.bool_
     assert meta["index"] == 12 and meta["channels"] == expected_channels and meta["shape"] == [H, W]
-    assert meta["rig"]["pose"] == np.eye(4).tolist()
+    assert meta["rig"]["camera"]["to_world"] == np.eye(4).tolist()
     assert meta["materials"][0]["disney"]["roughness"] == 0.25
     caller = {k: v for k, v in meta.items() if k in metadata}
     assert json.loads(json.dumps(metadata, default=lambda v: v.tolist() if hasattr(v, "tolist") else v)) == caller
