@@ -4,14 +4,13 @@
     python -m headless.decode --input CAPTURE_DIR --out OUT_DIR
 
 Writes OUT_DIR/maps.npy ((H', W', 9) float32), OUT_DIR/mask.npy ((H', W') bool) and, with
---preview, OUT_DIR/preview.png, then prints the written paths. Every file is
-written to a temporary name and renamed into place; nothing is written unless loading and
-decoding succeed. Bad input prints one line "error: <message>" on stderr and exits with status 2
+--preview, OUT_DIR/preview.png, then prints the written paths. The files are written together
+into a temporary folder and renamed into place; nothing is written unless loading and decoding
+succeed. Bad input prints one line "error: <message>" on stderr and exits with status 2
 (nothing else: warnings raised on the way are dropped); so does a capture that decodes to no
 usable pixel (all dark, all saturated, dark then saturated, black level at or above the data).
 A capture whose maps hold no object above the noise floor is decoded but prints one line
 "warning: <message>" on stderr.
-The positional form `decode.py CAPTURE_DIR` still works for one release (use --input).
 """
 
 from __future__ import annotations
@@ -19,7 +18,6 @@ from __future__ import annotations
 import argparse
 import io
 import sys
-import warnings
 from pathlib import Path
 
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
@@ -27,10 +25,10 @@ if not __package__:  # run as a file (python headless/x.py, blender -b -P): the 
 
 import numpy as np  # noqa: E402
 
-from headless._cli import add_deprecated_positional, require  # noqa: E402
+from headless._cli import held_warnings  # noqa: E402
 from pbrdf.data.capture import CAPTURE_FORMAT, CAPTURE_JSON, load_capture  # noqa: E402
 from pbrdf.data.capture_decode import check_usable, decode_capture  # noqa: E402
-from pbrdf.io.atomic import atomic_write_bytes  # noqa: E402
+from pbrdf.io.atomic import atomic_folder  # noqa: E402
 from pbrdf.sensor.decode import NINE_MAP_NAMES  # noqa: E402
 
 EXIT_BAD_INPUT = 2
@@ -62,15 +60,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="decode.py", description=__doc__, epilog=_EPILOG, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--input", type=Path, metavar="CAPTURE_DIR",
-                        help="capture folder holding capture.json and the raws (required)")  # fmt: skip
+    parser.add_argument("--input", type=Path, metavar="CAPTURE_DIR", required=True,
+                        help="capture folder holding capture.json and the raws")  # fmt: skip
     parser.add_argument("--out", type=Path, required=True, help="output folder (created if missing)")
     parser.add_argument(
         "--grid", choices=("half", "full"), default="half", help="output grid (default: half resolution)"
     )
     parser.add_argument("--preview", action="store_true", help="also write preview.png of the nine maps")
     parser.add_argument("--quiet", action="store_true", help="no progress output (decode shows none)")
-    add_deprecated_positional(parser, "CAPTURE_DIR", new="--input", type=Path)
     return parser
 
 
@@ -141,36 +138,22 @@ def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = Fal
         outputs["preview.png"] = _preview_png(decoded.maps, decoded.mask)
     if out.exists() and not out.is_dir():
         raise NotADirectoryError(f"{out}: output path exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for name, data in outputs.items():
-        atomic_write_bytes(out / name, data)
-        written.append(out / name)
-    return written
+    with atomic_folder(out, merge=True) as staging:
+        for name, data in outputs.items():
+            (staging / name).write_bytes(data)
+    return [out / name for name in outputs]
 
 
 def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 for bad input)."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    require(parser, args, "--input")
-    # Warnings are held back: on an error only the error line prints, on success each distinct
-    # warning prints as one line after the work is done.
-    with warnings.catch_warnings(record=True) as caught:
-        try:
-            written = run(args.input, args.out, grid=args.grid, preview=args.preview)
-        except (ValueError, OSError) as e:
-            print(f"error: {_one_line(e)}", file=sys.stderr)
-            return EXIT_BAD_INPUT
-    for message in dict.fromkeys(_one_line(w.message) for w in caught):
-        print(f"warning: {message}", file=sys.stderr)
-    for path in written:
-        print(path)
-    return 0
+    args = build_parser().parse_args(argv)
 
+    def work() -> int:
+        for path in run(args.input, args.out, grid=args.grid, preview=args.preview):
+            print(path)
+        return 0
 
-def _one_line(e: BaseException | Warning | str) -> str:
-    return " ".join(str(e).split()) or type(e).__name__
+    return held_warnings(work, status=EXIT_BAD_INPUT)
 
 
 if __name__ == "__main__":

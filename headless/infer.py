@@ -37,15 +37,24 @@ a successful run.
 from __future__ import annotations
 
 import argparse
-import json
 import subprocess
 import sys
 import time
-import warnings
 from pathlib import Path
 
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from headless._cli import held_warnings  # noqa: E402
+from pbrdf.data.capture import CAPTURE_JSON  # noqa: E402
+from pbrdf.data.predictions import (  # noqa: E402
+    SEQUENCE_SUFFIX,
+    CameraRecord,
+    SequenceRecord,
+    write_predictions,
+    write_sequence,
+)
+from pbrdf.io.errors import one_line  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -74,8 +83,6 @@ def sequence_frames(path: Path) -> list[Path] | None:
     A capture folder, a file or a folder without capture sub-folders is not a sequence (None);
     a sequence folder that also holds other sub-folders is refused on one line naming one.
     """
-    from pbrdf.data.capture import CAPTURE_JSON  # noqa: PLC0415
-
     if not path.is_dir() or (path / CAPTURE_JSON).exists():
         return None
     subs = sorted(p for p in path.iterdir() if p.is_dir() and not p.name.startswith("."))
@@ -86,27 +93,6 @@ def sequence_frames(path: Path) -> list[Path] | None:
     if stray:
         raise ValueError(f"{path}: a sequence folder holds only capture folders; {stray[0].name} has no {CAPTURE_JSON}")
     return frames
-
-
-def write_sequence_json(path: Path, name: str, frames: list[Path], seconds: list[float]) -> None:
-    """``<name>_sequence.json``: the frames, their capture folders and the prediction speed."""
-    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
-
-    doc = {
-        "name": name,
-        "frames": [
-            {"frame": i, "prefix": f"{name}_{i:04d}", "capture": str(f.resolve()), "seconds": round(t, 4)}
-            for i, (f, t) in enumerate(zip(frames, seconds, strict=True), start=1)
-        ],  # fmt: skip
-        "frames_per_second": round(len(seconds) / sum(seconds), 4),
-        "timed": "decode + prediction (+ depth integration) per frame, model loaded once",
-    }
-    atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
-
-
-def _one_line(e: BaseException | Warning | str, limit: int = 500) -> str:
-    text = " ".join(str(e).split()) or type(e).__name__
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _load_model(path: Path):
@@ -120,7 +106,7 @@ def _load_model(path: Path):
     except Exception as exc:  # torch.load on another file: UnpicklingError, EOFError, ...
         first = str(exc).strip().splitlines()[0].split(". ")[0] if str(exc).strip() else ""
         reason = f"{type(exc).__name__}: {first}" if first else type(exc).__name__
-        raise ValueError(f"{path}: not a readable model checkpoint ({_one_line(reason, 200)})") from None
+        raise ValueError(f"{path}: not a readable model checkpoint ({one_line(reason, 200)})") from None
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -132,81 +118,79 @@ def main(argv: list[str] | None = None) -> int:
             print(f"progress: {fraction:.3f} {stage}", flush=True)
 
     progress(0.0, "starting Python and torch")
+    summary: list[str] = []
+    code = held_warnings(lambda: _infer(args, progress, summary))
+    if code:
+        return code
+    print(summary[0])
+    return _save_blend(args) if args.blend else 0
+
+
+def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, progress, start: float = 0.3,
+                 span: float = 0.65) -> tuple[dict, CameraRecord]:  # fmt: skip
+    """The maps (with the relief depth unless ``--card``) and the camera of one capture or sample."""
+    from network.infer import load_input, predict, relief_depth  # noqa: PLC0415
+
+    progress(start, "decoding the capture")
+    inp = load_input(source, require_object=True)
+    progress(start + 0.05 * span, "predicting the maps")
+    pred = predict(
+        model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
+        radiance=inp.radiance, stride=args.stride, resolution=args.resolution,
+    )  # fmt: skip
+    if not args.card:
+        progress(start + 0.6 * span, "integrating the relief")
+        pred["depth"] = relief_depth(pred, inp.intrinsics, inp.distance_m)
+    return pred, CameraRecord.of_maps(inp.intrinsics, inp.mask.shape, inp.distance_m)
+
+
+def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
+    """Predict and write one input's or one sequence's maps; appends the summary line."""
     from tqdm import tqdm  # noqa: PLC0415
 
-    from network.infer import (  # noqa: PLC0415
-        DEFAULT_CHECKPOINT,
-        camera_record,
-        input_display_radiance,
-        input_geometry,
-        load_input,
-        predict,
-        relief_depth,
-        write_predictions,
-    )
+    from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
 
-    ckpt_path = args.checkpoint or DEFAULT_CHECKPOINT
     name = args.input.stem if args.input.is_file() else args.input.name
-
-    def reconstruct(source: Path, start: float = 0.3, span: float = 0.65) -> tuple[dict, dict]:
-        progress(start, "decoding the capture")
-        maps, mask = load_input(source, require_object=True)
-        progress(start + 0.05 * span, "predicting the maps")
-        pred = predict(
-            model, maps, mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
-            radiance=input_display_radiance(source), stride=args.stride, resolution=args.resolution,
-        )  # fmt: skip
-        intrinsics, distance = input_geometry(source, mask.shape)
-        if not args.card:
-            progress(start + 0.6 * span, "integrating the relief")
-            pred["depth"] = relief_depth(pred, intrinsics, distance)
-        return pred, camera_record(intrinsics, mask.shape, distance)
-
-    # Warnings are held back: on an error only the error line prints.
-    with warnings.catch_warnings(record=True) as caught:
-        try:
-            frames = sequence_frames(args.input)
-            if frames is not None and args.blend:
-                raise ValueError(
-                    "--blend saves one capture's asset; import a sequence with the add-on's Import PBR maps"
-                )  # noqa: E501
-            progress(0.25, "loading the model")
-            model, ckpt = _load_model(ckpt_path)
-            if frames is None:
-                pred, camera = reconstruct(args.input)
-                progress(0.95, "writing the maps")
-                write_predictions(args.out, name, pred, camera)
-            else:
-                seconds = []
-                for i, frame in enumerate(tqdm(frames, desc="frames", unit="frame", disable=args.quiet), start=1):
-                    start = time.perf_counter()
-                    try:
-                        pred, camera = reconstruct(frame, 0.3 + 0.7 * (i - 1) / len(frames), 0.7 / len(frames))
-                    except (ValueError, OSError) as exc:
-                        raise ValueError(f"frame {i} ({frame.name}): {exc}") from None
-                    seconds.append(time.perf_counter() - start)
-                    write_predictions(args.out, f"{name}_{i:04d}", pred, camera)
-                fps = len(seconds) / sum(seconds)
-                write_sequence_json(args.out / f"{name}_sequence.json", name, frames, seconds)
-        except (ValueError, OSError) as exc:
-            print(f"error: {_one_line(exc)}", file=sys.stderr)
-            return 2
-    for message in dict.fromkeys(_one_line(w.message) for w in caught):
-        print(f"warning: {message}", file=sys.stderr)
-    if frames is not None:
-        print(f"wrote {len(frames)} frames ({name}_NNNN_*.exr/.png, {name}_sequence.json) to {args.out.resolve()}; "
-              f"{fps:.2f} frames/s (decode + prediction)")  # fmt: skip
+    frames = sequence_frames(args.input)
+    if frames is not None and args.blend:
+        raise ValueError("--blend saves one capture's asset; import a sequence with the add-on's Import PBR maps")
+    progress(0.25, "loading the model")
+    model, ckpt = _load_model(args.checkpoint or DEFAULT_CHECKPOINT)
+    if frames is None:
+        pred, camera = _reconstruct(model, ckpt, args.input, args, progress)
+        progress(0.95, "writing the maps")
+        write_predictions(args.out, name, pred, camera)
+        summary.append(f"wrote {len(pred)} maps ({name}_*.exr/.png) to {args.out.resolve()}")
         return 0
-    print(f"wrote {len(pred)} maps ({name}_*.exr/.png) to {args.out.resolve()}")
-    if args.blend:
-        script = Path(__file__).resolve().parent / "relight.py"
-        cmd = [sys.executable, str(script), "--input", str(args.out), "--name", name, "--out", str(args.out),
-               "--frames", "0", "--save-blend", *(["--quiet"] if args.quiet else [])]  # fmt: skip
-        proc = subprocess.run(cmd, check=False)  # own process: bpy must not share one with torch/mitsuba
-        if proc.returncode:
-            print("error: the Blender scene could not be written (see above)", file=sys.stderr)
-            return proc.returncode
+    seconds = []
+    for i, frame in enumerate(tqdm(frames, desc="frames", unit="frame", disable=args.quiet), start=1):
+        start = time.perf_counter()
+        try:
+            pred, camera = _reconstruct(model, ckpt, frame, args, progress, 0.3 + 0.7 * (i - 1) / len(frames),
+                                        0.7 / len(frames))  # fmt: skip
+        except (ValueError, OSError) as exc:
+            raise ValueError(f"frame {i} ({frame.name}): {exc}") from None
+        seconds.append(time.perf_counter() - start)
+        write_predictions(args.out, f"{name}_{i:04d}", pred, camera)
+    record = SequenceRecord.of_frames(name, frames, seconds)
+    write_sequence(args.out, record)
+    summary.append(
+        f"wrote {len(frames)} frames ({name}_NNNN_*.exr/.png, {name}{SEQUENCE_SUFFIX}) to {args.out.resolve()}; "
+        f"{record.to_dict()['frames_per_second']:.2f} frames/s (decode + prediction)"
+    )
     return 0
+
+
+def _save_blend(args: argparse.Namespace) -> int:
+    """``--blend``: import the written maps into a Blender scene (headless/relight.py in its own process)."""
+    name = args.input.stem if args.input.is_file() else args.input.name
+    script = Path(__file__).resolve().parent / "relight.py"
+    cmd = [sys.executable, str(script), "--input", str(args.out), "--name", name, "--out", str(args.out),
+           "--frames", "0", "--save-blend", *(["--quiet"] if args.quiet else [])]  # fmt: skip
+    proc = subprocess.run(cmd, check=False)  # own process: bpy must not share one with torch/mitsuba
+    if proc.returncode:
+        print("error: the Blender scene could not be written (see above)", file=sys.stderr)
+    return proc.returncode
 
 
 if __name__ == "__main__":

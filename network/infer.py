@@ -2,17 +2,14 @@
 
 Inputs are either a dataset sample (EXR with the nine maps and mask) or a capture folder (raw
 HDR brackets + ``capture.json``), which goes through :mod:`pbrdf.sensor.decode` exactly like the
-synthetic data did. Outputs are full-size ``(H, W, C)`` float32 maps, zero outside the mask.
+synthetic data did. Outputs are full-size ``(H, W, C)`` float32 maps, zero outside the mask,
+written with :func:`pbrdf.data.predictions.write_predictions`.
 """
 
 from __future__ import annotations
 
-import contextlib
-import io
-import json
 import math
-import os
-import shutil
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -22,10 +19,9 @@ import torch.nn.functional as F  # noqa: N812
 from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import dataset as pdataset
-from pbrdf.io.atomic import fsync_path, temporary_path
+from pbrdf.data.predictions import OUTPUT_CHANNELS
+from pbrdf.data.sample import sample_intrinsics
 from pbrdf.io.errors import NothingToReconstruct
-from pbrdf.io.exr import write_exr
-from pbrdf.sensor.rig import Rig
 
 from .data import exposure_radiance, input_radiance, normalize_maps
 from .inputs import apply_inputs
@@ -33,28 +29,22 @@ from .model import PolarInverseModel
 from .model.dense import REFINE_DEG
 
 __all__ = [
-    "OUTPUTS",
     "RESOLUTIONS",
     "DEFAULT_DISTANCE",
-    "input_display_radiance",
-    "input_geometry",
+    "InferenceInput",
     "relief_depth",
     "load_input",
     "predict",
     "mask_bbox",
-    "write_predictions",
-    "camera_record",
     "DEFAULT_CHECKPOINT",
 ]
 
-#: The shipped model (``make train-model``; see models/small/MODEL_CARD.md).
+#: The shipped model (see models/small/MODEL_CARD.md).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "models" / "small" / "model.pt"
 
 #: Object distance in m when a capture does not give one: the middle of the rig's 0.5 - 1.0 m.
 DEFAULT_DISTANCE = 0.75
 
-#: Output maps and their channel counts.
-OUTPUTS = {"normal": 3, "albedo": 3, "roughness": 1, "metallic": 1}
 #: :func:`predict`'s decoding resolutions: the maps' own (default), or the network's input size.
 RESOLUTIONS = ("full", "network")
 
@@ -64,12 +54,38 @@ _CP_SLACK = 1e-3
 _RADIANCE_PEAK = 2.0**64
 
 
-def load_input(path: str | Path, *, require_object: bool = False) -> tuple[np.ndarray, np.ndarray]:
-    """Nine maps ``(H, W, 9)`` and mask ``(H, W)`` from a sample EXR/JSON or a capture folder.
+@dataclass(frozen=True)
+class InferenceInput:
+    """One input of :func:`predict`, with what its files say about radiometry and geometry.
 
-    For a capture folder the mask is the object (its ``mask.png``, else the automatic foreground
-    mask of :mod:`pbrdf.sensor.foreground`) restricted to the measured pixels:
-    :attr:`pbrdf.data.capture_decode.DecodedCapture.input_mask`, not the decoder's validity mask.
+    Attributes:
+        maps: ``(H, W, 9)`` nine maps (:data:`pbrdf.sensor.decode.NINE_MAP_NAMES` order).
+        mask: ``(H, W)`` bool, the pixels to reconstruct.
+        radiance: the display radiance in the maps' units, or None for an uncalibrated capture
+            (``capture.json``'s ``radiometry``; a rendered sample is always calibrated).
+        intrinsics: ``K (3, 3)`` of the maps' grid.
+        distance_m: the capture's object distance in m, or None (a sample's own depth is ground
+            truth, not an input).
+    """
+
+    maps: np.ndarray
+    mask: np.ndarray
+    radiance: float | None
+    intrinsics: np.ndarray
+    distance_m: float | None = None
+
+
+def load_input(path: str | Path, *, require_object: bool = False) -> InferenceInput:
+    """The nine maps, mask, display radiance and camera of a sample EXR/JSON or a capture folder.
+
+    A capture folder is read once (:func:`pbrdf.data.capture.load_capture`: the raws and
+    ``capture.json`` with its ``rig``, ``radiometry``, ``intrinsics`` and ``distance_m``) and
+    decoded. Its mask is the object (its ``mask.png``, else the automatic foreground mask of
+    :mod:`pbrdf.sensor.foreground`) restricted to the measured pixels
+    (:attr:`pbrdf.data.capture_decode.DecodedCapture.input_mask`, not the decoder's validity
+    mask); its intrinsics are ``capture.json``'s (of the raw grid, default the rig camera's)
+    scaled to the decoded grid. A rendered sample gives its sidecar's intrinsics
+    (:func:`pbrdf.data.sample.sample_intrinsics`) and display radiance.
 
     Args:
         path: a sample ``.exr``/``.json`` or a capture folder.
@@ -87,97 +103,17 @@ def load_input(path: str | Path, *, require_object: bool = False) -> tuple[np.nd
         dec = pdecode_capture.decode_capture(cap)
         if require_object:
             pdecode_capture.check_usable(dec, cap, need_object=True)
-        return dec.maps, dec.input_mask
+        k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
+        return InferenceInput(dec.maps, dec.input_mask, cap.meta.radiance, k, cap.meta.distance_m)
     if path.suffix in (".exr", ".json") and path.exists():
-        sample, _ = pdataset.read_sample(path, keys=("maps", "mask"))
+        sample, meta = pdataset.read_sample(path, keys=("maps", "mask"))
         if require_object and not sample["mask"].any():
             raise NothingToReconstruct(f"{path}: the sample's mask is empty: nothing to reconstruct")
-        return sample["maps"], sample["mask"]
-    raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
-
-
-def input_display_radiance(path: str | Path) -> float | None:
-    """The display radiance in :func:`load_input`'s map units, or None for an uncalibrated capture.
-
-    Reads ``capture.json`` of a capture folder (:func:`pbrdf.data.capture.display_radiance`: its
-    ``radiometry`` and ``rig`` keys) or a rendered sample's sidecar (always calibrated).
-
-    Raises:
-        FileNotFoundError: ``path`` is neither a capture folder nor a sample.
-        ValueError: an unreadable file or invalid ``radiometry``/``rig`` (one line naming the file).
-    """
-    path = Path(path)
-    if path.is_dir() and (path / pcapture.CAPTURE_JSON).is_file():
-        where = path / pcapture.CAPTURE_JSON
-    elif path.suffix in (".exr", ".json") and path.with_suffix(".json").is_file():
         where = path.with_suffix(".json")
-    else:
-        raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
-    return pcapture.display_radiance(_json_object(where), str(where))
-
-
-def input_geometry(path: str | Path, grid_shape: tuple[int, int]) -> tuple[np.ndarray, float | None]:
-    """Pinhole matrix of :func:`load_input`'s map grid and the object distance, for a capture or sample.
-
-    A capture folder: ``capture.json``'s optional ``intrinsics`` (of the raw mosaic's grid;
-    default the rig camera's focal length with the principal point at the image centre) scaled to
-    the decoded grid, and ``distance_m`` (None without it). A rendered sample: its sidecar's
-    ``intrinsics`` (of the rendered crop, the maps' grid; without them the default camera's field of
-    view across the map) and no distance (the sample's own depth is ground truth, not an input).
-
-    Args:
-        path: the capture folder or sample.
-        grid_shape: ``(H, W)`` of the decoded maps.
-
-    Raises:
-        FileNotFoundError: neither a capture folder nor a sample.
-        ValueError: bad ``rig``, ``intrinsics`` or ``distance_m`` (one line naming the file).
-    """
-    path = Path(path)
-    if path.is_dir() and (path / pcapture.CAPTURE_JSON).is_file():
-        where = path / pcapture.CAPTURE_JSON
-        meta = _json_object(where)
-        try:
-            rig = Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()
-            raw_h = 2 * grid_shape[0]  # the decoder's half grid: one pixel per 2 x 2 raw block
-            if "intrinsics" in meta:
-                k = np.asarray(meta["intrinsics"], dtype=np.float64)
-                if k.shape != (3, 3) or not np.all(np.isfinite(k)):
-                    raise ValueError(f"intrinsics must be a finite 3x3 matrix, got shape {k.shape}")
-            else:
-                f = rig.camera.focal_length_px
-                k = np.array([[f, 0.0, grid_shape[1]], [0.0, f, grid_shape[0]], [0.0, 0.0, 1.0]])
-            distance = float(meta["distance_m"]) if "distance_m" in meta else None
-            if distance is not None and not (math.isfinite(distance) and distance > 0):
-                raise ValueError(f"distance_m must be > 0, got {distance}")
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{where}: {exc}") from None
-        k = k.copy()
-        k[:2] *= grid_shape[0] / raw_h  # pixel centres scale with the grid
-        return k, distance
-    if path.suffix in (".exr", ".json") and path.with_suffix(".json").is_file():
-        where = path.with_suffix(".json")
-        meta = _json_object(where)
-        if "intrinsics" in meta:
-            k = np.asarray(meta["intrinsics"], dtype=np.float64)
-            if k.shape != (3, 3) or not np.all(np.isfinite(k)):
-                raise ValueError(f"{where}: intrinsics must be a finite 3x3 matrix")
-            return k, None
-        # No intrinsics: the default camera's field of view across the map's width.
-        cam = Rig().camera
-        f = cam.focal_length_px * grid_shape[1] / cam.sensor_width_px
-        return np.array([[f, 0.0, grid_shape[1] / 2], [0.0, f, grid_shape[0] / 2], [0.0, 0.0, 1.0]]), None
+        radiance = pcapture.display_radiance(meta, str(where))
+        k = sample_intrinsics(meta, sample["mask"].shape, where)
+        return InferenceInput(sample["maps"], sample["mask"], radiance, k)
     raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
-
-
-def _json_object(where: Path) -> dict:
-    try:
-        meta = json.loads(where.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise ValueError(f"{where}: unreadable JSON ({exc})") from None
-    if not isinstance(meta, dict):
-        raise ValueError(f"{where}: expected a JSON object")
-    return meta
 
 
 def relief_depth(pred: dict[str, np.ndarray], intrinsics: np.ndarray, distance: float | None = None) -> np.ndarray:
@@ -249,7 +185,7 @@ def predict(
     input variant (:mod:`network.inputs`): the maps it was not trained on are zeroed here too.
     ``input_scale`` is the checkpoint's (:mod:`network.data`): a calibrated model reads absolute
     brightness from ``radiance``, the display radiance in the maps' units
-    (:func:`input_display_radiance`); None (an uncalibrated capture) falls back to the
+    (:attr:`InferenceInput.radiance`); None (an uncalibrated capture) falls back to the
     exposure-invariant scale with a warning.
     ``stride`` trades accuracy for speed: s > 1 decodes every s-th row and column of the network's
     input grid and interpolates the rest (:meth:`PolarInverseModel.decode_dense`), about s^2 times
@@ -275,9 +211,27 @@ def predict(
         "mask": (H, W, 1)}`` float32, finite, zero outside the mask; normals unit length inside it.
 
     Raises:
+        NothingToReconstruct: an empty mask, maps that are zero on it, or a mask that vanishes at
+            the network's input size.
         ValueError: maps or mask out of range (above), or a network output that is not finite (a
             broken checkpoint), with a one-line message.
     """
+    _check_maps(maps, mask)
+    box = mask_bbox(mask)
+    if not np.any(maps[mask]):
+        raise NothingToReconstruct("maps are zero on every mask pixel: nothing to reconstruct")
+    maps, radiance = _scaled_radiance(maps, input_radiance(input_scale, radiance))
+    if resolution not in RESOLUTIONS:
+        raise ValueError(f"resolution must be one of {', '.join(RESOLUTIONS)}; got {resolution!r}")
+    crop = _Crop.of(maps, mask, box, model)
+    model.eval()
+    decode = _decode_full if resolution == "full" else _decode_network
+    pred = decode(model, crop, inputs=inputs, radiance=radiance, stride=stride, refine_deg=refine_deg)
+    return _paste_back(pred, mask, box)
+
+
+def _check_maps(maps: np.ndarray, mask: np.ndarray) -> None:
+    """ValueError unless ``maps (H, W, 9)`` are finite with CP in [-1, 1] and ``mask`` is ``(H, W)``."""
     if maps.ndim != 3 or maps.shape[-1] != 9 or mask.shape != maps.shape[:2]:
         raise ValueError(f"expected maps (H, W, 9) and mask (H, W); got {maps.shape} and {mask.shape}")
     if not np.all(np.isfinite(maps)):
@@ -285,68 +239,98 @@ def predict(
     cp = float(np.abs(maps[..., 6:]).max(initial=0.0))
     if cp > 1.0 + _CP_SLACK:
         raise ValueError(f"maps: the CP maps (R_CP, G_CP, B_CP) must lie in [-1, 1]; got |CP| up to {cp:.3g}")
-    y0, x0, y1, x1 = mask_bbox(mask)
-    if not np.any(maps[mask]):
-        raise NothingToReconstruct("maps are zero on every mask pixel: nothing to reconstruct")
-    radiance = input_radiance(input_scale, radiance)
+
+
+def _scaled_radiance(maps: np.ndarray, radiance: float | None) -> tuple[np.ndarray, float | None]:
+    """Maps whose radiance peak exceeds ``2**64`` scaled down by a power of two (exact), the radiance alike.
+
+    Float32 sums of 3e38 overflow; float64 maps may hold up to 1e308.
+    """
     peak = float(np.abs(maps[..., :6]).max())
-    if peak > _RADIANCE_PEAK:  # float32 sums of 3e38 overflow: scale maps and radiance alike
-        factor = 2.0 ** -math.ceil(math.log2(peak))  # exact: a power of two (float64 maps: up to 1e308)
-        maps = maps.copy()
-        maps[..., :6] *= factor
-        radiance = None if radiance is None else radiance * factor
-    if resolution not in RESOLUTIONS:
-        raise ValueError(f"resolution must be one of {', '.join(RESOLUTIONS)}; got {resolution!r}")
-    size = model.config.image_size
-    device = next(model.parameters()).device  # the model's device (CPU or GPU); results come back as numpy
-    m_crop = torch.from_numpy(np.ascontiguousarray(maps[y0:y1, x0:x1].transpose(2, 0, 1)))[None].float().to(device)
-    k_crop = torch.from_numpy(mask[y0:y1, x0:x1].astype(np.float32))[None, None].to(device)
-    m = F.interpolate(m_crop, size=(size, size), mode="bilinear", align_corners=False)
-    k = F.interpolate(k_crop, size=(size, size), mode="nearest")
-    model.eval()
-    if resolution == "full":
-        if not bool(k.any()):
+    if peak <= _RADIANCE_PEAK:
+        return maps, radiance
+    factor = 2.0 ** -math.ceil(math.log2(peak))
+    maps = maps.copy()
+    maps[..., :6] *= factor
+    return maps, None if radiance is None else radiance * factor
+
+
+@dataclass(frozen=True)
+class _Crop:
+    """The mask's square crop on the model's device: at its own size and resized to the network's input.
+
+    Attributes:
+        maps: ``(1, 9, h, w)`` the crop's maps.
+        mask: ``(1, 1, h, w)`` its mask (0/1).
+        net_maps: ``(1, 9, S, S)`` bilinearly resized to the input size S.
+        net_mask: ``(1, 1, S, S)`` nearest-resized.
+    """
+
+    maps: torch.Tensor
+    mask: torch.Tensor
+    net_maps: torch.Tensor
+    net_mask: torch.Tensor
+
+    @classmethod
+    def of(cls, maps: np.ndarray, mask: np.ndarray, box: tuple[int, int, int, int], model: PolarInverseModel) -> _Crop:
+        y0, x0, y1, x1 = box
+        size = model.config.image_size
+        device = next(model.parameters()).device  # the model's device (CPU or GPU); results come back as numpy
+        m = torch.from_numpy(np.ascontiguousarray(maps[y0:y1, x0:x1].transpose(2, 0, 1)))[None].float().to(device)
+        k = torch.from_numpy(mask[y0:y1, x0:x1].astype(np.float32))[None, None].to(device)
+        net_m = F.interpolate(m, size=(size, size), mode="bilinear", align_corners=False)
+        net_k = F.interpolate(k, size=(size, size), mode="nearest")
+        if not bool(net_k.any()):
             raise NothingToReconstruct("the mask vanishes at the network's input size: nothing to reconstruct")
-        # One scale at both resolutions: the one the encoder's (resized) input defines.
-        scale = radiance if radiance is not None else exposure_radiance(m, k)
-        with torch.no_grad():
-            features = model.encode(apply_inputs(normalize_maps(m, k, radiance=scale), inputs), k)
-            pixel_maps = apply_inputs(normalize_maps(m_crop, k_crop, radiance=scale), inputs)
-            pred = model.decode_dense(features, pixel_maps, k_crop, stride=stride, refine_deg=refine_deg)
-        _check_finite(pred)
-        h, w = mask.shape
-        out = {}
-        for name, c in OUTPUTS.items():
-            full = np.zeros((h, w, c), np.float32)
-            full[y0:y1, x0:x1] = pred[name][0].permute(1, 2, 0).cpu().numpy()
-            full[~mask] = 0.0
-            out[name] = full
-        out["mask"] = mask.astype(np.float32)[..., None]
-        return out
-    with torch.no_grad():
-        pred = model(
-            apply_inputs(normalize_maps(m, k, radiance=radiance), inputs), k, stride=stride, refine_deg=refine_deg
-        )
+        return cls(m, k, net_m, net_k)
+
+
+def _decode_full(model, crop: _Crop, *, inputs, radiance, stride, refine_deg) -> dict[str, torch.Tensor]:
+    """``{name: (C, h, w)}`` at the crop's own resolution: the decoder reads every crop pixel."""
+    # One scale at both resolutions: the one the encoder's (resized) input defines.
+    scale = radiance if radiance is not None else exposure_radiance(crop.net_maps, crop.net_mask)
+    features = model.encode(
+        apply_inputs(normalize_maps(crop.net_maps, crop.net_mask, radiance=scale), inputs), crop.net_mask
+    )
+    pixel_maps = apply_inputs(normalize_maps(crop.maps, crop.mask, radiance=scale), inputs)
+    pred = model.decode_dense(features, pixel_maps, crop.mask, stride=stride, refine_deg=refine_deg)
     _check_finite(pred)
-    # Extend the predictions past the (downsampled) mask with their nearest valid value, so that
-    # upsampling never blends in the zeros outside it: thin parts of the full-size mask that the
-    # network's grid lost still get a prediction (and normals stay unit length).
+    return {name: pred[name][0] for name in OUTPUT_CHANNELS}
+
+
+def _decode_network(model, crop: _Crop, *, inputs, radiance, stride, refine_deg) -> dict[str, torch.Tensor]:
+    """``{name: (C, h, w)}``: decoded at the network's input size, then resized to the crop.
+
+    The predictions are first extended past the (downsampled) mask with their nearest valid
+    value, so that upsampling never blends in the zeros outside it: thin parts of the full-size
+    mask that the network's grid lost still get a prediction (and normals stay unit length).
+    """
     from scipy import ndimage  # noqa: PLC0415
 
-    invalid = k[0, 0].cpu().numpy() == 0
-    if invalid.all():
-        raise NothingToReconstruct("the mask vanishes at the network's input size: nothing to reconstruct")
+    x = apply_inputs(normalize_maps(crop.net_maps, crop.net_mask, radiance=radiance), inputs)
+    pred = model(x, crop.net_mask, stride=stride, refine_deg=refine_deg)
+    _check_finite(pred)
+    invalid = crop.net_mask[0, 0].cpu().numpy() == 0
     _, (iy, ix) = ndimage.distance_transform_edt(invalid, return_indices=True)
+    device = crop.net_mask.device
     iy, ix = torch.from_numpy(iy).to(device), torch.from_numpy(ix).to(device)
-    h, w = mask.shape
     out = {}
-    for name, c in OUTPUTS.items():
+    for name in OUTPUT_CHANNELS:
         filled = pred[name][:, :, iy, ix]
-        x = F.interpolate(filled, size=(y1 - y0, x1 - x0), mode="bilinear", align_corners=False)[0]
-        if name == "normal":
-            x = x / x.norm(dim=0, keepdim=True).clamp_min(1e-8)
-        full = np.zeros((h, w, c), np.float32)
-        full[y0:y1, x0:x1] = x.permute(1, 2, 0).cpu().numpy()
+        up = F.interpolate(filled, size=crop.mask.shape[-2:], mode="bilinear", align_corners=False)[0]
+        out[name] = up / up.norm(dim=0, keepdim=True).clamp_min(1e-8) if name == "normal" else up
+    return out
+
+
+def _paste_back(
+    pred: dict[str, torch.Tensor], mask: np.ndarray, box: tuple[int, int, int, int]
+) -> dict[str, np.ndarray]:
+    """Full-size ``(H, W, C)`` float32 maps: the crop's ``(C, h, w)`` predictions at ``box``, zero outside the mask."""
+    y0, x0, y1, x1 = box
+    out = {}
+    for name, c in OUTPUT_CHANNELS.items():
+        full = np.zeros((*mask.shape, c), np.float32)
+        full[y0:y1, x0:x1] = pred[name].permute(1, 2, 0).cpu().numpy()
         full[~mask] = 0.0
         out[name] = full
     out["mask"] = mask.astype(np.float32)[..., None]
@@ -354,114 +338,9 @@ def predict(
 
 
 def _check_finite(pred: dict[str, torch.Tensor]) -> None:
-    for name in OUTPUTS:
+    for name in OUTPUT_CHANNELS:
         if not bool(torch.isfinite(pred[name]).all()):
             raise ValueError(
                 f"the network predicted NaN or Inf {name} for this input (broken checkpoint weights, or maps far "
                 "outside the training range)"
             )
-
-
-def _png(img: np.ndarray) -> bytes:
-    from PIL import Image  # noqa: PLC0415
-
-    a = np.clip(np.nan_to_num(img), 0, 1)
-    a = (a[..., 0] if a.shape[-1] == 1 else a) * 255
-    buf = io.BytesIO()
-    Image.fromarray(np.rint(a).astype(np.uint8)).save(buf, format="PNG")
-    return buf.getvalue()
-
-
-def camera_record(intrinsics: np.ndarray, shape: tuple[int, int], distance: float | None) -> dict:
-    """The ``<name>_camera.json`` content: the maps' pinhole camera, for a matching Blender camera.
-
-    Args:
-        intrinsics: ``K (3, 3)`` of the maps' grid, pixel centres at integer + 0.5 (OpenCV convention).
-        shape: ``(H, W)`` of the maps.
-        distance: the capture's ``distance_m``, or None.
-
-    Returns:
-        ``{"intrinsics": K as nested lists, "width": W, "height": H, "distance_m": d or null}``.
-    """
-    k = np.asarray(intrinsics, dtype=np.float64)
-    if k.shape != (3, 3) or not np.all(np.isfinite(k)) or not (k[0, 0] > 0 and k[1, 1] > 0):
-        raise ValueError(f"intrinsics must be a finite 3x3 matrix with positive focal lengths; got {k.tolist()}")
-    return {"intrinsics": k.tolist(), "width": int(shape[1]), "height": int(shape[0]),
-            "distance_m": None if distance is None else float(distance)}  # fmt: skip
-
-
-def write_predictions(
-    out: str | Path, name: str, pred: dict[str, np.ndarray], camera: dict | None = None
-) -> list[Path]:
-    """Write ``<name>_<map>.exr`` (float32) and ``.png`` previews for every predicted map.
-
-    File names follow the Blender import's token rules (``_normal``, ``_albedo``, ``_roughness``,
-    ``_metallic``, ``_mask``). Normals are camera-space unit vectors (x right, y up, z toward the
-    camera; channels X, Y, Z); the PNG preview maps them from [-1, 1] to [0, 1].
-
-    Everything is checked and encoded first, into a temporary folder inside ``out``; only then
-    are the files renamed into place. On any error nothing is written (``out`` is created only
-    when the files are ready, and the temporary folder is removed).
-
-    Args:
-        out: the output folder (created if missing).
-        name: the file name prefix.
-        pred: ``{map: (H, W, C) float32}`` as :func:`predict` returns, all finite.
-        camera: :func:`camera_record` of the maps, written as ``<name>_camera.json`` (the Blender
-            import gives its camera these intrinsics, so a relief mesh keeps the capture's shape).
-
-    Returns:
-        The written paths (EXR then PNG per map).
-
-    Raises:
-        ValueError: a map that is not ``(H, W, C)`` or holds NaN/Inf (nothing written).
-        OSError: the folder cannot be written (nothing left behind).
-    """
-    out = Path(out)
-    for key, img in pred.items():
-        if img.ndim != 3 or not np.all(np.isfinite(img)):
-            raise ValueError(f"predicted {key} map is not a finite (H, W, C) array; nothing written")
-    mask = pred["mask"][..., 0] > 0 if "mask" in pred else None
-    files: list[tuple[str, dict[str, np.ndarray] | bytes]] = []
-    for key, img in pred.items():
-        chans = "XYZ" if key == "normal" else ("RGB" if img.shape[-1] == 3 else "Y")
-        files.append((f"{name}_{key}.exr", {f"{key}.{c}": img[..., i] for i, c in enumerate(chans)}))
-        preview = img * 0.5 + 0.5 if key == "normal" else img
-        if key == "depth":  # near = bright, far = dark, over the mask's range
-            inside = img[..., 0][mask] if mask is not None and mask.any() else img[..., 0].ravel()
-            lo, hi = float(inside.min()), float(inside.max())
-            preview = (hi - img) / (hi - lo) if hi > lo else np.ones_like(img)
-        if mask is not None:
-            preview = preview * mask[..., None]
-        files.append((f"{name}_{key}.png", _png(preview)))
-    if camera is not None:
-        files.append((f"{name}_camera.json", (json.dumps(camera, indent=1) + "\n").encode()))
-    if out.exists() and not out.is_dir():
-        raise NotADirectoryError(f"{out}: output path exists and is not a folder")
-    created = not out.exists()
-    out.mkdir(parents=True, exist_ok=True)
-    staging = temporary_path(out / name)
-    try:
-        staging.mkdir()
-        for file_name, content in files:
-            if isinstance(content, bytes):
-                with open(staging / file_name, "wb") as f:
-                    f.write(content)
-                    f.flush()
-                    os.fsync(f.fileno())
-            else:
-                write_exr(staging / file_name, content)
-        paths = []
-        for file_name, _ in files:
-            os.replace(staging / file_name, out / file_name)
-            paths.append(out / file_name)
-        fsync_path(out, directory=True)
-    except BaseException:
-        if created:  # leave no empty output folder behind either
-            shutil.rmtree(staging, ignore_errors=True)
-            with contextlib.suppress(OSError):
-                out.rmdir()
-        raise
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
-    return paths

@@ -64,12 +64,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbrdf.data._common import check_index, check_metadata, dumps_json, remove_path
-from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, save_capture, validate_capture
+from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, parse_intrinsics, save_capture, validate_capture
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.exr import MissingChannelError, read_exr, stack_channels, write_exr
 from pbrdf.io.strict_json import read_json_object
 from pbrdf.sensor.camera import CameraModel
 from pbrdf.sensor.decode import NINE_MAP_NAMES
+from pbrdf.sensor.projection import crop_intrinsics, pinhole_intrinsics
+from pbrdf.sensor.rig import Rig
 
 __all__ = [
     "SAMPLE_FORMAT",
@@ -92,6 +94,7 @@ __all__ = [
     "write_sample",
     "read_sample",
     "check_complete",
+    "sample_intrinsics",
 ]
 
 #: ``"format"`` of a sample sidecar; bumped on incompatible changes.
@@ -383,9 +386,8 @@ def write_sample(
         if "rig" in meta:
             extra["rig"] = json.loads(dumps_json({"rig": meta["rig"]}, f"{paths.sidecar}: rig"))["rig"]
         if "intrinsics" in meta:  # calibration a real capture carries: of the raw grid, twice the maps'
-            k = np.array(meta["intrinsics"], dtype=np.float64)
-            k[:2] *= sample["raw"].shape[-2] / hw[0]
-            extra["intrinsics"] = k.tolist()
+            k = sample_intrinsics(meta, hw, "metadata")
+            extra["intrinsics"] = crop_intrinsics(k, (0, 0, *hw), sample["raw"].shape[-2:]).tolist()
         save_capture(paths.raw, sample["raw"], model, file_format=raw_format, extra=extra, overwrite=True)
     elif paths.raw.exists():
         remove_path(paths.raw)
@@ -530,3 +532,27 @@ def check_complete(root: str | os.PathLike, index: int, *, verify_hash: bool = T
     """
     index = check_index(index)
     return _check_complete(sample_paths(root, index), index, verify_hash)
+
+
+def sample_intrinsics(meta: Mapping[str, Any], shape: tuple[int, int], where: str | os.PathLike) -> NDArray[np.float64]:
+    """``K (3, 3)`` of a sample's map grid: its sidecar's ``intrinsics``, else the default camera's.
+
+    The sidecar's ``intrinsics`` are those of the rendered crop, which is the maps' grid. Without
+    them the default rig camera's field of view spans the map's width, principal point at the centre.
+
+    Args:
+        meta: the sidecar (or the metadata passed to :func:`write_sample`).
+        shape: ``(H, W)`` of the maps.
+        where: the file, first in error messages.
+
+    Raises:
+        ValueError: ``intrinsics`` that are not a finite 3x3 matrix.
+
+    Example:
+        >>> sample_intrinsics({"intrinsics": np.eye(3).tolist()}, (8, 8), "s.json")[2]
+        array([0., 0., 1.])
+    """
+    if "intrinsics" in meta:
+        return parse_intrinsics(meta["intrinsics"], where)
+    cam = Rig().camera
+    return pinhole_intrinsics(cam.focal_length_px * shape[1] / cam.sensor_width_px, shape[1], shape[0])

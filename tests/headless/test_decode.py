@@ -1,10 +1,11 @@
 """headless/decode.py: a capture folder -> maps.npy, mask.npy (and preview.png); one-line errors.
 
-The same tests as the CLI tests beside pbrdf.data.capture's, with the --input flag; plus the old
-positional form, which still works for one release with one deprecation line.
+The same tests as the CLI tests beside pbrdf.data.capture's, with the --input flag; a raw whose
+header declares an absurd size is refused before anything is allocated.
 """
 
 import json
+import re
 import struct
 import subprocess
 import sys
@@ -64,14 +65,37 @@ def test_module_full_grid(tmp_path, synthetic):
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["maps.npy", "mask.npy"]
 
 
-def test_old_positional_form_still_works(tmp_path, synthetic):
+def test_positional_capture_folder_is_a_usage_error(tmp_path, synthetic):
     folder = cap.save_capture(tmp_path / "c", *synthetic, file_format="npy")
     res = _run("headless/decode.py", str(folder), "--out", str(tmp_path / "out"))
-    assert res.returncode == 0, res.stderr
-    assert res.stderr.splitlines() == [
-        "decode.py: deprecated: the positional CAPTURE_DIR is now --input (the old form goes away in the next release)"
-    ]
-    assert (tmp_path / "out" / "maps.npy").is_file()
+    assert res.returncode == 2 and "required: --input" in res.stderr
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("shape", "descr", "message"),
+    [
+        ((100_000, 100_000), "<u2", r"\.npy array too large to read: its header declares shape \(100000, 100000\)"),
+        ((2**40,), "<u2", r"\.npy array too large to read"),
+        ((32, 48), "<c8", r"raw dtype must be an integer type \(or float for \.npy\); got complex64"),
+    ],
+    ids=["10^10 pixels", "2^40 elements, 1-D", "complex dtype"],
+)
+def test_npy_header_is_checked_before_reading(tmp_path, synthetic, capsys, shape, descr, message):
+    """A tiny .npy whose header declares 10^10 uint16 (18.6 GiB) fails on one line, not with a MemoryError."""
+    from headless import decode as cli
+
+    folder = cap.save_capture(tmp_path / "c", *synthetic, file_format="npy")
+    raw = folder / json.loads((folder / "capture.json").read_text())["raw_files"][1]
+    with open(raw, "wb") as f:
+        np.lib.format.write_array_header_1_0(f, {"descr": descr, "fortran_order": False, "shape": shape})
+        f.write(b"\0" * 64)
+    out = tmp_path / "out"
+    assert cli.main(["--input", str(folder), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"error: {raw}: "), err
+    assert re.search(message, err), err
+    assert not out.exists()
 
 
 def _truncate_first_raw(folder: Path) -> None:
