@@ -145,6 +145,7 @@ def sample_geometry(meta: Mapping, shape: tuple[int, int], mask: ArrayLike | Non
     """
     from scipy import ndimage  # noqa: PLC0415
 
+    from pbrdf.data.sample import sample_intrinsics  # noqa: PLC0415
     from pbrdf.sensor import projection  # noqa: PLC0415
     from pbrdf.sensor.rig import Rig  # noqa: PLC0415
 
@@ -154,7 +155,7 @@ def sample_geometry(meta: Mapping, shape: tuple[int, int], mask: ArrayLike | Non
         raise ValueError("sample sidecar has no objects: cannot place the baseline's lit points")
     if "intrinsics" not in meta:
         raise ValueError("sample sidecar has no intrinsics: cannot cast the baseline's pixel rays")
-    k = np.asarray(meta["intrinsics"], dtype=np.float64)
+    k = sample_intrinsics(meta, shape, "sample sidecar")
     # The bounding-box centre in the world (sidecars since 2026-11-24); older sidecars have only
     # the pose, whose translation is the centre for the centred built-in shapes.
     centres = np.array(

@@ -26,7 +26,7 @@ Geometry per source:
 
 * rendered sample: the sidecar's ``rig`` and ``intrinsics`` (of the rendered crop, which is the
   maps' grid) and, with ``use_depth``, the sample's ``depth`` map as the depth prior;
-* capture folder: optional keys of ``capture.json`` (kept as :attr:`pbrdf.data.capture.Capture.metadata`):
+* capture folder: optional keys of ``capture.json`` (parsed into :class:`pbrdf.data.capture.CaptureMeta`):
   ``rig`` (a partial rig dict, :meth:`pbrdf.sensor.rig.Rig.from_dict`; default the
   default rig), ``intrinsics`` (3x3 pinhole matrix of the raw mosaic's pixel grid; default the
   rig camera's focal length with the principal point at the raw image's centre) and
@@ -54,11 +54,12 @@ from torch.utils.data import Dataset
 from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import dataset as pdataset
+from pbrdf.data.sample import sample_intrinsics
 from pbrdf.sensor.projection import crop_intrinsics
 from pbrdf.sensor.rig import Rig
 
 from .data import INPUT_SCALES, input_radiance, normalize_maps
-from .infer import DEFAULT_DISTANCE, input_geometry, mask_bbox
+from .infer import DEFAULT_DISTANCE, mask_bbox
 from .rerender import DEFAULT_PATCHES, display_patches, points_from_depth
 
 __all__ = ["DEFAULT_DISTANCE", "RealDataset", "find_real_inputs", "load_real_input"]
@@ -117,18 +118,17 @@ def load_real_input(path: Path, *, use_depth: bool = True) -> tuple[
         FileNotFoundError, ValueError: unreadable input or bad geometry keys (message names the path).
     """
     if _is_capture(path):
-        cap = pcapture.load_capture(path)
+        cap = pcapture.load_capture(path)  # checks rig, radiometry, intrinsics, distance_m
         dec = pdecode_capture.decode_capture(cap)
-        meta = cap.metadata
-        k, distance = input_geometry(path, dec.maps.shape[:2])  # checks rig, intrinsics, distance_m
-        radiance = pcapture.display_radiance(meta, str(path / pcapture.CAPTURE_JSON))
-        rig = Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()
-        return dec.maps, dec.input_mask, k, rig, None, distance, radiance
+        k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
+        return dec.maps, dec.input_mask, k, cap.meta.rig, None, cap.meta.distance_m, cap.meta.radiance
     keys = ("maps", "mask", "depth") if use_depth else ("maps", "mask")
     sample, meta = pdataset.read_sample(path, keys=keys)
     try:
         rig = Rig.from_dict(meta["rig"])
-        k = np.asarray(meta["intrinsics"], dtype=np.float64)
+        if "intrinsics" not in meta:  # required here: the rendered crop's camera, no default
+            raise KeyError("intrinsics")
+        k = sample_intrinsics(meta, sample["mask"].shape, path)
     except (KeyError, TypeError, ValueError) as exc:
         raise ValueError(f"{path}: sidecar lacks a valid rig/intrinsics: {exc}") from None
     return sample["maps"], sample["mask"], k, rig, sample.get("depth"), None, float(rig.display.radiance)

@@ -31,6 +31,7 @@ import numpy as np
 import torch
 
 from pbrdf.data import dataset as pdataset
+from pbrdf.data.sample import sample_intrinsics
 from pbrdf.data.splits import SPLITS, dataset_split, require_role
 from pbrdf.geometry.normal_integration import integrate_normals
 from pbrdf.io.atomic import atomic_write_text
@@ -41,7 +42,7 @@ from . import metrics
 from .constant import constant_predict
 from .data import checkpoint_input_scale
 from .evaluate import baseline_predict
-from .infer import DEFAULT_DISTANCE, input_display_radiance, load_input, predict
+from .infer import DEFAULT_DISTANCE, load_input, predict
 from .inputs import apply_inputs, checkpoint_inputs
 from .lpips import lpips_status
 from .statistics import summarize
@@ -176,7 +177,7 @@ def predict_scene(
     """Run every method on one sample's raw brackets exactly as on a user's capture folder.
 
     ``variant`` and ``input_scale`` are the checkpoint's; the display radiance comes from the
-    capture's ``capture.json`` (:func:`network.infer.input_display_radiance`), as for a user.
+    capture's ``capture.json`` (:func:`network.infer.load_input`), as for a user.
     ``baseline=False`` leaves out photometric stereo (``preds["baseline"]`` is empty), for
     diagnostics of the model alone.
 
@@ -191,7 +192,8 @@ def predict_scene(
     raw = pdataset.sample_paths(root, index).raw
     if not raw.is_dir():
         raise ValueError(f"{root}: sample {index} has no raw brackets (render splits with headless/render.py --split)")
-    maps, auto = load_input(raw)  # the user's path: decode + automatic foreground mask
+    inp = load_input(raw)  # the user's path: decode + automatic foreground mask
+    maps, auto = inp.maps, inp.mask
     if maps.shape[:2] != region.shape:
         raise ValueError(f"{raw}: decoded grid {maps.shape[:2]} differs from the ground truth {region.shape}")
     auto = np.asarray(auto, dtype=bool)
@@ -203,7 +205,7 @@ def predict_scene(
         try:
             ours = predict(
                 model, x.permute(1, 2, 0).contiguous().numpy(), auto, inputs=variant, input_scale=input_scale,
-                radiance=input_display_radiance(raw),
+                radiance=inp.radiance,
             )  # fmt: skip
         except NothingToReconstruct:  # a mask that vanishes at the network's grid: nothing was reconstructed
             ours = None
@@ -218,7 +220,8 @@ def predict_scene(
     k = None
     if "depth" in sample:
         gt["depth"] = sample["depth"]
-        k = np.asarray(meta["intrinsics"], dtype=np.float64) if "intrinsics" in meta else None
+        sidecar = pdataset.sample_paths(root, index).sidecar
+        k = sample_intrinsics(meta, region.shape, sidecar) if "intrinsics" in meta else None
     objects = np.rint(sample["object"]).astype(np.int64) if "object" in sample else None
     return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects, k)
 

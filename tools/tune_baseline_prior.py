@@ -34,7 +34,8 @@ def mean_error(root: str, count: int, prior: float) -> float:
         errs = []
         for idx in range(count):
             s, meta = dataset.read_sample(root, idx, keys=("normal", "object"))
-            maps, auto = load_input(dataset.sample_paths(root, idx).raw)
+            inp = load_input(dataset.sample_paths(root, idx).raw)
+            maps, auto = inp.maps, inp.mask
             sel = (s["object"] >= 0) & auto
             if not sel.any():
                 continue

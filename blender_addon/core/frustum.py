@@ -23,16 +23,14 @@ Convention (camera):
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from pbrdf.io.strict_json import read_json_object
+from pbrdf.data.predictions import CameraRecord
 from pbrdf.sensor import projection
 
 __all__ = [
@@ -248,7 +246,7 @@ def camera_from_intrinsics(intrinsics: NDArray, width: int, height: int) -> Blen
 
 @dataclass(frozen=True)
 class CaptureCamera:
-    """A ``<name>_camera.json``: the maps' pinhole camera (``network.infer.camera_record``).
+    """A ``<name>_camera.json``: the maps' pinhole camera (:class:`pbrdf.data.predictions.CameraRecord`).
 
     Attributes:
         intrinsics: ``K (3, 3)`` of the maps' grid (:mod:`pbrdf.sensor.projection` convention).
@@ -266,37 +264,18 @@ class CaptureCamera:
 
 
 def read_camera_json(path: str | os.PathLike) -> CaptureCamera:
-    """Read and check a ``<name>_camera.json`` (``{"intrinsics", "width", "height", "distance_m"}``).
+    """Read and check a ``<name>_camera.json`` (:class:`pbrdf.data.predictions.CameraRecord`) and its Blender camera.
 
     Raises:
         FileNotFoundError: no such file.
         ValueError: one line naming the file and the bad field (or the JSON error).
     """
-    path = Path(path)
-    doc = read_json_object(path)
-    missing = [k for k in ("intrinsics", "width", "height") if k not in doc]
-    if missing:
-        raise ValueError(f"{path}: {missing[0]}: missing")
-    distance = doc.get("distance_m")
-    if distance is not None and (
-        isinstance(distance, bool)
-        or not isinstance(distance, (int, float))
-        or not (math.isfinite(distance) and distance > 0)
-    ):
-        raise ValueError(f"{path}: distance_m: must be null or a positive number of metres, got {distance!r}")
-    k = doc["intrinsics"]
-    if not (isinstance(k, list) and all(isinstance(r, list) for r in k)) or any(
-        isinstance(v, bool) or not isinstance(v, (int, float)) for r in k for v in r
-    ):
-        raise ValueError(f"{path}: intrinsics: must be a 3x3 list of numbers, got {json.dumps(k)[:120]}")
+    record = CameraRecord.read(path)
     try:
-        cam = camera_from_intrinsics(k, doc["width"], doc["height"])
+        cam = camera_from_intrinsics(record.intrinsics, record.width, record.height)
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from None
-    return CaptureCamera(
-        np.asarray(k, dtype=np.float64), int(doc["width"]), int(doc["height"]),
-        None if distance is None else float(distance), cam,
-    )  # fmt: skip
+    return CaptureCamera(record.intrinsics, record.width, record.height, record.distance_m, cam)
 
 
 def depth_mesh(

@@ -2,7 +2,8 @@
 
 The network (``headless/infer.py``) writes ``DIR/<name>_normal.exr``, ``_albedo.exr``,
 ``_roughness.exr``, ``_metallic.exr``, ``_mask.exr``, ``_depth.exr``, a PNG preview of each and
-``<name>_camera.json`` (found by :func:`camera_file`). Other tools name maps ``BaseColor``,
+``<name>_camera.json`` (found by :func:`camera_file`); the names and the JSON files are
+:mod:`pbrdf.data.predictions`'. Other tools name maps ``BaseColor``,
 ``nrm``, ``Metalness``...: :func:`match_map_files` finds each map kind by filename tokens;
 :mod:`.map_io` then reads and validates the files. A sequence is ``<name>_NNNN_<map>.exr`` per
 frame (NNNN from 0001) plus ``<name>_sequence.json``: :func:`find_sequence` and
@@ -31,12 +32,10 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from pbrdf.io.strict_json import read_json_object
+from pbrdf.data.predictions import CAMERA_SUFFIX, MAP_NAMES, SEQUENCE_SUFFIX, SequenceRecord
 
 __all__ = [
-    "CAMERA_SUFFIX",
     "IMAGE_SUFFIXES",
-    "SEQUENCE_SUFFIX",
     "SequenceFiles",
     "camera_file",
     "find_sequence",
@@ -49,8 +48,8 @@ __all__ = [
     "match_map_files",
 ]
 
-#: Map kinds in import order.
-MAP_KINDS = ("normal", "albedo", "roughness", "metallic", "mask", "depth")
+#: Map kinds in import order: the maps a prediction folder holds.
+MAP_KINDS = MAP_NAMES
 
 #: Filename synonyms per kind; a multi-token synonym (``base color``) must appear as consecutive tokens.
 SYNONYMS: dict[str, tuple[tuple[str, ...], ...]] = {
@@ -65,10 +64,6 @@ SYNONYMS: dict[str, tuple[tuple[str, ...], ...]] = {
 #: Readable suffixes, most preferred first: when ``x_normal.exr`` and its preview ``x_normal.png``
 #: both exist, the EXR wins.
 IMAGE_SUFFIXES = (".exr", ".png", ".jpg", ".jpeg")
-#: ``<prefix>_camera.json``: the maps' pinhole camera (``network.infer.camera_record``).
-CAMERA_SUFFIX = "_camera.json"
-#: ``<name>_sequence.json``: the frames of a sequence (``headless/infer.py``).
-SEQUENCE_SUFFIX = "_sequence.json"
 
 
 def filename_tokens(name: str | os.PathLike) -> tuple[str, ...]:
@@ -371,19 +366,8 @@ def match_sequence_files(path: str | os.PathLike, *, required: Iterable[str] = (
             cannot number, ambiguous map names.
     """
     path = Path(path)
-    doc = read_json_object(path)
-    frames = doc.get("frames")
-    if not isinstance(frames, list) or not frames:
-        raise ValueError(f"{path}: frames: must be a non-empty list of {{'prefix': ...}} objects")
-    prefixes = []
-    for i, frame in enumerate(frames):
-        prefix = frame.get("prefix") if isinstance(frame, dict) else None
-        if not isinstance(prefix, str) or not prefix or Path(prefix).name != prefix:
-            raise ValueError(f"{path}: frames[{i}].prefix: must be a file name prefix, got {prefix!r}")
-        prefixes.append(prefix)
-    name = (
-        doc.get("name") if isinstance(doc.get("name"), str) and doc.get("name") else path.name[: -len(SEQUENCE_SUFFIX)]
-    )
+    record = SequenceRecord.read(path)
+    prefixes, name = record.prefixes, record.name
     folder = path.parent
     own = [
         p

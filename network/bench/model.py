@@ -160,12 +160,13 @@ def _sync(device: str):
 def _bench_predict(s: ModelBench) -> dict:
     """:func:`network.infer.predict` with a trained checkpoint on real-path input: time and error per stride."""
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
-    from network.infer import input_display_radiance, load_input, predict  # noqa: PLC0415
+    from network.infer import load_input, predict  # noqa: PLC0415
     from network.model.dense import REFINE_DEG  # noqa: PLC0415
 
     model, ckpt = load_checkpoint(s.checkpoint)
-    maps, mask = load_input(s.capture)
-    inputs, scale, radiance = ckpt["inputs"], ckpt["input_scale"], input_display_radiance(s.capture)
+    inp = load_input(s.capture)
+    maps, mask = inp.maps, inp.mask
+    inputs, scale, radiance = ckpt["inputs"], ckpt["input_scale"], inp.radiance
     result: dict = {
         "checkpoint": str(s.checkpoint),
         "capture": str(s.capture),

@@ -276,14 +276,15 @@ def _write_assets(out: Path, name: str, scene) -> None:
     Both carry the capture's camera; the prediction's relief is anchored at the true median depth
     (the distance a user measures), since the rendered capture has no ``distance_m``.
     """
-    from network.infer import camera_record, relief_depth, write_predictions  # noqa: PLC0415
+    from network.infer import relief_depth  # noqa: PLC0415
+    from pbrdf.data.predictions import CameraRecord, write_predictions  # noqa: PLC0415
 
     truth = truth_maps(scene.gt, scene.region)
     distance = float(np.median(truth["depth"][scene.region, 0])) if "depth" in truth else None
     camera = None
     pred = dict(scene.ours)
     if scene.intrinsics is not None:
-        camera = camera_record(scene.intrinsics, scene.region.shape, distance)
+        camera = CameraRecord.of_maps(scene.intrinsics, scene.region.shape, distance)
         pred["depth"] = relief_depth(pred, scene.intrinsics, distance)
     write_predictions(out / "predictions" / name, name, pred, camera)
     write_predictions(out / "truth" / name, name, truth, camera)

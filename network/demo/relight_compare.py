@@ -34,7 +34,7 @@ RELIGHT_SCRIPT = Path(__file__).resolve().parents[2] / "headless" / "relight.py"
 
 
 def truth_maps(gt: dict[str, np.ndarray], region: np.ndarray) -> dict[str, np.ndarray]:
-    """The ground truth as :func:`network.infer.write_predictions` expects a prediction.
+    """The ground truth as :func:`pbrdf.data.predictions.write_predictions` expects a prediction.
 
     Args:
         gt: ``normal (H, W, 3)``, ``albedo (H, W, 3)``, ``roughness``, ``metallic`` ``(H, W)`` or

@@ -20,7 +20,7 @@ Every public name of the sub-modules is re-exported here, e.g.
 ``from network.model import PolarInverseModel, count_parameters, grid_pixels``.
 """
 
-from .decoder import OUTPUT_CHANNELS, DenseInputs, MapValueEmbedding, PixelDecoder, PoolingAttention, safe_normalize
+from .decoder import DenseInputs, MapValueEmbedding, PixelDecoder, PoolingAttention, safe_normalize
 from .dense import (
     EMBED_ELEMENTS,
     context_pixels,
@@ -48,7 +48,6 @@ __all__ = [
     "MAP_COLOR",
     "MAP_POLARIZATION",
     "NUM_MAPS",
-    "OUTPUT_CHANNELS",
     "Attention",
     "AxisAttentionBlock",
     "Block",

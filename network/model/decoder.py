@@ -26,16 +26,12 @@ from .maps import NUM_MAPS
 from .sampling import sample_bilinear, sample_bilinear_rows
 
 __all__ = [
-    "OUTPUT_CHANNELS",
     "DenseInputs",
     "MapValueEmbedding",
     "PixelDecoder",
     "PoolingAttention",
     "safe_normalize",
 ]
-
-#: Output maps of the decoder and their channels.
-OUTPUT_CHANNELS = {"normal": 3, "albedo": 3, "roughness": 1, "metallic": 1}
 
 
 def safe_normalize(v: Tensor, dim: int = 1, eps: float = 1e-6) -> Tensor:

@@ -37,8 +37,9 @@ import torch.nn.functional as F
 from torch import Tensor
 
 from network.config import ModelConfig
+from pbrdf.data.predictions import OUTPUT_CHANNELS
 
-from .decoder import OUTPUT_CHANNELS, DenseInputs, PixelDecoder, safe_normalize
+from .decoder import DenseInputs, PixelDecoder, safe_normalize
 from .maps import NUM_MAPS
 
 __all__ = [
@@ -158,7 +159,7 @@ def unreliable_fill(
     every pixel whose weight sum is below 1 (a neighbour of the full bilinear stencil is missing).
 
     Args:
-        values: (C, H, W) outputs in :data:`~network.model.decoder.OUTPUT_CHANNELS` order (normal first).
+        values: (C, H, W) outputs in :data:`~pbrdf.data.predictions.OUTPUT_CHANNELS` order (normal first).
         decoded: (H, W) bool.
         weight: (H, W) the weight sum from :func:`fill_from_decoded`.
         stride: The grid spacing.

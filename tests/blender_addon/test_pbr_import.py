@@ -213,7 +213,7 @@ def _plane_field(k, h, w, normal=(0.2, 0.1, 1.0), point=(0.05, 0.0, -2.0), radiu
 
 
 def _write_camera(path, k, w, h, distance=2.0):
-    """``<prefix>_camera.json`` as ``network.infer.camera_record`` writes it."""
+    """``<prefix>_camera.json`` as ``pbrdf.data.predictions.CameraRecord`` writes it."""
     path.write_text(json.dumps({"intrinsics": k.tolist(), "width": w, "height": h, "distance_m": distance}))
 
 

@@ -32,7 +32,7 @@ def _blob(h=16, w=24):
 @pytest.fixture
 def maps(tmp_path):
     """Predicted maps of a 16 x 24 hemisphere-ish blob, as headless/infer.py writes them (no depth: a card)."""
-    from network.infer import write_predictions
+    from pbrdf.data.predictions import write_predictions
 
     write_predictions(tmp_path / "pred", "blob", _blob()[0])
     return tmp_path / "pred"
@@ -89,7 +89,7 @@ def test_saved_blend_is_lit_and_self_contained(tmp_path):
     been moved away; the light circles the asset (not the relief's origin, the camera).
     """
     pytest.importorskip("bpy")
-    from network.infer import write_predictions
+    from pbrdf.data.predictions import write_predictions
     from pbrdf.io.exr import write_exr
 
     pred, depth = _blob()

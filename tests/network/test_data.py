@@ -254,19 +254,18 @@ def test_input_radiance_falls_back_for_relative_captures():
 def test_rendered_training_maps_and_decoded_raws_share_units(tmp_path):
     """The training data and the capture path must put the same number on the same radiance."""
     from blender_addon.core.generate import GenerateConfig, generate
-    from network.infer import input_display_radiance, load_input
+    from network.infer import load_input
     from pbrdf.data import dataset as pdataset
 
     root = tmp_path / "ds"
     generate(GenerateConfig(out=root, count=1, resolution=64, spp=8, seed=3, keep_raw=True), progress=False)
     sample, meta = pdataset.read_sample(root, 0, keys=("maps", "mask"))
     raw = pdataset.sample_paths(root, 0).raw
-    decoded, auto = load_input(raw)
-    assert input_display_radiance(raw) == meta["rig"]["display"]["radiance"] == 1.0
-    # The capture carries the crop's calibration: input_geometry gives back the maps' intrinsics.
-    from network.infer import input_geometry
-
-    np.testing.assert_allclose(input_geometry(raw, decoded.shape[:2])[0], meta["intrinsics"], rtol=1e-12)
+    inp = load_input(raw)
+    decoded, auto = inp.maps, inp.mask
+    assert inp.radiance == meta["rig"]["display"]["radiance"] == 1.0
+    # The capture carries the crop's calibration: load_input gives back the maps' intrinsics.
+    np.testing.assert_allclose(inp.intrinsics, meta["intrinsics"], rtol=1e-12)
     inside = sample["mask"].astype(bool) & auto
     ratio = decoded[..., :6].sum(-1)[inside].sum() / sample["maps"][..., :6].sum(-1)[inside].sum()
     assert ratio == pytest.approx(1.0, abs=0.03)  # camera noise and demosaicking only

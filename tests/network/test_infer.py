@@ -9,9 +9,10 @@ import pytest
 import torch
 
 from network.config import get_config
-from network.infer import input_display_radiance, load_input, predict, write_predictions
+from network.infer import load_input, predict
 from network.model.polar_model import PolarInverseModel
-from pbrdf.data import capture
+from pbrdf.data import capture, predictions
+from pbrdf.data.predictions import write_predictions
 from pbrdf.io import exr
 from pbrdf.sensor import camera
 from tests.helpers import make_model
@@ -48,7 +49,8 @@ def test_infer_on_sample_and_capture(tiny_dataset, tmp_path):
     ckpt = tmp_path / "model.pt"
     torch.save({"config": model.config.to_dict(), "model": model.state_dict()}, ckpt)
     sample = tiny_dataset / "samples" / "000000.exr"
-    maps, mask = load_input(sample)
+    inp = load_input(sample)
+    maps, mask = inp.maps, inp.mask
     pred = predict(model, maps, mask)
     assert pred["normal"].shape == (*mask.shape, 3) and pred["roughness"].shape == (*mask.shape, 1)
     assert np.all(pred["albedo"][~mask] == 0)
@@ -155,8 +157,6 @@ class TestWritePredictions:
 
     @pytest.mark.parametrize("existing", [False, True])
     def test_write_failure_leaves_nothing(self, tmp_path, monkeypatch, existing):
-        from network import infer
-
         out = tmp_path / "o"
         if existing:
             out.mkdir()
@@ -169,7 +169,7 @@ class TestWritePredictions:
                 raise OSError("disk full (simulated)")
             return exr.write_exr(path, channels, **kw)
 
-        monkeypatch.setattr(infer, "write_exr", failing)
+        monkeypatch.setattr(predictions, "write_exr", failing)
         with pytest.raises(OSError, match="disk full"):
             write_predictions(out, "x", self._pred())
         if existing:
@@ -182,7 +182,7 @@ class TestLoadInputRequireObject:
     def test_dark_capture(self, tmp_path):
         m = camera.CameraModel()
         folder = capture.save_capture(tmp_path / "dark", np.full((4, 32, 32), 16, np.uint16), m)
-        maps, mask = load_input(folder)  # the library call still returns (split_eval scores such scenes)
+        mask = load_input(folder).mask  # the library call still returns (split_eval scores such scenes)
         assert not mask.any()
         with pytest.raises(ValueError, match=f"{folder}: nothing usable: every raw value is at or below black_level"):
             load_input(folder, require_object=True)
@@ -240,7 +240,7 @@ def test_relative_capture_falls_back_with_one_warning(tmp_path):
     m = camera.CameraModel()
     raws = camera.simulate_capture(s, m, rng=np.random.default_rng(0))
     rel = capture.save_capture(tmp_path / "rel", raws, m, extra={"radiometry": "relative"})
-    assert input_display_radiance(rel) is None
+    assert capture.read_capture_meta(rel).radiance is None
     cmd = [
         sys.executable,
         "headless/infer.py",
@@ -254,7 +254,8 @@ def test_relative_capture_falls_back_with_one_warning(tmp_path):
     proc = subprocess.run(cmd, cwd=root, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr.count("warning:") == 1 and "albedo is relative" in proc.stderr
-    maps, mask = load_input(rel)
+    inp = load_input(rel)
+    maps, mask = inp.maps, inp.mask
     want = predict(model, maps, mask)  # the exposure-invariant scale
     got = exr.read_exr(tmp_path / "o" / "rel_albedo.exr")
     np.testing.assert_allclose(got["albedo.R"], want["albedo"][..., 0], rtol=1e-5, atol=1e-6)
@@ -288,8 +289,8 @@ class TestResolution:
 
         root = Path(__file__).resolve().parents[2]
         model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
-        maps, mask = load_input(root / "examples" / "capture")
-        radiance = input_display_radiance(root / "examples" / "capture")
+        inp = load_input(root / "examples" / "capture")
+        maps, mask, radiance = inp.maps, inp.mask, inp.radiance
         kw = {"inputs": ckpt["inputs"], "input_scale": ckpt["input_scale"], "radiance": radiance}
         one = predict(model, maps, mask, **kw)
         up = predict(model, maps.repeat(2, 0).repeat(2, 1), mask.repeat(2, 0).repeat(2, 1), **kw)

@@ -163,7 +163,7 @@ class TestCameraJson:
         return path
 
     def test_reads_the_infer_record(self, tmp_path):
-        # network.infer.camera_record's layout
+        # pbrdf.data.predictions.CameraRecord's layout
         path = self._write(tmp_path, {"intrinsics": self.K, "width": 64, "height": 40, "distance_m": 0.8})
         cam = frustum.read_camera_json(path)
         assert (cam.width, cam.height, cam.distance_m) == (64, 40, 0.8)

@@ -61,7 +61,7 @@ def test_training_forward_is_timed_with_gradients():
 @needs_shipped
 def test_stride_error_of_the_shipped_model_on_real_input():
     from network.checkpoint import load_checkpoint
-    from network.infer import input_display_radiance, load_input, predict
+    from network.infer import load_input, predict
     from network.metrics import normal_angle_deg
 
     result = model.run(configs=("toy",), strides=(2, 4), train=False, reference=False, warmup=0)
@@ -71,12 +71,13 @@ def test_stride_error_of_the_shipped_model_on_real_input():
     e2, e4 = (pred[f"stride_{s}"]["error_vs_stride_1"] for s in (2, 4))
     # The same numbers recomputed here from the shipped model on the real-capture path.
     net, ckpt = load_checkpoint(model.SHIPPED_CHECKPOINT)
-    maps, mask = load_input(model.EXAMPLE_CAPTURE)
+    inp = load_input(model.EXAMPLE_CAPTURE)
+    maps, mask = inp.maps, inp.mask
     assert pred["masked_pixels"] == int(mask.sum()) > 1000
     how = {
         "inputs": ckpt.get("inputs", "full"),
         "input_scale": ckpt.get("input_scale", "exposure-invariant"),
-        "radiance": input_display_radiance(model.EXAMPLE_CAPTURE),
+        "radiance": inp.radiance,
     }
     one, two = (predict(net, maps, mask, stride=s, **how) for s in (1, 2))
     angle = normal_angle_deg(one["normal"], two["normal"])[mask]
