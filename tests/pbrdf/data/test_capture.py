@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 import struct
 import warnings
@@ -976,3 +977,50 @@ def test_display_radiance_reads_radiometry_and_rig(tmp_path):
     raws = simulate_capture(np.full((8, 8, 3, 4), 0.0) + [0.1, 0, 0, 0], model, noise=False)
     folder = cap.save_capture(tmp_path / "c", raws, model, extra={"radiometry": "relative"})
     assert cap.display_radiance(cap.load_capture(folder).metadata) is None
+
+
+# ------------------------------------------------------------------------------------------------
+# CaptureMeta: radiometry and geometry parsed once, at load time
+
+
+def test_capture_meta_is_parsed_at_load_and_without_the_raws(tmp_path):
+    model = CameraModel(exposures=(0.01, 0.1))
+    raws = simulate_capture(np.full((8, 12, 3, 4), 0.0) + [0.1, 0, 0, 0], model, noise=False)
+    k_raw = [[50.0, 0.0, 13.0], [0.0, 52.0, 7.0], [0.0, 0.0, 1.0]]
+    extra = {"rig": {"display": {"radiance": 0.5}}, "intrinsics": k_raw, "distance_m": 0.6}
+    folder = cap.save_capture(tmp_path / "c", raws, model, extra=extra)
+    meta = cap.load_capture(folder).meta
+    assert (meta.radiance, meta.distance_m, meta.rig.display.radiance) == (0.5, 0.6, 0.5)
+    # the half grid: pixel (i, j) is raw block (2i..2i+1, 2j..2j+1), its centre raw (2j + 1, 2i + 1)
+    k = meta.grid_intrinsics((16, 24), (8, 12))
+    raw_uv = np.array(k_raw) @ [0.1, -0.2, 1.0]
+    np.testing.assert_allclose(k @ [0.1, -0.2, 1.0], [raw_uv[0] / 2, raw_uv[1] / 2, 1.0], rtol=1e-12)
+    for name in cap.load_capture(folder).raw_files:
+        (folder / name).unlink()  # the light reader never opens them
+    assert cap.read_capture_meta(folder).intrinsics.tolist() == k_raw
+    # Without intrinsics: the rig camera's focal length, principal point at the raw image's centre.
+    plain = cap.read_capture_meta(cap.save_capture(tmp_path / "p", raws, model, extra={"radiometry": "relative"}))
+    assert plain.radiance is None and plain.distance_m is None
+    f = plain.rig.camera.focal_length_px
+    np.testing.assert_array_equal(plain.raw_intrinsics((16, 24)), [[f, 0, 12], [0, f, 8], [0, 0, 1]])
+
+
+@pytest.mark.parametrize(
+    ("extra", "match"),
+    [
+        ({"intrinsics": [[1, 0, 0], [0, 1, 0]]}, r"intrinsics must be a finite 3x3 matrix, got shape \(2, 3\)"),
+        ({"intrinsics": [[1, 0, 0], [0, 1, "x"], [0, 0, 1]]}, "intrinsics must be a finite 3x3 matrix"),
+        ({"distance_m": -0.5}, r"distance_m must be > 0, got -0.5"),
+        ({"distance_m": "0.5"}, "distance_m must be a number"),
+        ({"rig": {"display": {"radiance": 0}}}, "invalid rig: display.radiance must be > 0"),
+        ({"radiometry": "absolute"}, r"radiometry must be one of \['calibrated', 'relative'\]"),
+    ],
+    ids=["2x3 intrinsics", "string in intrinsics", "negative distance", "distance as text", "bad rig", "radiometry"],
+)
+def test_bad_geometry_or_radiometry_fails_at_load_naming_the_file(tmp_path, extra, match):
+    model = CameraModel(exposures=(0.01, 0.1))
+    raws = simulate_capture(np.full((8, 8, 3, 4), 0.0) + [0.1, 0, 0, 0], model, noise=False)
+    folder = cap.save_capture(tmp_path / "c", raws, model, extra=extra)
+    for load in (cap.load_capture, cap.read_capture_meta):
+        with pytest.raises(ValueError, match=rf"^{re.escape(str(folder / 'capture.json'))}: {match}"):
+            load(folder)

@@ -5,6 +5,8 @@ import subprocess
 import sys
 import time
 
+import pytest
+
 from pbrdf.io.atomic import remove_leftovers, temporary_path, temporary_target
 
 
@@ -69,3 +71,64 @@ def test_a_live_writer_keeps_its_temporary_and_a_killed_one_loses_it(tmp_path):
         proc.wait()
     remove_leftovers(tmp_path)
     assert os.listdir(tmp_path) == []
+
+
+class TestAtomicFolder:
+    """atomic_folder: a folder's files appear together on success; a failure leaves neither the target nor a temp."""
+
+    def test_failure_leaves_nothing(self, tmp_path):
+        from pbrdf.io.atomic import atomic_folder
+
+        target = tmp_path / "capture"
+        try:
+            with atomic_folder(target) as staging:
+                (staging / "raw_0.png").write_bytes(b"half")
+                raise OSError("disk full (simulated)")
+        except OSError:
+            pass
+        assert os.listdir(tmp_path) == []
+
+    def test_existing_target_is_replaced_only_on_success(self, tmp_path):
+        from pbrdf.io.atomic import atomic_folder
+
+        target = tmp_path / "capture"
+        target.mkdir()
+        (target / "old.txt").write_text("old")
+        try:
+            with atomic_folder(target) as staging:
+                (staging / "new.txt").write_text("new")
+                raise KeyboardInterrupt
+        except KeyboardInterrupt:
+            pass
+        assert os.listdir(tmp_path) == ["capture"] and os.listdir(target) == ["old.txt"]
+        with atomic_folder(target) as staging:
+            (staging / "new.txt").write_text("new")
+            assert os.listdir(target) == ["old.txt"]  # nothing visible before the block ends
+        assert os.listdir(tmp_path) == ["capture"] and os.listdir(target) == ["new.txt"]
+
+    def test_merge_adds_files_and_keeps_the_others(self, tmp_path):
+        from pbrdf.io.atomic import atomic_folder
+
+        out = tmp_path / "o" / "deep"
+        with atomic_folder(out, merge=True) as staging:
+            (staging / "a_normal.exr").write_bytes(b"1")
+            assert not out.exists()  # created only when the files are ready
+        (out / "keep.txt").write_text("x")
+        with atomic_folder(out, merge=True) as staging:
+            (staging / "a_normal.exr").write_bytes(b"2")
+            (staging / "b_normal.exr").write_bytes(b"3")
+        assert sorted(os.listdir(out)) == ["a_normal.exr", "b_normal.exr", "keep.txt"]
+        assert (out / "a_normal.exr").read_bytes() == b"2"
+        assert os.listdir(out.parent) == ["deep"]  # no staging folder left
+        with pytest.raises(ValueError), atomic_folder(out, merge=True) as staging:
+            (staging / "c_normal.exr").write_bytes(b"4")
+            raise ValueError("bad map")
+        assert sorted(os.listdir(out)) == ["a_normal.exr", "b_normal.exr", "keep.txt"]
+
+    def test_a_file_in_the_way_is_refused(self, tmp_path):
+        from pbrdf.io.atomic import atomic_folder
+
+        (tmp_path / "out").write_text("x")
+        with pytest.raises(NotADirectoryError, match="exists and is not a folder"), atomic_folder(tmp_path / "out"):
+            pass
+        assert os.listdir(tmp_path) == ["out"]
