@@ -76,7 +76,7 @@ def test_capture_json_is_parsed_in_one_module():
 
 
 def test_finder_sees_the_ways_of_reading_it():
-    seen = '''
+    seen = """
 def a(folder):
     where = folder / CAPTURE_JSON
     return _obj(where)
@@ -90,11 +90,11 @@ def b(folder):
 def c(folder):
     with open(os.path.join(folder, "capture.json")) as f:
         return f.read()
-'''
+"""
     assert capture_json_readers(seen) == [4, 10, 13]
-    unseen = '''
+    unseen = """
 def d(folder):
     (folder / CAPTURE_JSON).write_text("{}")
     return (folder / CAPTURE_JSON).is_file(), json.loads((folder / "sidecar.json").read_text())
-'''
+"""
     assert capture_json_readers(unseen) == []

@@ -127,11 +127,17 @@ class CameraRecord:
             isinstance(k, list | tuple) and all(isinstance(r, list | tuple) for r in k)
             and all(not isinstance(v, bool) and isinstance(v, int | float) for r in k for v in r)
         )  # fmt: skip
-        matrix = np.asarray(k, dtype=np.float64) if numbers else None
-        if matrix is None or matrix.shape != (3, 3):
-            raise ValueError(f"intrinsics: must be a 3x3 list of numbers, got {json.dumps(k, default=repr)[:120]}")
-        if not np.all(np.isfinite(matrix)) or not (matrix[0, 0] > 0 and matrix[1, 1] > 0):
-            raise ValueError(f"intrinsics: must be finite with positive focal lengths, got {matrix.tolist()}")
+        shown = json.dumps(k.tolist() if isinstance(k, np.ndarray) else k, default=repr)[:120]
+        if not numbers:
+            raise ValueError(f"intrinsics: must be a 3x3 list of numbers, got {shown}")
+        try:
+            matrix = np.asarray(k, dtype=np.float64)
+        except ValueError:  # rows of different lengths
+            matrix = np.zeros(0)
+        if matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+            raise ValueError(f"intrinsics: must be a finite 3x3 matrix, got {shown}")
+        if not (matrix[0, 0] > 0 and matrix[1, 1] > 0):
+            raise ValueError(f"intrinsics: focal lengths must be positive, got fx {matrix[0, 0]}, fy {matrix[1, 1]}")
         return cls(matrix, int(width), int(height), None if distance is None else float(distance))
 
     def to_dict(self) -> dict[str, Any]:

@@ -41,10 +41,11 @@ def test_camera_record_round_trip(tmp_path):
     ("doc", "match"),
     [
         ({"width": 16, "height": 12}, "intrinsics: missing"),
-        ({"intrinsics": [[1, 0, 0]], "width": 16, "height": 12}, "intrinsics: must be a 3x3 list of numbers"),
+        ({"intrinsics": [[1, 0, 0]], "width": 16, "height": 12}, "intrinsics: must be a finite 3x3 matrix"),
+        ({"intrinsics": [[1, 0, "0"]], "width": 16, "height": 12}, "intrinsics: must be a 3x3 list of numbers"),
         ({"intrinsics": K.tolist(), "width": True, "height": 12}, "width: must be a positive integer"),
         ({"intrinsics": K.tolist(), "width": 16, "height": 12, "distance_m": 0}, "distance_m: must be null or"),
-        ({"intrinsics": (-K).tolist(), "width": 16, "height": 12}, "intrinsics: must be finite with positive focal"),
+        ({"intrinsics": (-K).tolist(), "width": 16, "height": 12}, "intrinsics: focal lengths must be positive"),
     ],
 )
 def test_camera_record_names_the_file_and_field(tmp_path, doc, match):
