@@ -75,7 +75,6 @@ def test_thin_main_and_conventions(script):
 
 OLD_FLAGS = [
     # script, old arguments, new flag, attribute, the old form's name in the message
-    ("decode", ["CAPTURE", "--out", "o"], "--input", "input", "the positional CAPTURE_DIR"),
     ("relight", ["--maps", "pred", "--out", "o"], "--input", "input", "--maps"),
     ("train", ["--data", "ds", "--out", "o"], "--input", "input", "--data"),
     ("evaluate", ["--data", "ds", "--checkpoint", "m.pt"], "--input", "input", "--data"),
