@@ -80,6 +80,7 @@ from torch.utils.checkpoint import checkpoint
 
 from pbrdf.brdf.disney import disney_lobes, roughness_to_alpha
 from pbrdf.sensor import projection
+from pbrdf.sensor.patches import channel_patches
 
 if TYPE_CHECKING:
     from pbrdf.sensor.rig import Rig
@@ -141,21 +142,6 @@ class Patches(NamedTuple):
         return cls(packed[..., 0:3], packed[..., 3:6], packed[..., 6], packed[..., 7:10], packed[..., 10])
 
 
-def _channel_rectangle(display, channel: int) -> tuple[float, float, float, float] | None:
-    """Display-surface ``(x0, x1, y0, y1)`` (m) bounding channel ``channel``'s lit pattern pixels."""
-    img = display.pattern_image()[..., channel]
-    lit = img > 0
-    if not lit.any():
-        return None
-    rows, cols = np.nonzero(lit)
-    h, w = img.shape
-    x0 = -display.width / 2 + display.width * cols.min() / w
-    x1 = -display.width / 2 + display.width * (cols.max() + 1) / w
-    y1 = display.height / 2 - display.height * rows.min() / h  # row 0 is the top
-    y0 = display.height / 2 - display.height * (rows.max() + 1) / h
-    return x0, x1, y0, y1
-
-
 def display_patches(
     rig: Rig,
     n: tuple[int, int] = DEFAULT_PATCHES,
@@ -165,11 +151,9 @@ def display_patches(
 ) -> Patches:
     """Quadrature patches of the display, per colour channel region, in the camera frame.
 
-    Channel ``c``'s lit region (the bounding rectangle of the pattern's non-zero pixels of that
-    channel, in display surface coordinates: arc length on a curved display) is split into
-    ``nx x ny`` equal patches; each carries radiance only in channel ``c``: ``display.radiance``
-    times the pattern averaged over ``supersample^2`` points of the patch. A channel that is dark
-    everywhere gets zero-area, zero-radiance patches (the count stays ``3 nx ny``).
+    :func:`pbrdf.sensor.patches.channel_patches` (channel ``c``'s lit rectangle in ``nx x ny``
+    equal patches carrying only channel ``c``, radiance averaged over ``supersample^2`` points of
+    the patch) moved into the camera frame, with the LP gain of each patch.
 
     Args:
         rig: the capture rig (display geometry, pattern, polarization; camera pose).
@@ -183,45 +167,27 @@ def display_patches(
     Raises:
         ValueError: if ``n`` or ``supersample`` is not positive.
     """
-    nx, ny = (int(v) for v in n)
-    if nx < 1 or ny < 1 or supersample < 1:
-        raise ValueError(f"patch counts and supersample must be >= 1; got n={n}, supersample={supersample}")
     disp, cam = rig.display, rig.camera
+    patches = channel_patches(disp, n, supersample=supersample)
     w2c = cam.world_to_camera()
     rot = w2c[:3, :3]
     y_world = disp.world_trans_display()[:, 1]
-    q = disp.degree_of_polarization
     a = disp.polarization_angle
-    pts, nrm, area, rad, gain = [], [], [], [], []
-    for c in range(3):
-        rect = _channel_rectangle(disp, c)
-        x0, x1, y0, y1 = rect if rect is not None else (0.0, 0.0, 0.0, 0.0)
-        dx, dy = (x1 - x0) / nx, (y1 - y0) / ny
-        ix, iy = np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy")
-        centre = np.stack([x0 + (ix.ravel() + 0.5) * dx, y0 + (iy.ravel() + 0.5) * dy], -1)  # (nx ny, 2)
-        sub = (np.arange(supersample) + 0.5) / supersample - 0.5
-        sx, sy = np.meshgrid(sub * dx, sub * dy, indexing="xy")
-        samples = centre[:, None, :] + np.stack([sx.ravel(), sy.ravel()], -1)[None]
-        value = disp.pattern_rgb_at(samples)[..., c].mean(axis=1) if rect is not None else np.zeros(len(centre))
-        p_world = disp.surface_points_world(centre)
-        n_world = disp.surface_normals_world(centre)
-        # The panel's X tangent (Y x normal) carries the in-plane polarization direction on a curved panel too.
-        tangent = np.cross(y_world, n_world)
-        field = math.cos(a) * tangent + math.sin(a) * y_world
-        e = field @ rot.T
-        cos2psi = (e[:, 0] ** 2 - e[:, 1] ** 2) / np.maximum(e[:, 0] ** 2 + e[:, 1] ** 2, _EPS)
-        pts.append(p_world @ rot.T + w2c[:3, 3])
-        nrm.append(n_world @ rot.T)
-        area.append(np.full(len(centre), abs(dx * dy)))
-        r = np.zeros((len(centre), 3))
-        r[:, c] = disp.radiance * value
-        rad.append(r)
-        gain.append(-q * cos2psi)
+    # The panel's X tangent (Y x normal) carries the in-plane polarization direction on a curved panel too.
+    tangent = np.cross(y_world, patches.normals)
+    e = (math.cos(a) * tangent + math.sin(a) * y_world) @ rot.T
+    cos2psi = (e[:, 0] ** 2 - e[:, 1] ** 2) / np.maximum(e[:, 0] ** 2 + e[:, 1] ** 2, _EPS)
 
-    def t(x: list[NDArray]) -> Tensor:
-        return torch.as_tensor(np.concatenate(x), dtype=dtype)
+    def t(x: NDArray) -> Tensor:
+        return torch.as_tensor(x, dtype=dtype)
 
-    return Patches(t(pts), t(nrm), t(area), t(rad), t(gain))
+    return Patches(
+        t(patches.centers @ rot.T + w2c[:3, 3]),
+        t(patches.normals @ rot.T),
+        t(patches.area),
+        t(patches.radiance),
+        t(-disp.degree_of_polarization * cos2psi),
+    )
 
 
 def pixel_rays(intrinsics: ArrayLike, height: int, width: int, *, dtype: torch.dtype = torch.float32) -> Tensor:

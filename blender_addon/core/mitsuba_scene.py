@@ -57,7 +57,6 @@ __all__ = [
     "crop_window",
     "display_shapes",
     "display_updates",
-    "lit_rectangle",
     "polarized_emitter_possible",
     "sensor_dict",
     "bsdf_dict",
@@ -233,27 +232,6 @@ def _pattern_texture(display: DisplaySpec, channel: int) -> dict:
     return {"type": "bitmap", "data": mi.TensorXf(data), "raw": True, "filter_type": "nearest", "wrap_mode": "clamp"}
 
 
-def lit_rectangle(display: DisplaySpec, channel: int) -> tuple[float, float, float, float] | None:
-    """Display-local ``(x0, x1, y0, y1)`` in metres of channel ``channel``'s lit region.
-
-    Only when that region is one full rectangle of the pattern (as in the built-in patterns);
-    None otherwise (no light at all, or a more complex image).
-    """
-    lit = display.pattern_image()[..., channel] > 0.5
-    if not lit.any():
-        return None
-    rows, cols = np.nonzero(lit)
-    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
-    if not lit[r0:r1, c0:c1].all() or not np.all(display.pattern_image()[..., channel][lit] == 1.0):
-        return None
-    h, w = lit.shape
-    x0 = -display.width / 2 + display.width * c0 / w
-    x1 = -display.width / 2 + display.width * c1 / w
-    y1 = display.height / 2 - display.height * r0 / h  # row 0 is the top
-    y0 = display.height / 2 - display.height * r1 / h
-    return (x0, x1, y0, y1)
-
-
 def _emitter_to_world(display: DisplaySpec, rect: tuple[float, float, float, float]) -> NDArray:
     x0, x1, y0, y1 = rect
     local = np.eye(4)
@@ -272,7 +250,7 @@ def polarized_emitter_possible(display: DisplaySpec) -> bool:
         display.curvature_radius is None
         and display.degree_of_polarization == 1.0
         and display.pattern in BUILTIN_RECTANGLE_PATTERNS
-        and all(lit_rectangle(display, c) is not None for c in range(3))
+        and all(display.lit_rectangle(c, uniform=True) is not None for c in range(3))
     )
 
 
@@ -304,7 +282,7 @@ def display_shapes(display: DisplaySpec, channel: int, *, polarized_emitter: boo
         from . import polarized_display  # noqa: PLC0415
 
         polarized_display.register()
-        rect = lit_rectangle(display, channel)
+        rect = display.lit_rectangle(channel, uniform=True)
         absorbing = np.cross(display.normal_world(), display.polarization_direction_world())
         emitter = polarized_display.emitter_dict(display.radiance, absorbing)
         return {"display": {"type": "rectangle", "to_world": scalar_transform(_emitter_to_world(display, rect)),
@@ -314,7 +292,7 @@ def display_shapes(display: DisplaySpec, channel: int, *, polarized_emitter: boo
         scale = np.diag([display.width / 2, display.height / 2, 1.0, 1.0])
         shift = np.eye(4)
         shift[2, 3] = SHEET_OFFSET
-        rect = lit_rectangle(display, channel) if display.pattern in BUILTIN_RECTANGLE_PATTERNS else None
+        rect = display.lit_rectangle(channel, uniform=True) if display.pattern in BUILTIN_RECTANGLE_PATTERNS else None
         if rect is not None:
             emitting = {"type": "rectangle", "to_world": scalar_transform(_emitter_to_world(display, rect)),
                         "emitter": {"type": "area", "radiance": 2.0 * display.radiance}}  # fmt: skip
@@ -345,7 +323,7 @@ def display_updates(display: DisplaySpec, channel: int, params: Any) -> dict[str
         return None
     if "display.emitter.radiance.data" in params:
         return {"display.emitter.radiance.data": _pattern_texture(display, channel)["data"]}
-    rect = lit_rectangle(display, channel)
+    rect = display.lit_rectangle(channel, uniform=True)
     if rect is None or "display.to_world" not in params:
         return None
     return {"display.to_world": scalar_transform(_emitter_to_world(display, rect))}

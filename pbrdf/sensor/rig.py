@@ -311,6 +311,64 @@ class DisplaySpec:
         return math.cos(a) * rot[:, 0] + math.sin(a) * rot[:, 1]
 
     # ----------------------------------------------------------------------- pattern
+    def pattern_rectangle(
+        self, rows: tuple[int, int], cols: tuple[int, int], shape: tuple[int, int]
+    ) -> tuple[float, float, float, float]:
+        """Display-surface ``(x0, x1, y0, y1)`` in m covered by pattern pixels ``rows`` x ``cols``.
+
+        Convention: the pattern image (``shape = (H, W)``) is stretched over the active area, row 0
+        at the top (``y1 = height / 2``) and column 0 at the left edge seen from the front
+        (``x0 = -width / 2``); ``X`` is the arc length on a curved display.
+
+        Args:
+            rows: half-open row range ``(r0, r1)``.
+            cols: half-open column range ``(c0, c1)``.
+            shape: ``(H, W)`` of the pattern image.
+
+        Example:
+            The upper-right quadrant of a 36 x 64 pattern on the default display:
+
+            >>> DisplaySpec().pattern_rectangle((0, 18), (32, 64), (36, 64))
+            (0.0, 0.6048, 0.0, 0.3402)
+        """
+        (r0, r1), (c0, c1), (h, w) = rows, cols, shape
+        x0 = -self.width / 2 + self.width * c0 / w
+        x1 = -self.width / 2 + self.width * c1 / w
+        y1 = self.height / 2 - self.height * r0 / h  # row 0 is the top
+        y0 = self.height / 2 - self.height * r1 / h
+        return x0, x1, y0, y1
+
+    def lit_rectangle(self, channel: int, *, uniform: bool = False) -> tuple[float, float, float, float] | None:
+        """Display-surface ``(x0, x1, y0, y1)`` in m bounding the pattern pixels that light colour ``channel``.
+
+        A pixel lights the channel where its pattern value is > 0: the display emits ``radiance``
+        times the value, so any nonzero value is light (:meth:`pattern_image` at its default size).
+
+        Args:
+            channel: 0, 1, 2 (R, G, B).
+            uniform: return the rectangle only where the channel is exactly 1 over all of it (it is
+                0 outside by construction), so that a constant emitter on it shows the pattern.
+
+        Returns:
+            The rectangle, or None where the channel is dark everywhere (or, with ``uniform``,
+            not one full rectangle of 1).
+
+        Example:
+            ``rgb_halves``: red lights the right half (+X), blue the upper half (+Y):
+
+            >>> DisplaySpec().lit_rectangle(0), DisplaySpec().lit_rectangle(2)
+            ((0.0, 0.6048, -0.3402, 0.3402), (-0.6048, 0.6048, 0.0, 0.3402))
+        """
+        img = self.pattern_image()[..., channel]
+        lit = img > 0
+        if not lit.any():
+            return None
+        rows, cols = np.nonzero(lit)
+        r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+        if uniform and not np.all(img[r0:r1, c0:c1] == 1.0):
+            return None
+        return self.pattern_rectangle((r0, r1), (c0, c1), img.shape)
+
     def pattern_image(self, height: int | None = None, width: int | None = None) -> NDArray[np.float32]:
         """The pattern as an image ``(H, W, 3)`` float32 in [0, 1] (exactly {0, 1} for built-ins).
 
