@@ -1,70 +1,51 @@
 """Differentiable re-rendering of the unpol and LP maps under the display (the real-data loss).
 
-Real captures have no ground truth, so the network's predicted normal, albedo, roughness and
-metallic maps are checked by rendering what the camera would have seen under the display and
-comparing with the decoded unpol and LP maps (:func:`network.losses.real_loss`). The BRDF is
-:func:`pbrdf.brdf.disney.disney_lobes`, the one Disney BRDF of the project, split into its diffuse
-and specular parts.
+Real captures have no ground truth, so the predicted maps are checked by rendering what the
+camera would have seen and comparing with the decoded unpol and LP maps
+(:func:`network.losses.real_loss`), with the diffuse and specular parts of
+:func:`pbrdf.brdf.disney.disney_lobes`.
 
 Model. A surface point ``p`` (camera frame, camera at the origin) with normal ``n`` is lit by
 display patches ``k`` (centre ``y_k``, front normal ``n_k``, area ``A_k``, emitted radiance
-``L_k`` per colour channel). Per colour channel ``c`` the reflected radiance is the quadrature
+``L_k`` per colour channel; :func:`display_patches`, each channel's lit region tiled on its own
+by :func:`pbrdf.sensor.patches.channel_patches`). Per colour channel ``c``
 
 .. math::
     s_{0,c} = \\sum_k (f_{d,c} + f_{s,c})(l_k, v)\\, L_{k,c}\\, (n \\cdot l_k)_+\\,
               \\frac{A_k\\, (-n_k \\cdot l_k)_+}{\\lVert y_k - p \\rVert^2}
 
-with ``l_k = (y_k - p) / |y_k - p|`` and ``v = -p / |p|``. Each colour channel's lit region of
-the pattern is tiled on its own (its bounding rectangle on the display surface, ``nx x ny``
-patches, flat or curved via ``DisplaySpec.surface_points_world``), so region edges fall on patch
-edges; a patch's radiance is the pattern averaged over ``supersample^2`` points of it (exact for
-the built-in patterns).
-
-Polarization (the approximation). The display emits linearly polarized light, Stokes
-``L [1, q cos 2psi, q sin 2psi, 0]`` in the camera frame (``q`` its degree of polarization,
-``psi`` the angle of its field seen by the camera; vertical: ``psi = 90 deg``). The decoder gives
-``unpol = s0 + s1`` and ``LP = -s1`` (:mod:`pbrdf.sensor.decode`). Here
-
-* the diffuse lobe depolarizes completely: it adds ``f_d`` to ``s0`` and nothing to ``s1``;
-* the specular lobe keeps the display's linear polarization unchanged (a mirror at normal
-  incidence, Fresnel ``R0 diag(1, 1, -1, -1)``, which keeps ``s1``), so it adds ``f_s`` to ``s0`` and
-  ``q cos(2 psi) f_s`` to ``s1``;
-
-hence, with the per-patch gain ``g_k = -q cos 2 psi_k`` (1 for the default vertical display):
+with ``l_k = (y_k - p) / |y_k - p|`` and ``v = -p / |p|``. The diffuse lobe depolarizes; the
+specular lobe keeps the display's linear polarization (a mirror at normal incidence), so with
+the per-patch gain ``g_k = -q cos 2 psi_k`` (``q`` the degree of polarization, ``psi`` the angle
+of the field seen by the camera; 1 for the default vertical display)
 
 .. math::
     \\mathrm{unpol}_c = D_c + \\sum_k (1 - g_k) S_{k,c},\\qquad \\mathrm{LP}_c = \\sum_k g_k S_{k,c}
 
-(``D``, ``S_k`` the diffuse and specular terms of the sum above): for the default rig, diffuse ->
-unpol and specular -> LP exactly. What the true Stokes decode has that this leaves out: the
-Fresnel diattenuation ``R_s != R_p`` at oblique incidence (part of the specular lands in unpol,
-and the polarization turns toward s), retardance of metals (goes to CP), the partial
-polarization of diffuse light leaving at grazing angles (Fresnel transmission; LP at the rim),
-interreflections, shadowing by other objects, and the tilt of the field of oblique rays through
-the sheet (``psi`` is taken per patch, ignoring the ray direction). Near-retro geometry (the
-display surrounds the camera) keeps these small; the measured size of the approximation and
-of the quadrature error is in ``docs/measurements/network.md``. Below roughness ~0.2 the
-highlight is smaller than a patch and is only approximated (widening, below).
+(``D``, ``S_k`` the diffuse and specular terms of the sum). A specular lobe narrower than a patch
+is widened per pixel and patch, ``alpha_eff^2 = alpha^2 + kappa Omega_k`` (:data:`WIDEN`,
+``Omega_k`` the patch's solid angle), so the quadrature converges to the exact integral as the
+patches shrink. What the approximation leaves out, the widening's derivation and the measured
+accuracy: docs/measurements/network.md, "Re-renderer".
 
-Quadrature of sharp lobes. A patch subtends ``Omega_k = A_k cos_k / d_k^2`` sr. A specular lobe
-narrower than that would be aliased by the patch centres (a highlight falls between them or
-lands on one with ``D ~ 1 / (pi alpha^2)``), so the specular lobe is widened per pixel and patch:
-``alpha_eff^2 = alpha^2 + kappa Omega_k`` with :data:`WIDEN` ``kappa = 1/24`` (the variance of a
-uniform patch of side ``sqrt(Omega)`` mapped to half-vector slopes, ``Omega / 48`` per axis, as a
-Beckmann ``alpha^2 = 2 sigma^2``). The GGX lobe stays normalised, so a highlight that lies
-inside a lit region keeps its energy, and the quadrature converges to the exact integral as the
-patches shrink (tested against a brute-force integral and Mitsuba). Diffuse needs no such care.
+Convention: rays and intrinsics follow :mod:`pbrdf.sensor.projection` (OpenGL camera frame, pixel
+centres at ``i + 0.5``); a point at depth ``z`` (along the viewing axis, as the dataset's
+``depth``) is ``z`` times its pixel's ray (:func:`points_from_depth`). Values and gradients are
+finite for any input.
 
-Geometry. Rays and intrinsics follow :mod:`pbrdf.sensor.projection` (OpenGL camera frame, pixel
-centres at ``i + 0.5``); a point at depth ``z`` (distance along the viewing axis, as the
-dataset's ``depth``) is ``z`` times its pixel's ray. Without a depth prior a fixed distance is used (a
-fronto-parallel plane): the lighting directions are then off by the object's depth relief over
-the display distance (a few degrees for a 10 cm object at 0.75 m).
+Example:
+    A rough grey point facing the camera 0.7 m away shows mostly unpol, a metal one only LP:
 
-Numerical guards: alpha is clamped (pbrdf.brdf.disney), the normal is renormalised with a floor,
-back-facing patches (``-n_k . l <= 0``) and points below the horizon contribute exactly 0, every
-division has a floored denominator, so values and gradients are finite for any input (a
-hypothesis test).
+    >>> from pbrdf.sensor.rig import Rig
+    >>> patches = display_patches(Rig(), (4, 4))
+    >>> n, p = torch.tensor([[[0.0], [0.0], [1.0]]]), torch.tensor([[[0.0], [0.0], [-0.7]]])  # (B, 3, P)
+    >>> albedo = torch.full((1, 3, 1), 0.5)
+    >>> rough = rerender(n, albedo, torch.ones(1, 1, 1), torch.zeros(1, 1, 1), p, patches)
+    >>> bool((rough["lp"] < 0.05 * rough["unpol"]).all())
+    True
+    >>> metal = rerender(n, albedo, torch.full((1, 1, 1), 0.3), torch.ones(1, 1, 1), p, patches)
+    >>> metal["unpol"].abs().max().item(), bool((metal["lp"] > 0).all())
+    (0.0, True)
 """
 
 from __future__ import annotations
