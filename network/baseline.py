@@ -9,7 +9,7 @@ lit region (radiance ``s0`` = :attr:`pbrdf.sensor.rig.DisplaySpec.radiance` time
 
 Model:
     The display is cut into planar patches of constant RGB radiance
-    (:func:`pbrdf.sensor.irradiance.display_patches`; one rectangle per colour combination for the
+    (:func:`pbrdf.sensor.patches.constant_patches`; one rectangle per colour combination for the
     built-in patterns). The irradiance of a surface
     point ``p`` with normal ``n`` from a uniform planar polygon has a closed form (Lambert's
     polygon formula, :func:`pbrdf.sensor.irradiance.polygon_irradiance_vectors`):
@@ -58,15 +58,14 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pbrdf.sensor.irradiance import (
-    display_patches,
     irradiance_vectors,
     polygon_irradiance_vectors,
     region_light_directions,
 )
+from pbrdf.sensor.patches import constant_patches
 
 __all__ = [
     "Calibration",
-    "display_patches",
     "polygon_irradiance_vectors",
     "irradiance_vectors",
     "region_light_directions",
@@ -125,9 +124,9 @@ def calibrate(rig, intrinsics: ArrayLike, shape: tuple[int, int], depth: float |
 
     rays = projection.pixel_rays(intrinsics, shape[0], shape[1])
     points = rays * np.broadcast_to(np.asarray(depth, dtype=np.float64), tuple(shape))[..., None]
-    verts, rad = display_patches(rig.display)
-    verts = projection.transform_points(rig.camera.world_to_camera(), verts)
-    return Calibration(vertices=verts, radiance=rad, points=points)
+    patches = constant_patches(rig.display)
+    verts = projection.transform_points(rig.camera.world_to_camera(), patches.vertices)
+    return Calibration(vertices=verts, radiance=patches.radiance, points=points)
 
 
 def sample_geometry(meta: Mapping, shape: tuple[int, int], mask: ArrayLike | None = None):

@@ -1,70 +1,51 @@
 """Differentiable re-rendering of the unpol and LP maps under the display (the real-data loss).
 
-Real captures have no ground truth, so the network's predicted normal, albedo, roughness and
-metallic maps are checked by rendering what the camera would have seen under the display and
-comparing with the decoded unpol and LP maps (:func:`network.losses.real_loss`). The BRDF is
-:func:`pbrdf.brdf.disney.disney_lobes`, the one Disney BRDF of the project, split into its diffuse
-and specular parts.
+Real captures have no ground truth, so the predicted maps are checked by rendering what the
+camera would have seen and comparing with the decoded unpol and LP maps
+(:func:`network.losses.real_loss`), with the diffuse and specular parts of
+:func:`pbrdf.brdf.disney.disney_lobes`.
 
 Model. A surface point ``p`` (camera frame, camera at the origin) with normal ``n`` is lit by
 display patches ``k`` (centre ``y_k``, front normal ``n_k``, area ``A_k``, emitted radiance
-``L_k`` per colour channel). Per colour channel ``c`` the reflected radiance is the quadrature
+``L_k`` per colour channel; :func:`display_patches`, each channel's lit region tiled on its own
+by :func:`pbrdf.sensor.patches.channel_patches`). Per colour channel ``c``
 
 .. math::
     s_{0,c} = \\sum_k (f_{d,c} + f_{s,c})(l_k, v)\\, L_{k,c}\\, (n \\cdot l_k)_+\\,
               \\frac{A_k\\, (-n_k \\cdot l_k)_+}{\\lVert y_k - p \\rVert^2}
 
-with ``l_k = (y_k - p) / |y_k - p|`` and ``v = -p / |p|``. Each colour channel's lit region of
-the pattern is tiled on its own (its bounding rectangle on the display surface, ``nx x ny``
-patches, flat or curved via ``DisplaySpec.surface_points_world``), so region edges fall on patch
-edges; a patch's radiance is the pattern averaged over ``supersample^2`` points of it (exact for
-the built-in patterns).
-
-Polarization (the approximation). The display emits linearly polarized light, Stokes
-``L [1, q cos 2psi, q sin 2psi, 0]`` in the camera frame (``q`` its degree of polarization,
-``psi`` the angle of its field seen by the camera; vertical: ``psi = 90 deg``). The decoder gives
-``unpol = s0 + s1`` and ``LP = -s1`` (:mod:`pbrdf.sensor.decode`). Here
-
-* the diffuse lobe depolarizes completely: it adds ``f_d`` to ``s0`` and nothing to ``s1``;
-* the specular lobe keeps the display's linear polarization unchanged (a mirror at normal
-  incidence, Fresnel ``R0 diag(1, 1, -1, -1)``, which keeps ``s1``), so it adds ``f_s`` to ``s0`` and
-  ``q cos(2 psi) f_s`` to ``s1``;
-
-hence, with the per-patch gain ``g_k = -q cos 2 psi_k`` (1 for the default vertical display):
+with ``l_k = (y_k - p) / |y_k - p|`` and ``v = -p / |p|``. The diffuse lobe depolarizes; the
+specular lobe keeps the display's linear polarization (a mirror at normal incidence), so with
+the per-patch gain ``g_k = -q cos 2 psi_k`` (``q`` the degree of polarization, ``psi`` the angle
+of the field seen by the camera; 1 for the default vertical display)
 
 .. math::
     \\mathrm{unpol}_c = D_c + \\sum_k (1 - g_k) S_{k,c},\\qquad \\mathrm{LP}_c = \\sum_k g_k S_{k,c}
 
-(``D``, ``S_k`` the diffuse and specular terms of the sum above): for the default rig, diffuse ->
-unpol and specular -> LP exactly. What the true Stokes decode has that this leaves out: the
-Fresnel diattenuation ``R_s != R_p`` at oblique incidence (part of the specular lands in unpol,
-and the polarization turns toward s), retardance of metals (goes to CP), the partial
-polarization of diffuse light leaving at grazing angles (Fresnel transmission; LP at the rim),
-interreflections, shadowing by other objects, and the tilt of the field of oblique rays through
-the sheet (``psi`` is taken per patch, ignoring the ray direction). Near-retro geometry (the
-display surrounds the camera) keeps these small; the measured size of the approximation and
-of the quadrature error is in ``docs/measurements/network.md``. Below roughness ~0.2 the
-highlight is smaller than a patch and is only approximated (widening, below).
+(``D``, ``S_k`` the diffuse and specular terms of the sum). A specular lobe narrower than a patch
+is widened per pixel and patch, ``alpha_eff^2 = alpha^2 + kappa Omega_k`` (:data:`WIDEN`,
+``Omega_k`` the patch's solid angle), so the quadrature converges to the exact integral as the
+patches shrink. What the approximation leaves out, the widening's derivation and the measured
+accuracy: docs/measurements/network.md, "Re-renderer".
 
-Quadrature of sharp lobes. A patch subtends ``Omega_k = A_k cos_k / d_k^2`` sr. A specular lobe
-narrower than that would be aliased by the patch centres (a highlight falls between them or
-lands on one with ``D ~ 1 / (pi alpha^2)``), so the specular lobe is widened per pixel and patch:
-``alpha_eff^2 = alpha^2 + kappa Omega_k`` with :data:`WIDEN` ``kappa = 1/24`` (the variance of a
-uniform patch of side ``sqrt(Omega)`` mapped to half-vector slopes, ``Omega / 48`` per axis, as a
-Beckmann ``alpha^2 = 2 sigma^2``). The GGX lobe stays normalised, so a highlight that lies
-inside a lit region keeps its energy, and the quadrature converges to the exact integral as the
-patches shrink (tested against a brute-force integral and Mitsuba). Diffuse needs no such care.
+Convention: rays and intrinsics follow :mod:`pbrdf.sensor.projection` (OpenGL camera frame, pixel
+centres at ``i + 0.5``); a point at depth ``z`` (along the viewing axis, as the dataset's
+``depth``) is ``z`` times its pixel's ray (:func:`points_from_depth`). Values and gradients are
+finite for any input.
 
-Geometry. Rays and intrinsics follow :mod:`pbrdf.sensor.projection` (OpenGL camera frame, pixel
-centres at ``i + 0.5``); a point at depth ``z`` (distance along the viewing axis, as the
-dataset's ``depth``) is ``z`` times its pixel's ray. Without a depth prior a fixed distance is used (a
-fronto-parallel plane): the lighting directions are then off by the object's depth relief over
-the display distance (a few degrees for a 10 cm object at 0.75 m).
+Example:
+    A rough grey point facing the camera 0.7 m away shows mostly unpol, a metal one only LP:
 
-Numerical guards: alpha is clamped (pbrdf.brdf.disney), the normal is renormalised with a floor,
-back-facing patches (``-n_k . l <= 0``) and points below the horizon contribute exactly 0, every
-division has a floored denominator, so values and gradients are finite for any input (a
-hypothesis test).
+    >>> from pbrdf.sensor.rig import Rig
+    >>> patches = display_patches(Rig(), (4, 4))
+    >>> n, p = torch.tensor([[[0.0], [0.0], [1.0]]]), torch.tensor([[[0.0], [0.0], [-0.7]]])  # (B, 3, P)
+    >>> albedo = torch.full((1, 3, 1), 0.5)
+    >>> rough = rerender(n, albedo, torch.ones(1, 1, 1), torch.zeros(1, 1, 1), p, patches)
+    >>> bool((rough["lp"] < 0.05 * rough["unpol"]).all())
+    True
+    >>> metal = rerender(n, albedo, torch.full((1, 1, 1), 0.3), torch.ones(1, 1, 1), p, patches)
+    >>> metal["unpol"].abs().max().item(), bool((metal["lp"] > 0).all())
+    (0.0, True)
 """
 
 from __future__ import annotations
@@ -80,6 +61,7 @@ from torch.utils.checkpoint import checkpoint
 
 from pbrdf.brdf.disney import disney_lobes, roughness_to_alpha
 from pbrdf.sensor import projection
+from pbrdf.sensor.patches import channel_patches
 
 if TYPE_CHECKING:
     from pbrdf.sensor.rig import Rig
@@ -141,21 +123,6 @@ class Patches(NamedTuple):
         return cls(packed[..., 0:3], packed[..., 3:6], packed[..., 6], packed[..., 7:10], packed[..., 10])
 
 
-def _channel_rectangle(display, channel: int) -> tuple[float, float, float, float] | None:
-    """Display-surface ``(x0, x1, y0, y1)`` (m) bounding channel ``channel``'s lit pattern pixels."""
-    img = display.pattern_image()[..., channel]
-    lit = img > 0
-    if not lit.any():
-        return None
-    rows, cols = np.nonzero(lit)
-    h, w = img.shape
-    x0 = -display.width / 2 + display.width * cols.min() / w
-    x1 = -display.width / 2 + display.width * (cols.max() + 1) / w
-    y1 = display.height / 2 - display.height * rows.min() / h  # row 0 is the top
-    y0 = display.height / 2 - display.height * (rows.max() + 1) / h
-    return x0, x1, y0, y1
-
-
 def display_patches(
     rig: Rig,
     n: tuple[int, int] = DEFAULT_PATCHES,
@@ -165,11 +132,9 @@ def display_patches(
 ) -> Patches:
     """Quadrature patches of the display, per colour channel region, in the camera frame.
 
-    Channel ``c``'s lit region (the bounding rectangle of the pattern's non-zero pixels of that
-    channel, in display surface coordinates: arc length on a curved display) is split into
-    ``nx x ny`` equal patches; each carries radiance only in channel ``c``: ``display.radiance``
-    times the pattern averaged over ``supersample^2`` points of the patch. A channel that is dark
-    everywhere gets zero-area, zero-radiance patches (the count stays ``3 nx ny``).
+    :func:`pbrdf.sensor.patches.channel_patches` (channel ``c``'s lit rectangle in ``nx x ny``
+    equal patches carrying only channel ``c``, radiance averaged over ``supersample^2`` points of
+    the patch) moved into the camera frame, with the LP gain of each patch.
 
     Args:
         rig: the capture rig (display geometry, pattern, polarization; camera pose).
@@ -183,45 +148,27 @@ def display_patches(
     Raises:
         ValueError: if ``n`` or ``supersample`` is not positive.
     """
-    nx, ny = (int(v) for v in n)
-    if nx < 1 or ny < 1 or supersample < 1:
-        raise ValueError(f"patch counts and supersample must be >= 1; got n={n}, supersample={supersample}")
     disp, cam = rig.display, rig.camera
+    patches = channel_patches(disp, n, supersample=supersample)
     w2c = cam.world_to_camera()
     rot = w2c[:3, :3]
     y_world = disp.world_trans_display()[:, 1]
-    q = disp.degree_of_polarization
     a = disp.polarization_angle
-    pts, nrm, area, rad, gain = [], [], [], [], []
-    for c in range(3):
-        rect = _channel_rectangle(disp, c)
-        x0, x1, y0, y1 = rect if rect is not None else (0.0, 0.0, 0.0, 0.0)
-        dx, dy = (x1 - x0) / nx, (y1 - y0) / ny
-        ix, iy = np.meshgrid(np.arange(nx), np.arange(ny), indexing="xy")
-        centre = np.stack([x0 + (ix.ravel() + 0.5) * dx, y0 + (iy.ravel() + 0.5) * dy], -1)  # (nx ny, 2)
-        sub = (np.arange(supersample) + 0.5) / supersample - 0.5
-        sx, sy = np.meshgrid(sub * dx, sub * dy, indexing="xy")
-        samples = centre[:, None, :] + np.stack([sx.ravel(), sy.ravel()], -1)[None]
-        value = disp.pattern_rgb_at(samples)[..., c].mean(axis=1) if rect is not None else np.zeros(len(centre))
-        p_world = disp.surface_points_world(centre)
-        n_world = disp.surface_normals_world(centre)
-        # The panel's X tangent (Y x normal) carries the in-plane polarization direction on a curved panel too.
-        tangent = np.cross(y_world, n_world)
-        field = math.cos(a) * tangent + math.sin(a) * y_world
-        e = field @ rot.T
-        cos2psi = (e[:, 0] ** 2 - e[:, 1] ** 2) / np.maximum(e[:, 0] ** 2 + e[:, 1] ** 2, _EPS)
-        pts.append(p_world @ rot.T + w2c[:3, 3])
-        nrm.append(n_world @ rot.T)
-        area.append(np.full(len(centre), abs(dx * dy)))
-        r = np.zeros((len(centre), 3))
-        r[:, c] = disp.radiance * value
-        rad.append(r)
-        gain.append(-q * cos2psi)
+    # The panel's X tangent (Y x normal) carries the in-plane polarization direction on a curved panel too.
+    tangent = np.cross(y_world, patches.normals)
+    e = (math.cos(a) * tangent + math.sin(a) * y_world) @ rot.T
+    cos2psi = (e[:, 0] ** 2 - e[:, 1] ** 2) / np.maximum(e[:, 0] ** 2 + e[:, 1] ** 2, _EPS)
 
-    def t(x: list[NDArray]) -> Tensor:
-        return torch.as_tensor(np.concatenate(x), dtype=dtype)
+    def t(x: NDArray) -> Tensor:
+        return torch.as_tensor(x, dtype=dtype)
 
-    return Patches(t(pts), t(nrm), t(area), t(rad), t(gain))
+    return Patches(
+        t(patches.centers @ rot.T + w2c[:3, 3]),
+        t(patches.normals @ rot.T),
+        t(patches.area),
+        t(patches.radiance),
+        t(-disp.degree_of_polarization * cos2psi),
+    )
 
 
 def pixel_rays(intrinsics: ArrayLike, height: int, width: int, *, dtype: torch.dtype = torch.float32) -> Tensor:

@@ -57,7 +57,6 @@ __all__ = [
     "crop_window",
     "display_shapes",
     "display_updates",
-    "lit_rectangle",
     "polarized_emitter_possible",
     "sensor_dict",
     "bsdf_dict",
@@ -233,27 +232,6 @@ def _pattern_texture(display: DisplaySpec, channel: int) -> dict:
     return {"type": "bitmap", "data": mi.TensorXf(data), "raw": True, "filter_type": "nearest", "wrap_mode": "clamp"}
 
 
-def lit_rectangle(display: DisplaySpec, channel: int) -> tuple[float, float, float, float] | None:
-    """Display-local ``(x0, x1, y0, y1)`` in metres of channel ``channel``'s lit region.
-
-    Only when that region is one full rectangle of the pattern (as in the built-in patterns);
-    None otherwise (no light at all, or a more complex image).
-    """
-    lit = display.pattern_image()[..., channel] > 0.5
-    if not lit.any():
-        return None
-    rows, cols = np.nonzero(lit)
-    r0, r1, c0, c1 = rows.min(), rows.max() + 1, cols.min(), cols.max() + 1
-    if not lit[r0:r1, c0:c1].all() or not np.all(display.pattern_image()[..., channel][lit] == 1.0):
-        return None
-    h, w = lit.shape
-    x0 = -display.width / 2 + display.width * c0 / w
-    x1 = -display.width / 2 + display.width * c1 / w
-    y1 = display.height / 2 - display.height * r0 / h  # row 0 is the top
-    y0 = display.height / 2 - display.height * r1 / h
-    return (x0, x1, y0, y1)
-
-
 def _emitter_to_world(display: DisplaySpec, rect: tuple[float, float, float, float]) -> NDArray:
     x0, x1, y0, y1 = rect
     local = np.eye(4)
@@ -272,11 +250,13 @@ def polarized_emitter_possible(display: DisplaySpec) -> bool:
         display.curvature_radius is None
         and display.degree_of_polarization == 1.0
         and display.pattern in BUILTIN_RECTANGLE_PATTERNS
-        and all(lit_rectangle(display, c) is not None for c in range(3))
+        and all(display.lit_rectangle(c, uniform=True) is not None for c in range(3))
     )
 
 
-def display_shapes(display: DisplaySpec, channel: int, *, polarized_emitter: bool = False) -> dict[str, Any]:
+def display_shapes(
+    display: DisplaySpec, channel: int | None, *, polarized_emitter: bool = False, radiance: dict | None = None
+) -> dict[str, Any]:
     """The emitting display surface and its polarizer sheet, for one colour channel.
 
     With ``polarized_emitter`` (only where :func:`polarized_emitter_possible`) the lit rectangle
@@ -285,42 +265,60 @@ def display_shapes(display: DisplaySpec, channel: int, *, polarized_emitter: boo
     On a flat display whose channel lights one rectangle (the built-in patterns), only that
     rectangle emits, with constant radiance (no texture lookups, and a parameter update switches
     channels). Otherwise the whole surface emits the pattern as a bitmap, which Mitsuba's area
-    emitter importance-samples by radiance, so dark parts are not sampled either way.
+    emitter importance-samples by radiance, so dark parts are not sampled either way. A curved
+    display is a strip mesh (:func:`curved_strip`).
 
     Convention: Mitsuba's ``polarizer`` angle ``theta`` turns clockwise as seen from the front
     of the sheet (``theta = 45`` transmits along display ``-X + Y``), while the rig's
     ``polarization_angle`` turns from ``+X`` toward ``+Y`` as seen from the front, so
     ``theta = -degrees(polarization_angle)``. 90 degrees gives vertically polarized light in the
     camera frame (s1 < 0) and 45 degrees gives s2 < 0 after a mirror facing the camera (tested).
+
+    Args:
+        display: display part of the rig.
+        channel: colour channel 0, 1, 2 whose part of the pattern emits; None with ``radiance``.
+        polarized_emitter: the lit rectangle as :mod:`.polarized_display`'s emitter, no sheet.
+        radiance: emitter radiance of the whole active area instead of a channel's pattern (the
+            spectral variants' texture, :func:`.spectral.display_radiance`), doubled for the sheet.
+
+    Returns:
+        ``{"display": shape, "display_polarizer": shape}`` (no sheet with ``polarized_emitter``).
     """
     if display.degree_of_polarization != 1.0:
         raise NotImplementedError(
             "degree_of_polarization < 1 is not rendered yet; the default display is fully polarized"
         )
+    if (channel is None) == (radiance is None):
+        raise ValueError("display_shapes needs either a channel or a radiance, not both")
     to_world = np.asarray(display.display_to_world())
     if polarized_emitter:
-        if not polarized_emitter_possible(display):
+        if radiance is not None or not polarized_emitter_possible(display):
             raise ValueError("the polarized display emitter needs a flat display with a built-in pattern")
         from . import polarized_display  # noqa: PLC0415
 
         polarized_display.register()
-        rect = lit_rectangle(display, channel)
+        rect = display.lit_rectangle(channel, uniform=True)
         absorbing = np.cross(display.normal_world(), display.polarization_direction_world())
         emitter = polarized_display.emitter_dict(display.radiance, absorbing)
         return {"display": {"type": "rectangle", "to_world": scalar_transform(_emitter_to_world(display, rect)),
                             "emitter": emitter}}  # fmt: skip
     sheet_bsdf = {"type": "polarizer", "theta": -math.degrees(display.polarization_angle)}
+
+    def whole_surface() -> dict:  # the emitter of the whole active area
+        return {"type": "area", "radiance": radiance if radiance is not None else _pattern_texture(display, channel)}
+
     if display.curvature_radius is None:
         scale = np.diag([display.width / 2, display.height / 2, 1.0, 1.0])
         shift = np.eye(4)
         shift[2, 3] = SHEET_OFFSET
-        rect = lit_rectangle(display, channel) if display.pattern in BUILTIN_RECTANGLE_PATTERNS else None
+        rect = None
+        if radiance is None and display.pattern in BUILTIN_RECTANGLE_PATTERNS:
+            rect = display.lit_rectangle(channel, uniform=True)
         if rect is not None:
             emitting = {"type": "rectangle", "to_world": scalar_transform(_emitter_to_world(display, rect)),
                         "emitter": {"type": "area", "radiance": 2.0 * display.radiance}}  # fmt: skip
         else:
-            emitter = {"type": "area", "radiance": _pattern_texture(display, channel)}
-            emitting = {"type": "rectangle", "to_world": scalar_transform(to_world @ scale), "emitter": emitter}
+            emitting = {"type": "rectangle", "to_world": scalar_transform(to_world @ scale), "emitter": whole_surface()}
         return {
             "display": emitting,
             "display_polarizer": {"type": "rectangle", "to_world": scalar_transform(to_world @ shift @ scale),
@@ -328,7 +326,7 @@ def display_shapes(display: DisplaySpec, channel: int, *, polarized_emitter: boo
         }  # fmt: skip
     import mitsuba as mi  # noqa: PLC0415
 
-    emitter = {"type": "area", "radiance": _pattern_texture(display, channel)}
+    emitter = whole_surface()
     v, f, uv = curved_strip(display, 0.0)
     vs, fs, uvs = curved_strip(display, SHEET_OFFSET)
     # The strip's front faces +Z (toward the viewer) with counter-clockwise faces seen from +Z.
@@ -345,7 +343,7 @@ def display_updates(display: DisplaySpec, channel: int, params: Any) -> dict[str
         return None
     if "display.emitter.radiance.data" in params:
         return {"display.emitter.radiance.data": _pattern_texture(display, channel)["data"]}
-    rect = lit_rectangle(display, channel)
+    rect = display.lit_rectangle(channel, uniform=True)
     if rect is None or "display.to_world" not in params:
         return None
     return {"display.to_world": scalar_transform(_emitter_to_world(display, rect))}
@@ -574,7 +572,7 @@ def scene_dict(
     camera: CameraSpec,
     window: CropWindow,
     objects: dict[str, Any],
-    channel: int,
+    channel: int | None,
     *,
     spp: int,
     max_depth: int = 4,
@@ -582,29 +580,36 @@ def scene_dict(
     sampler: str = "independent",
     aovs: bool = True,
     polarized_emitter: bool = False,
+    display_radiance: dict | None = None,
 ) -> dict:
-    """The full Mitsuba scene dict for one colour channel.
+    """The full Mitsuba scene dict for one colour channel (or all, spectral).
+
+    The ``stokes`` integrator around ``integrator`` (:func:`integrator_dict`), the sensor of the crop
+    window, the display (:func:`display_shapes`) and the objects.
 
     Args:
         display: display part of the rig.
         camera: camera part of the rig.
         window: crop window to render.
         objects: name -> Mitsuba shape (from :func:`mesh_object`) or shape dict.
-        channel: colour channel 0, 1, 2 (R, G, B).
+        channel: colour channel 0, 1, 2 (R, G, B); None with ``display_radiance``.
         spp: samples per pixel.
         max_depth: path length limit (:data:`DIRECT_LIGHT_DEPTH` is direct light only; one more adds
             one interreflection; :func:`auto_max_depth` chooses).
-        integrator: ``"volpath"`` (default; the only one whose shadow rays pass the sheet) or
-            ``"path"`` (for benchmarks).
+        integrator: ``"volpath"`` (default; the only one whose shadow rays pass the sheet),
+            ``"path"``, or ``"direct"`` (direct light only, without the sheet:
+            ``polarized_emitter``); :meth:`.passes.RenderSettings.integrator_for` chooses.
         sampler: Mitsuba sampler plugin name.
         aovs: add the ground-truth AOVs (:data:`AOVS`).
         polarized_emitter: the display as :mod:`.polarized_display` without the sheet.
+        display_radiance: the whole display emits this radiance (spectral variants,
+            :func:`.spectral.display_radiance`) instead of channel ``channel``'s pattern.
     """
     scene = {
         "type": "scene",
         "integrator": integrator_dict(integrator, max_depth, aovs=aovs),
         "sensor": sensor_dict(camera, window, spp, sampler=sampler),
-        **display_shapes(display, channel, polarized_emitter=polarized_emitter),
+        **display_shapes(display, channel, polarized_emitter=polarized_emitter, radiance=display_radiance),
     }
     for name, obj in objects.items():
         if name in scene:

@@ -98,73 +98,103 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
         result = render_stokes_spectral(spec, dataclasses.replace(settings, max_depth=max_depth), variant=variant)
         result.max_depth = max_depth
         return result
-    cam = rig.camera
     window = render_window(spec, settings, meshes)
-    materials = {m.name: m for m in spec.materials}
-    names = [f"object_{i}" for i in range(len(spec.objects))]
+    scenes = _ChannelScenes(spec, meshes, window, settings, max_depth, integrator, polarized_emitter)
+    stokes, aovs, seconds = _render_channels(mi, scenes)
+    return RenderResult(
+        stokes=stokes, window=window, variant=variant, seconds=seconds, max_depth=max_depth,
+        integrator=integrator, display="emitter" if polarized_emitter else "sheet", **aovs,
+    )  # fmt: skip
 
-    # Direct light only comes from the linearly polarized display (S3 = 0): tables skip a column.
-    linear_light = integrator == "direct"
 
-    def build(channel: int):
+@dataclass
+class _ChannelScenes:
+    """The Mitsuba scene of each colour channel's pass: built anew, or switched by parameter updates."""
+
+    spec: SceneSpec
+    meshes: list
+    window: ms.CropWindow
+    settings: RenderSettings
+    max_depth: int
+    integrator: str
+    polarized_emitter: bool
+
+    def __post_init__(self) -> None:
+        self.materials = {m.name: m for m in self.spec.materials}
+        self.names = [f"object_{i}" for i in range(len(self.spec.objects))]
+        # Direct light only comes from the linearly polarized display (S3 = 0): tables skip a column.
+        self.linear_light = self.integrator == "direct"
+
+    def build(self, channel: int):
+        """The loaded scene of ``channel``."""
+        import mitsuba as mi  # noqa: PLC0415
+
         objs = {
             name: ms.mesh_object(
-                name, v, f, n, ms.bsdf_dict(materials[obj.material], channel, linear_light=linear_light), two_sided=two
+                name, v, f, n, ms.bsdf_dict(self.materials[obj.material], channel, linear_light=self.linear_light),
+                two_sided=two,
             )
-            for name, obj, (v, f, n, two) in zip(names, spec.objects, meshes, strict=True)
-        }
+            for name, obj, (v, f, n, two) in zip(self.names, self.spec.objects, self.meshes, strict=True)
+        }  # fmt: skip
+        s = self.settings
         return mi.load_dict(
             ms.scene_dict(
-                rig.display, cam, window, objs, channel,
-                spp=settings.spp, max_depth=max_depth, integrator=integrator, sampler=settings.sampler,
-                polarized_emitter=polarized_emitter,
+                self.spec.rig.display, self.spec.rig.camera, self.window, objs, channel,
+                spp=s.spp, max_depth=self.max_depth, integrator=self.integrator, sampler=s.sampler,
+                polarized_emitter=self.polarized_emitter,
             )
         )  # fmt: skip
 
-    def channel_updates(channel: int, params) -> dict | None:
-        updates = ms.display_updates(rig.display, channel, params)
-        for name, obj, mesh in zip(names, spec.objects, meshes, strict=True):
-            u = ms.channel_updates(name, materials[obj.material], channel, two_sided=mesh[3])
+    def updates(self, channel: int, params) -> dict | None:
+        """Parameter updates that switch the scene of ``params`` (``mi.traverse``) to ``channel``; None if none can."""
+        updates = ms.display_updates(self.spec.rig.display, channel, params)
+        for name, obj, mesh in zip(self.names, self.spec.objects, self.meshes, strict=True):
+            u = ms.channel_updates(name, self.materials[obj.material], channel, two_sided=mesh[3])
             if u is None or updates is None:
                 return None
             updates.update(u)
         return updates
 
+
+def _render_channels(mi, scenes: _ChannelScenes) -> tuple[NDArray[np.float32], dict[str, NDArray], dict[str, float]]:
+    """The three colour passes: Stokes ``(H, W, 3, 4)``, the AOVs of the first pass, and the seconds spent.
+
+    A scene that cannot be switched by parameter updates is freed before the next one is built, so that
+    Dr.Jit's registry hands out the same instance ids, which its kernels depend on.
+    """
+    spec, settings = scenes.spec, scenes.settings
     seconds: dict[str, float] = {}
-    w, h = window.size
+    w, h = scenes.window.size
     stokes = np.zeros((h, w, 3, 4), dtype=np.float32)
     aovs: dict[str, NDArray] = {}
     with _CompileTimer() as compile_timer:
         t0 = time.perf_counter()
-        scene = build(0)
+        scene = scenes.build(0)
         params = mi.traverse(scene)
         seconds["load"] = time.perf_counter() - t0
         for c in range(3):
             t0 = time.perf_counter()
             if c > 0:
-                updates = channel_updates(c, params)
+                updates = scenes.updates(c, params)
                 if updates is None:
                     scene = params = None  # freed before the next one is built (see above)
-                    scene = build(c)
+                    scene = scenes.build(c)
                     params = mi.traverse(scene)
                 else:
                     params.update(updates)
             # The AOVs come from the first pass; the others skip them (a primary ray and seven
             # film channels less per sample).
-            integ = None if c == 0 else _plain_integrator(integrator, max_depth)
+            integ = None if c == 0 else _plain_integrator(scenes.integrator, scenes.max_depth)
             img = np.asarray(
                 mi.render(scene, integrator=integ, seed=(int(spec.seed) * 3 + c) % 2**32, spp=settings.spp)
             )
             # Mono layout: [Y, S0 x3, S1 x3, S2 x3, S3 x3, AOVs (first pass)...].
             stokes[:, :, c, :] = img[:, :, [1, 4, 7, 10]]
             if c == 0:  # AOVs from the first pass, with that scene's shape ids
-                aovs = aov_result(img[:, :, 13:], scene, spec, names, [m[3] for m in meshes])
+                aovs = aov_result(img[:, :, 13:], scene, spec, scenes.names, [m[3] for m in scenes.meshes])
             seconds[f"pass_{'RGB'[c]}"] = time.perf_counter() - t0
     seconds["jit_compile"] = compile_timer.seconds
-    return RenderResult(
-        stokes=stokes, window=window, variant=variant, seconds=seconds, max_depth=max_depth,
-        integrator=integrator, display="emitter" if polarized_emitter else "sheet", **aovs,
-    )  # fmt: skip
+    return stokes, aovs, seconds
 
 
 _PLAIN_INTEGRATORS: dict[tuple[str, str, int], object] = {}

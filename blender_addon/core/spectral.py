@@ -2,56 +2,36 @@
 
 The default renderer (:func:`blender_addon.core.render.render_stokes`) multiplexes the colour
 channels with one ``*_mono_polarized`` pass per channel. :func:`render_stokes_spectral` renders
-the same scene once in ``llvm_ad_spectral_polarized`` (or ``scalar_spectral_polarized``) and
-returns the same :class:`~blender_addon.core.passes.RenderResult`, so the two can be compared
-(``tests/blender_addon/core/test_spectral.py``) and the spectral variant serves as the fallback
-where the LLVM backend is missing.
+the same scene (:func:`~blender_addon.core.mitsuba_scene.scene_dict`) once in
+``llvm_ad_spectral_polarized`` (or ``scalar_spectral_polarized``) and returns the same
+:class:`~blender_addon.core.passes.RenderResult`, for cross-checks
+(``tests/blender_addon/core/test_spectral.py``) and as the fallback without the LLVM backend.
 
 Spectra (what the display emits and what the materials do at each wavelength):
 
-* **Display.** The pattern is the emitter's radiance through a ``d65`` texture wrapping an RGB
-  ``bitmap`` of the pattern (nearest filtering): each texel emits ``D65(lambda) x
-  upsample(rgb)(lambda)``, Mitsuba's own spectrum for a constant ``{'type': 'rgb'}`` emitter
-  (``srgb_d65``) and the one whose sRGB rendering is the RGB value itself: a white display renders
-  as (1, 1, 1) and the primaries without cross-talk. A plain ``bitmap`` (no D65) renders white as
-  (1.205, 0.95, 0.89), and ``raw`` bitmaps throw in spectral variants. The upsampling clamps
-  texels to [0, 1], so the doubling for the sheet's 50 % loss and ``display.radiance`` go into
-  the ``d65`` texture's ``scale``. The whole active area emits (the
-  mono passes light only the channel's rectangle of a built-in pattern, but every part of it is
-  lit in some channel); the polarizer sheet (``SHEET_OFFSET`` in front, ``theta =
-  -degrees(polarization_angle)``) is :func:`~blender_addon.core.mitsuba_scene.display_shapes`'s,
-  and a curved display uses its strip geometry. Any pattern works, image files included (their
-  values are linear, as in the mono passes).
+* **Display.** The whole active area emits the pattern through a ``d65`` texture wrapping an RGB
+  ``bitmap`` (nearest filtering, :func:`display_radiance`): each texel emits ``D65(lambda) x
+  upsample(rgb)(lambda)``, whose sRGB rendering is the RGB value itself. The upsampling clamps
+  texels to [0, 1], so the sheet's doubling and ``display.radiance`` go into the ``scale``. The
+  polarizer sheet and a curved display's strips are the mono passes'
+  (:func:`~blender_addon.core.mitsuba_scene.display_shapes`); any pattern works.
 * **pplastic.** ``diffuse_reflectance`` is the albedo as an ``rgb`` reflectance (Mitsuba's
   smooth, bounded upsampling; a grey albedo is flat). ``int_ior`` is wavelength independent.
 * **conductor.** ``eta`` and ``k`` are ``irregular`` spectra, piecewise linear through the
-  channel values at :data:`~blender_addon.core.mitsuba_scene.CHANNEL_WAVELENGTHS_NM` (blue 465,
-  green 532, red 630 nm) and constant beyond them (360-830 nm): exactly the values the mono passes
-  use, at their wavelengths. An ``rgb`` value is no option: Mitsuba upsamples it as a bounded
-  reflectance, clamping ``eta = 1.3`` and ``k = 3.2`` to at most 1.
+  channel values at :data:`~blender_addon.core.mitsuba_scene.CHANNEL_WAVELENGTHS_NM` and constant
+  beyond them (360-830 nm): the mono passes' values at their wavelengths (an ``rgb`` value would
+  be clamped to [0, 1] as a reflectance).
 * **measured.** ``measured_polarized`` without ``wavelength``: the table's own bands.
 
-What remains different from the mono passes is physics, not set-up: a colour channel of the
-spectral render integrates the whole emitted spectrum of *every* display region against that
-channel's sRGB matching function, with the material evaluated at each wavelength, while a mono
-pass uses one number per channel (the material at the channel's wavelength, the channel's share of
-the pattern). For wavelength-flat materials the two agree in expectation; for wavelength-dependent
-ones (gold) each channel sees the material averaged over a broad band.
-
-Cost: the single spectral pass is cheaper than the three mono passes but far noisier per pixel
-(wavelength sampling of the coloured display regions adds colour noise), so per unit of error
-the mono passes win for diffuse objects, hence the default; this renderer is for cross-checks
-and the fallback. Numbers: ``docs/measurements/blender_addon.md``.
-
-Output: the ``stokes`` integrator sends each Stokes component through the spectrum -> linear sRGB
-conversion (signed), giving ``S0.R .. S3.B``; with the ``luminance`` film the channel layout is
-the mono passes' (``[Y, S0.RGB, S1.RGB, S2.RGB, S3.RGB, AOVs...]``), so the AOVs (coverage, normals,
-depth, object index) come out exactly as in :func:`~blender_addon.core.render.render_stokes`.
+Convention: the ``stokes`` integrator sends each Stokes component through the spectrum -> linear
+sRGB conversion (signed); with the ``luminance`` film the channel layout is the mono passes'
+(``[Y, S0.RGB, S1.RGB, S2.RGB, S3.RGB, AOVs...]``), so the AOVs come out as in
+:func:`~blender_addon.core.render.render_stokes`. How a spectral channel differs from a mono
+pass physically, and the cost: docs/measurements/blender_addon.md.
 """
 
 from __future__ import annotations
 
-import math
 import time
 from typing import TYPE_CHECKING
 
@@ -101,36 +81,6 @@ def display_radiance(display: DisplaySpec) -> dict:
             "wrap_mode": "clamp",
         },
     }
-
-
-def _display_shapes(display: DisplaySpec) -> dict:
-    """:func:`mitsuba_scene.display_shapes` with the spectral emitter (``d65`` bitmap)."""
-    emitter = {"type": "area", "radiance": display_radiance(display)}
-    if display.curvature_radius is None:
-        # The mono helper's polarizer sheet; the whole active area emits (the mono passes light
-        # only the channel's rectangle, but every part of a built-in pattern is lit in some channel).
-        scale = np.diag([display.width / 2, display.height / 2, 1.0, 1.0])
-        to_world = np.asarray(display.display_to_world()) @ scale
-        return {
-            "display": {"type": "rectangle", "to_world": ms.scalar_transform(to_world), "emitter": emitter},
-            "display_polarizer": ms.display_shapes(display, 0)["display_polarizer"],
-        }
-    if display.degree_of_polarization != 1.0:  # same check as the mono helper
-        raise NotImplementedError(
-            "degree_of_polarization < 1 is not rendered yet; the default display is fully polarized"
-        )
-    import mitsuba as mi  # noqa: PLC0415
-
-    to_world = np.asarray(display.display_to_world())
-    sheet_bsdf = {"type": "polarizer", "theta": -math.degrees(display.polarization_angle)}
-    out = {}
-    for name, offset, props in (
-        ("display", 0.0, {"emitter": mi.load_dict(emitter)}),
-        ("display_polarizer", ms.SHEET_OFFSET, {"bsdf": mi.load_dict(sheet_bsdf)}),
-    ):
-        v, f, uv = ms.curved_strip(display, offset)
-        out[name] = ms.mesh_from_arrays(name, v @ to_world[:3, :3].T + to_world[:3, 3], f, props, uvs=uv)
-    return out
 
 
 def _channel_spectrum(values: tuple[float, float, float]) -> dict | float:
@@ -212,19 +162,13 @@ def render_stokes_spectral(
         name: ms.mesh_object(name, v, f, n, bsdf_dict(materials[obj.material]), two_sided=two)
         for name, obj, (v, f, n, two) in zip(names, spec.objects, meshes, strict=True)
     }
-    # As mitsuba_scene.scene_dict, with the spectral display (its own would load a raw bitmap).
-    inner = {
-        "type": "aov",
-        "aovs": ms.AOVS,
-        "integrator": {"type": integrator, "max_depth": max_depth},
-    }
-    scene = mi.load_dict({
-        "type": "scene",
-        "integrator": {"type": "stokes", "nested": inner},
-        "sensor": ms.sensor_dict(cam, window, settings.spp, sampler=settings.sampler),
-        **_display_shapes(rig.display),
-        **objs,
-    })  # fmt: skip
+    # The whole display emits the spectral texture (the mono passes' raw bitmap throws in spectral variants).
+    scene = mi.load_dict(
+        ms.scene_dict(
+            rig.display, cam, window, objs, None, spp=settings.spp, max_depth=max_depth, integrator=integrator,
+            sampler=settings.sampler, display_radiance=display_radiance(rig.display),
+        )
+    )  # fmt: skip
     seconds["load"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     img = np.asarray(mi.render(scene, seed=(int(spec.seed) * 3) % 2**32, spp=settings.spp))

@@ -126,7 +126,12 @@ def register() -> None:
 
 
 def _bsdf_class() -> type:
-    """The BSDF class, deriving from the current variant's ``mi.BSDF``."""
+    """The BSDF class, deriving from the current variant's ``mi.BSDF``.
+
+    Kept in one piece: a Mitsuba plugin class must derive from the ``mi.BSDF`` of the variant set
+    when it is registered, so the class (and its helper ``rotate_z``) is defined in this one closure,
+    called once per variant by :func:`register`.
+    """
     import drjit as dr  # noqa: PLC0415
     import mitsuba as mi  # noqa: PLC0415
 

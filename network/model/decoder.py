@@ -197,6 +197,27 @@ class PixelDecoder(nn.Module):
         self.normal_head = Mlp(da, da // 2, 3)
         self.brdf_head = Mlp(da, da // 2, 5)
 
+    def observe(self, features: Tensor, values: Tensor) -> Tensor:
+        """The nine observations of each pixel, attended across before pooling: (N, 9, D), (N, 9, 1) -> (N, 9, D_a).
+
+        ``z_n = phi(F_n) + psi_n(I_n)``, then ``obs_blocks``, ``agg_proj`` and ``agg_blocks``; shared by
+        :meth:`embed` and :meth:`embed_rows`, which differ only in how they gather the inputs and pool.
+
+        Args:
+            features: (N, 9, D) sampled DPT features of N pixels.
+            values: (N, 9, 1) their input map values.
+
+        Returns:
+            (N, 9, D_a) tokens for the pooling.
+        """
+        z = self.phi(features) + self.psi(values)
+        for blk in self.obs_blocks:
+            z = blk(z)
+        z = self.agg_proj(z)
+        for blk in self.agg_blocks:
+            z = blk(z)
+        return z
+
     def embed(self, features: Tensor, maps: Tensor, pixels: Tensor) -> Tensor:
         """Aggregated per-pixel features.
 
@@ -215,14 +236,7 @@ class PixelDecoder(nn.Module):
         f = sampled.reshape(b, m, d, p).permute(0, 3, 1, 2)  # (B, P, 9, D)
         values = torch.gather(maps.reshape(b, m, h * w), 2, pixels[:, None].expand(-1, m, -1))
         values = values.permute(0, 2, 1)[..., None].to(f.dtype)  # (B, P, 9, 1)
-        z = self.phi(f) + self.psi(values)
-        z = z.reshape(b * p, m, d)
-        for blk in self.obs_blocks:
-            z = blk(z)
-        z = self.agg_proj(z)
-        for blk in self.agg_blocks:
-            z = blk(z)
-        return self.pool(z).reshape(b, p, -1)
+        return self.pool(self.observe(f.reshape(b * p, m, d), values.reshape(b * p, m, 1))).reshape(b, p, -1)
 
     def embed_rows(self, inputs: DenseInputs, pixels: Tensor, pool_query: Tensor) -> Tensor:
         """:meth:`embed` of one image's pixels from channels-last tables: the same values to float rounding.
@@ -242,13 +256,7 @@ class PixelDecoder(nn.Module):
         p = pixels.shape[0]
         f = sample_bilinear_rows(inputs.table, pixels, inputs.size, inputs.feature_size).reshape(p, m, -1)
         values = inputs.values.index_select(0, pixels)[..., None].to(f.dtype)  # (P, 9, 1)
-        z = self.phi(f) + self.psi(values)
-        for blk in self.obs_blocks:
-            z = blk(z)
-        z = self.agg_proj(z)
-        for blk in self.agg_blocks:
-            z = blk(z)
-        return self.pool.forward_folded(z, pool_query)
+        return self.pool.forward_folded(self.observe(f, values), pool_query)
 
     @staticmethod
     def dense_inputs(features: Tensor, maps: Tensor) -> DenseInputs:
@@ -302,11 +310,8 @@ class PixelDecoder(nn.Module):
         cache = []
         x = context
         for blk in self.pixel_blocks:
-            k, v = blk.context_key_value(x)
-            cache.append((k, v))
-            q = blk.attn.project_query(blk.norm1(x))
-            x = x + blk.ls1(blk.attn.attend(q, k, v))
-            x = x + blk.ls2(blk.mlp(blk.norm2(x)))
+            cache.append(blk.context_key_value(x))
+            x = blk.forward_cached(x, cache[-1])
         return cache, x
 
     def transform_cached(self, x: Tensor, cache: Sequence[tuple[Tensor, Tensor]]) -> Tensor:

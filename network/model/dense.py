@@ -17,7 +17,7 @@ rounding): the fast route gathers features and map values as rows of channels-la
 ``stride`` > 1 trades accuracy for time: it decodes every s-th row and column (:func:`grid_pixels`) and fills the
 rest by normalised convolution (:func:`fill_from_decoded`), about s^2 times less decoder work. Interpolation is
 edge-aware (``refine_deg``): a filled pixel whose decoded neighbours disagree (:func:`unreliable_fill`: normals more
-than ``refine_deg`` apart, BRDF values more than ``refine_brdf``) where the grid's second differences do not show
+than ``refine_deg`` apart, BRDF values more than :data:`REFINE_BRDF`) where the grid's second differences do not show
 a smooth field, or with a neighbour missing at the mask's edge, is decoded exactly instead.
 
 Example:
@@ -58,8 +58,8 @@ __all__ = [
 #: Default ``refine_deg`` of :func:`decode_dense`: a strided fill whose decoded neighbours' normals lie more than
 #: this many degrees apart is decoded exactly (docs/measurements/network.md, "Edge-aware strided decoding").
 REFINE_DEG = 4.0
-#: Default ``refine_brdf`` of :func:`decode_dense`: likewise for albedo, roughness or metallic neighbours that
-#: differ by more than this (absolute, per channel).
+#: The ``refine_brdf`` of :func:`decode_dense`'s :func:`unreliable_fill`: likewise for albedo, roughness or metallic
+#: neighbours that differ by more than this (absolute, per channel).
 REFINE_BRDF = 0.05
 
 #: A fill flagged by the range test is kept where the interpolation error estimated from the grid's second
@@ -209,7 +209,6 @@ def decode_dense(
     *,
     stride: int = 1,
     refine_deg: float | None = REFINE_DEG,
-    refine_brdf: float = REFINE_BRDF,
 ) -> dict[str, Tensor]:
     """Decode the masked pixels, in chunks, each attending to a fixed context of masked pixels.
 
@@ -233,10 +232,9 @@ def decode_dense(
             mask) are decoded too. Decoded pixels get exactly their stride-1 values; the decoder does about
             s^2 times less work.
         refine_deg: Edge-aware stride (s > 1 only): filled pixels whose decoded neighbours disagree
-            (:func:`unreliable_fill` with this normal threshold in degrees and ``refine_brdf``) or are cut by the
-            mask's edge are decoded too, so they get exactly their stride-1 values; None fills every covered
-            pixel by interpolation.
-        refine_brdf: The albedo/roughness/metallic threshold of the refinement.
+            (:func:`unreliable_fill` with this normal threshold in degrees and :data:`REFINE_BRDF`) or are cut
+            by the mask's edge are decoded too, so they get exactly their stride-1 values; None fills every
+            covered pixel by interpolation.
 
     Returns:
         ``normal`` (B, 3, H, W), ``albedo`` (B, 3, H, W), ``roughness`` (B, 1, H, W), ``metallic`` (B, 1, H, W);
@@ -277,7 +275,7 @@ def decode_dense(
         covered = todo & (weight > 0)
         if refine_deg is not None:
             values = torch.cat([out[k][i] for k in OUTPUT_CHANNELS]).reshape(-1, h, w)
-            bad = unreliable_fill(values, decoded.reshape(h, w), weight.reshape(h, w), stride, refine_deg, refine_brdf)
+            bad = unreliable_fill(values, decoded.reshape(h, w), weight.reshape(h, w), stride, refine_deg, REFINE_BRDF)
             covered &= ~bad.reshape(-1)
         start = 0
         for k, c in OUTPUT_CHANNELS.items():

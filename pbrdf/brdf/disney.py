@@ -1,11 +1,8 @@
-"""The Disney principled BRDF (Burley 2012), split into diffuse and specular parts, and its fit.
+"""The Disney principled BRDF (Burley 2012), split into diffuse and specular parts.
 
-One home for this math: the simulator, the decoder, the network's differentiable renderer and its
-loss all call these functions. Every evaluation function accepts numpy arrays *and* torch tensors
-(autograd-friendly, any float dtype and device) and returns the same kind; the backend is picked
-from the arguments through a tiny private namespace, using only operations both libraries share
-(``where``, ``clip``, ``sqrt`` and arithmetic). torch is never imported here: a tensor argument
-can only exist once the caller has imported it.
+One home for this math: the simulator, the decoder, the network's re-renderer and its loss call
+these functions. Every evaluation function takes numpy arrays or torch tensors (any float dtype
+and device, autograd-friendly) and returns the same kind; torch is never imported here.
 
 Model (no cosine factor; ``l`` the light, ``v`` the view direction, ``h`` the half vector):
 
@@ -25,38 +22,27 @@ Model (no cosine factor; ``l`` the light, ``v`` the view direction, ``h`` the ha
     F_0 = \\mathrm{lerp}(0.08\\,s\\,[1,1,1],\\ \\rho,\\ m),\\quad \\alpha = \\max(r^2, 10^{-3})
 
 with base colour (albedo) ``rho``, roughness ``r``, metallic ``m``, ``specular`` ``s`` (0.5 gives
-F0 = 0.04, i.e. IOR 1.5) and ``theta_d`` the angle between ``l`` and ``h``.
-
-Choices:
-    * Smith G is the separable *exact* GGX masking with the plain ``alpha = r^2`` (Walter et al.
-      2007), not Burley 2012's ``alpha_g = (0.5 + r/2)^2`` remap, which Burley dropped in 2015.
-      This is the G of Mitsuba's ``principled``, ``roughconductor`` and ``pplastic`` (Baek 2018),
-      so this model and the analytic polarimetric microfacet model share D and G.
-    * ``alpha`` is clamped at 1e-3 (as Mitsuba's ``principled`` does): below roughness 0.0316 the
-      lobe stops sharpening and the gradient with respect to roughness is zero. The peak value
-      ``D(n) = 1 / (pi alpha^2)`` stays below 3.2e5, so float32 does not overflow.
-    * The building blocks :func:`ggx_ndf` and :func:`smith_g1_ggx` take ``alpha`` directly (the
-      microfacet models use a floor of 1e-4) and clamp it to :data:`ALPHA_RANGE` = [1e-4, 1e4]:
-      ``alpha = 0`` (a perfect mirror, whose D is a delta) and a huge ``alpha`` (whose square
-      overflows float32 beyond 1.8e19) both stay finite. ``G1`` uses the form
-      ``sqrt(cos^2 + alpha^2 (1 - cos^2))``, a sum of non-negative terms, instead of
-      ``alpha^2 + (1 - alpha^2) cos^2``, which cancels to 0 for large ``alpha`` (G1 was 2).
-    * ``G / (4 cos_l cos_v)`` is evaluated as one visibility term
-      ``1 / ((cos_l + sqrt(a^2 + (1-a^2) cos_l^2)) (cos_v + sqrt(...)))`` that never divides by a
-      cosine: finite (and with finite gradients) at grazing incidence.
-    * No sheen, clearcoat, subsurface, spec_tint, anisotropy or transmission.
+F0 = 0.04, i.e. IOR 1.5) and ``theta_d`` the angle between ``l`` and ``h``. G is the exact
+separable GGX masking with the plain ``alpha = r^2`` (Walter et al. 2007), the G of Mitsuba's
+``principled``, ``roughconductor`` and ``pplastic``. No sheen, clearcoat, subsurface, spec_tint,
+anisotropy or transmission. Values and gradients stay finite for any alpha and at grazing angles
+(the choices behind that: docs/measurements/pbrdf.md, "Disney BRDF").
 
 Convention:
     Directions are unit vectors in the local shading frame (z = the normal), both pointing away
-    from the surface. Below the horizon (``w.z <= 0`` for either direction) the BRDF is 0. The
-    functions taking cosines clip them to [0, 1]. Parameters are assumed to lie in their ranges
-    (albedo linear RGB in [0, 1], roughness and metallic in [0, 1]) and are not checked: they are
-    network outputs in a hot loop, and a check would sync the GPU.
+    from the surface; below the horizon (``w.z <= 0`` for either) the BRDF is 0, and cosines are
+    clipped to [0, 1]. Parameters (albedo linear RGB, roughness, metallic, all in [0, 1]) are not
+    checked: they are network outputs in a hot loop, and a check would sync the GPU. The value is
+    reciprocal in ``wi`` and ``wo``; the cosine-weighted quantity fitted by
+    :func:`pbrdf.brdf.disney_fit.fit_disney` is Mitsuba's ``bsdf.eval(ctx, si, wo)`` with
+    ``si.wi = wi`` (BRDF times ``cos(theta_o)`` of ``wo``).
 
-    The BRDF is reciprocal, so which of ``wi`` and ``wo`` is the light does not matter for the
-    value; the *cosine-weighted* quantity fitted by :func:`fit_disney` uses ``cos(theta_o)`` of
-    ``wo``, like Mitsuba's ``bsdf.eval(ctx, si, wo)`` with ``si.wi = wi`` (BRDF times
-    ``Frame3f.cos_theta(wo)``).
+Example:
+    >>> import torch
+    >>> n = torch.tensor([0.0, 0.0, 1.0])
+    >>> fd, fs = disney_brdf(n, n, torch.full((3,), 0.5), torch.tensor(0.5), torch.tensor(0.0))
+    >>> type(fd).__name__, round(float(fd[0]), 6)  # torch in, torch out; f_d = 0.5 / pi at normal incidence
+    ('Tensor', 0.159155)
 
 References:
     B. Burley, "Physically-Based Shading at Disney", SIGGRAPH 2012 course notes (Appendix B).

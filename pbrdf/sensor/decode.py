@@ -400,7 +400,7 @@ def _maps_planar(s0: NDArray, s1: NDArray, s3: NDArray, out: NDArray, eps: float
     np.clip(out[2], -1.0, 1.0, out=out[2])
 
 
-def nine_maps(stokes3: ArrayLike, *, eps: float = 1e-6, channel_axis: int = -1) -> NDArray:
+def nine_maps(stokes3: ArrayLike, *, eps: float = 1e-6) -> NDArray:
     """The network's nine input maps from measured Stokes ``(s0, s1, s3)`` per colour.
 
     .. math:: LP = -s_1,\\quad unpol = s_0 - LP = s_0 + s_1,\\quad CP = s_3 / (s_0 + \\epsilon)
@@ -411,8 +411,6 @@ def nine_maps(stokes3: ArrayLike, *, eps: float = 1e-6, channel_axis: int = -1) 
     Args:
         stokes3: ``(..., 3, 3)`` colour x ``(s0, s1, s3)``.
         eps: regulariser of the CP denominator, in radiance units.
-        channel_axis: where the nine maps go in the output (-1: ``(..., 9)``; 0: ``(9, ...)``,
-            the faster planar layout).
 
     Returns:
         ``(..., 9)`` maps in the order of :data:`NINE_MAP_NAMES`.
@@ -432,7 +430,7 @@ def nine_maps(stokes3: ArrayLike, *, eps: float = 1e-6, channel_axis: int = -1) 
     s0, s1, s3 = (np.moveaxis(s[..., k], -1, 0) for k in range(3))  # each (colour, ...)
     _maps_planar(s0, s1, s3, out, eps)
     out = out.reshape(9, *s.shape[:-2])
-    return out if channel_axis == 0 else np.moveaxis(out, 0, channel_axis)
+    return np.moveaxis(out, 0, -1)
 
 
 def _maps_surely_finite(r: NDArray, t: NDArray, sensor: SensorParams, dec: NDArray) -> bool:

@@ -1,10 +1,10 @@
 """Irradiance from the display: constant planar patches and Lambert's polygon formula, horizon-clipped.
 
 The display (flat or curved) is cut into planar patches of constant RGB radiance
-(:func:`display_patches`; one rectangle per colour combination for the built-in patterns, a
-block-averaged grid for image patterns, chords for a curved display). The irradiance vector of a
-uniform planar polygon seen from a point has a closed form (Lambert's polygon formula,
-:func:`polygon_irradiance_vectors`):
+(:func:`pbrdf.sensor.patches.constant_patches`; one rectangle per colour combination for the
+built-in patterns, a block-averaged grid for image patterns, chords for a curved display). The
+irradiance vector of a uniform planar polygon seen from a point has a closed form (Lambert's
+polygon formula, :func:`polygon_irradiance_vectors`):
 
 .. math:: \\Phi = \\tfrac12 \\sum_i \\theta_i \\gamma_i, \\qquad E(n) = L \\, n \\cdot \\Phi
 
@@ -24,103 +24,12 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["display_patches", "polygon_irradiance_vectors", "irradiance_vectors", "region_light_directions"]
+from pbrdf.sensor.patches import constant_patches
 
-#: Largest number of constant patches kept from an image pattern before it is block-averaged.
-MAX_PATCHES = 256
-#: Pattern columns per planar strip on a curved display (each strip is a chord of the cylinder).
-STRIP_COLUMNS = 4
+__all__ = ["polygon_irradiance_vectors", "irradiance_vectors", "region_light_directions"]
+
 #: Points per chunk of the vectorised geometry (bounds the temporary arrays to some tens of MB).
 CHUNK = 8192
-
-# --------------------------------------------------------------------------- display geometry
-
-
-def _block_average(img: NDArray, rows: int, cols: int) -> NDArray:
-    """Average ``img (h, w, 3)`` over a ``rows x cols`` grid of (nearly) equal blocks."""
-    h, w = img.shape[:2]
-    re = np.linspace(0, h, rows + 1).round().astype(int)
-    ce = np.linspace(0, w, cols + 1).round().astype(int)
-    out = np.zeros((rows, cols, img.shape[2]))
-    for i in range(rows):
-        for j in range(cols):
-            out[i, j] = img[re[i] : re[i + 1], ce[j] : ce[j + 1]].reshape(-1, img.shape[2]).mean(0)
-    return out
-
-
-def _constant_rectangles(img: NDArray) -> list[tuple[int, int, int, int, tuple[float, ...]]]:
-    """Rectangles ``(r0, r1, c0, c1, rgb)`` of one non-zero colour that tile the lit part of ``img``.
-
-    Runs of equal colour along each row, merged with the identical runs of the following rows.
-    """
-    h, w = img.shape[:2]
-    rects: list[tuple[int, int, int, int, tuple[float, ...]]] = []
-    open_: dict[tuple, int] = {}
-    for r in range(h):
-        row = img[r]
-        change = np.flatnonzero(np.any(row[1:] != row[:-1], axis=-1)) + 1
-        starts, ends = np.concatenate([[0], change]), np.concatenate([change, [w]])
-        runs = {(int(a), int(b), tuple(float(v) for v in row[a])) for a, b in zip(starts, ends, strict=True)}
-        nxt = {run: open_.pop(run, r) for run in runs if any(v > 0 for v in run[2])}
-        rects += [(r0, r, a, b, rgb) for (a, b, rgb), r0 in open_.items()]
-        open_ = nxt
-    rects += [(r0, h, a, b, rgb) for (a, b, rgb), r0 in open_.items()]
-    return sorted(rects)
-
-
-def display_patches(display, *, max_patches: int = MAX_PATCHES) -> tuple[NDArray, NDArray]:
-    """The lit display as planar patches of constant radiance, in world coordinates.
-
-    Built-in patterns give one rectangle per colour combination (``rgb_halves``: magenta and cyan
-    upper quadrants, red and green lower ones). An image pattern is block-averaged to at most 36 x
-    64 cells, and coarser when it has more than ``max_patches`` constant rectangles. On a curved
-    display every rectangle is cut into strips of :data:`STRIP_COLUMNS` pattern columns whose
-    corners lie on the cylinder.
-
-    Args:
-        display: a :class:`pbrdf.sensor.rig.DisplaySpec`.
-        max_patches: largest number of patches kept from an image pattern.
-
-    Returns:
-        ``(vertices (Q, 4, 3), radiance (Q, 3))``: corners counter-clockwise as seen from the
-        front (from the objects), and the emitted radiance ``s0`` per colour channel (pattern
-        value times ``display.radiance``).
-
-    Example:
-        >>> from pbrdf.sensor.rig import DisplaySpec
-        >>> verts, radiance = display_patches(DisplaySpec())
-        >>> verts.shape, radiance.tolist()
-        ((4, 4, 3), [[0.0, 1.0, 1.0], [1.0, 0.0, 1.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
-    """
-    img = np.asarray(display.pattern_image(), dtype=np.float64)
-    h, w = img.shape[:2]
-    if h > 36 or w > 64:
-        img = _block_average(img, min(h, 36), min(w, 64))
-        h, w = img.shape[:2]
-    rects = _constant_rectangles(img)
-    if len(rects) > max_patches:
-        side = max(1, int(np.sqrt(max_patches / (16 * 9))))
-        img = _block_average(img, min(h, 9 * side), min(w, 16 * side))
-        h, w = img.shape[:2]
-        rects = _constant_rectangles(img)
-    xy, rad = [], []
-    step = w if display.curvature_radius is None else STRIP_COLUMNS
-    for r0, r1, c0, c1, rgb in rects:
-        y_top = display.height / 2 - display.height * r0 / h  # pattern row 0 is the top
-        y_bot = display.height / 2 - display.height * r1 / h
-        for a in range(c0, c1, step):
-            b = min(a + step, c1)
-            x0 = -display.width / 2 + display.width * a / w
-            x1 = -display.width / 2 + display.width * b / w
-            xy.append([[x0, y_bot], [x1, y_bot], [x1, y_top], [x0, y_top]])
-            rad.append(rgb)
-    if not xy:
-        return np.zeros((0, 4, 3)), np.zeros((0, 3))
-    verts = display.surface_points_world(np.asarray(xy, dtype=np.float64))
-    return verts, np.asarray(rad, dtype=np.float64) * display.radiance
-
-
-# --------------------------------------------------------------------------- irradiance
 
 
 def polygon_irradiance_vectors(rel: ArrayLike, valid: NDArray | None = None) -> NDArray:
@@ -185,7 +94,8 @@ def irradiance_vectors(vertices: ArrayLike, radiance: ArrayLike, points: ArrayLi
     """Per-channel irradiance vectors ``(P, 3, 3)`` (channel, xyz) of display patches at points.
 
     Args:
-        vertices: ``(Q, 4, 3)`` patch corners (:func:`display_patches`), in the frame of ``points``.
+        vertices: ``(Q, 4, 3)`` patch corners (:func:`pbrdf.sensor.patches.constant_patches`), in the frame
+            of ``points``.
         radiance: ``(Q, 3)`` patch radiance per channel.
         points: ``(P, 3)`` lit points.
         normals: ``(P, 3)`` unit surface normals, or None. With normals, every patch is clipped to
@@ -230,7 +140,7 @@ def region_light_directions(display, point: ArrayLike) -> tuple[NDArray, NDArray
         >>> bool(dirs[0, 0] < 0 < dirs[1, 0] and dirs[2, 1] > 0)  # red at world -x, green +x, blue up
         True
     """
-    verts, rad = display_patches(display)
-    phi = irradiance_vectors(verts, rad, np.asarray(point, dtype=np.float64)[None])[0]
+    patches = constant_patches(display)
+    phi = irradiance_vectors(patches.vertices, patches.radiance, np.asarray(point, dtype=np.float64)[None])[0]
     mag = np.linalg.norm(phi, axis=-1)
     return phi / np.maximum(mag, 1e-300)[:, None], mag

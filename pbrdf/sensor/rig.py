@@ -60,6 +60,9 @@ BUILTIN_PATTERNS = ("rgb_halves", "white")
 #: edges at the centre lines, so any even size is exact; 36 x 64 keeps the display's 16:9 aspect.
 DEFAULT_PATTERN_SIZE = (36, 64)
 
+#: A display-surface rectangle ``(x0, x1, y0, y1)`` in m.
+Rectangle = tuple[float, float, float, float]
+
 IDENTITY4: tuple[tuple[float, ...], ...] = tuple(tuple(float(i == j) for j in range(4)) for i in range(4))
 
 
@@ -300,6 +303,39 @@ class DisplaySpec:
         return math.cos(a) * rot[:, 0] + math.sin(a) * rot[:, 1]
 
     # ----------------------------------------------------------------------- pattern
+    def pattern_rectangle(self, rows: tuple[int, int], cols: tuple[int, int], shape: tuple[int, int]) -> Rectangle:
+        """Display-surface ``(x0, x1, y0, y1)`` in m of pixels ``rows`` x ``cols`` (half-open) of an ``(H, W)`` pattern.
+
+        The pattern is stretched over the active area, row 0 at the top and column 0 at the left
+        edge seen from the front; ``X`` is the arc length on a curved display.
+
+        >>> DisplaySpec().pattern_rectangle((0, 18), (32, 64), (36, 64))  # the upper-right quadrant
+        (0.0, 0.6048, 0.0, 0.3402)
+        """
+        (r0, r1), (c0, c1), (h, w) = rows, cols, shape
+        x0, x1 = (-self.width / 2 + self.width * c / w for c in (c0, c1))
+        y1, y0 = (self.height / 2 - self.height * r / h for r in (r0, r1))  # row 0 is the top
+        return x0, x1, y0, y1
+
+    def lit_rectangle(self, channel: int, *, uniform: bool = False) -> Rectangle | None:
+        """Display-surface ``(x0, x1, y0, y1)`` in m bounding the pattern pixels that light ``channel`` (0, 1, 2).
+
+        Every pattern value > 0 is light (the display emits ``radiance`` times the value). None
+        where the channel is dark everywhere or, with ``uniform``, not exactly 1 all over the
+        rectangle (which a constant emitter on it would then misrepresent).
+
+        >>> DisplaySpec().lit_rectangle(0), DisplaySpec().lit_rectangle(2)  # rgb_halves: red right, blue up
+        ((0.0, 0.6048, -0.3402, 0.3402), (-0.6048, 0.6048, 0.0, 0.3402))
+        """
+        img = self.pattern_image()[..., channel]
+        rows, cols = np.nonzero(img > 0)
+        if rows.size == 0:
+            return None
+        r0, r1, c0, c1 = int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+        if uniform and not np.all(img[r0:r1, c0:c1] == 1.0):
+            return None
+        return self.pattern_rectangle((r0, r1), (c0, c1), img.shape)
+
     def pattern_image(self, height: int | None = None, width: int | None = None) -> NDArray[np.float32]:
         """The pattern as an image ``(H, W, 3)`` float32 in [0, 1] (exactly {0, 1} for built-ins).
 

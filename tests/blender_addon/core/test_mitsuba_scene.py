@@ -61,3 +61,28 @@ def ms_llvm_ok():
     from blender_addon.core import passes
 
     return passes.llvm_ok()
+
+
+@pytest.mark.mitsuba
+def test_display_shapes_light_the_lit_rectangle_or_the_whole_area(mitsuba_polarized):
+    """A built-in pattern's channel emits on its lit rectangle only; a given radiance on the whole active area."""
+    mi = mitsuba_polarized
+    display = Rig().display
+
+    def world_corners(shape):  # a Mitsuba rectangle spans [-1, 1]^2 of its to_world
+        return np.array([list(shape["to_world"] @ mi.ScalarPoint3f(x, y, 0.0)) for x, y in ((-1, -1), (1, 1))])
+
+    w, h = display.width / 2, display.height / 2
+    # Red: the right half (+X) seen from the front, which is world -x (DESIGN.md, docs/ARCHITECTURE.md).
+    red = ms.display_shapes(display, 0)
+    expected = display.surface_points_world([[0.0, -h], [w, h]])
+    np.testing.assert_allclose(world_corners(red["display"]), expected, atol=1e-6)
+    assert red["display"]["emitter"]["radiance"] == 2.0 * display.radiance  # the sheet passes half
+    whole = ms.display_shapes(display, None, radiance={"type": "d65"})
+    assert whole["display"]["emitter"]["radiance"] == {"type": "d65"}
+    np.testing.assert_allclose(world_corners(whole["display"]), display.surface_points_world([[-w, -h], [w, h]]),
+                               atol=1e-6)  # fmt: skip
+    assert whole["display_polarizer"].keys() == red["display_polarizer"].keys()
+    for channel, radiance in ((None, None), (0, {"type": "d65"})):
+        with pytest.raises(ValueError, match="either a channel or a radiance"):
+            ms.display_shapes(display, channel, radiance=radiance)

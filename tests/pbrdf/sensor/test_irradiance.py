@@ -1,31 +1,19 @@
-"""pbrdf/sensor/irradiance.py: display patches and Lambert's polygon formula against brute-force quadrature."""
+"""pbrdf/sensor/irradiance.py: Lambert's polygon formula against brute-force quadrature."""
 
 import numpy as np
 import pytest
 
 from pbrdf.sensor import irradiance
+from pbrdf.sensor.patches import constant_patches
 from pbrdf.sensor.rig import DisplaySpec
 from tests.helpers import display_quadrature
-
-
-def test_patches_of_rgb_halves():
-    """Red on the display's right half (+X, world -x), green on the left, blue on the upper half."""
-    display = DisplaySpec()
-    verts, rad = irradiance.display_patches(display)
-    assert verts.shape == (4, 4, 3) and np.allclose(verts[..., 2], display.center[2])
-    centres = verts.mean(1)
-    for c, sign_x in ((0, -1), (1, 1)):
-        lit = rad[:, c] > 0
-        assert np.all(np.sign(centres[lit, 0]) == sign_x)
-    assert np.all(centres[rad[:, 2] > 0, 1] > 0) and np.all(centres[rad[:, 2] == 0, 1] < 0)
-    area = np.linalg.norm(np.cross(verts[:, 1] - verts[:, 0], verts[:, 3] - verts[:, 0]), axis=-1)
-    assert area.sum() == pytest.approx(display.width * display.height)
 
 
 @pytest.mark.parametrize("curved", [False, True])
 def test_irradiance_vectors_match_quadrature(curved):
     display = DisplaySpec(curvature_radius=1.0 if curved else None)
-    verts, rad = irradiance.display_patches(display)
+    patches = constant_patches(display)
+    verts, rad = patches.vertices, patches.radiance
     point = np.array([0.08, -0.05, -0.6])
     phi = irradiance.irradiance_vectors(verts, rad, point[None])[0]
     np.testing.assert_allclose(phi, display_quadrature(display, point), rtol=2e-3, atol=2e-4)

@@ -210,6 +210,34 @@ class TestPattern:
         w, h = disp.width / 4, disp.height / 4
         np.testing.assert_array_equal(disp.pattern_rgb_at([[-w, h], [w, -h]]), [[1, 0, 0], [1, 1, 1]])
 
+    def test_lit_rectangles_of_the_builtin_patterns(self):
+        """rgb_halves (DESIGN.md): red the right half (+X), green the left half, blue the upper half."""
+        d = DisplaySpec()
+        w, h = d.width / 2, d.height / 2
+        expected = [(0.0, w, -h, h), (-w, 0.0, -h, h), (-w, w, 0.0, h)]
+        for c in range(3):
+            assert d.lit_rectangle(c) == pytest.approx(expected[c], abs=1e-15)
+            assert d.lit_rectangle(c, uniform=True) == d.lit_rectangle(c)
+        assert DisplaySpec(pattern="white").lit_rectangle(1) == pytest.approx((-w, w, -h, h))
+
+    def test_lit_rectangle_counts_every_nonzero_pixel(self, tmp_path):
+        """A dim pixel is light too: the rectangle reaches it, and it is then not uniform."""
+        a = np.zeros((4, 8, 3), dtype=np.uint8)
+        a[0:2, 0:4] = 255  # a white upper-left block
+        path = tmp_path / "p.png"
+        Image.fromarray(a).save(path)
+        d = DisplaySpec(pattern=str(path))
+        block = (-d.width / 2, 0.0, 0.0, d.height / 2)
+        assert d.lit_rectangle(0) == pytest.approx(block) and d.lit_rectangle(0, uniform=True) == pytest.approx(block)
+        a[3, 7, 0] = 51  # 0.2 in the lower-right corner
+        Image.fromarray(a).save(path)
+        assert d.lit_rectangle(0) == pytest.approx((-d.width / 2, d.width / 2, -d.height / 2, d.height / 2))
+        assert d.lit_rectangle(0, uniform=True) is None
+        assert d.lit_rectangle(1, uniform=True) == pytest.approx(block)
+        a[:] = 0
+        Image.fromarray(a).save(path)
+        assert d.lit_rectangle(2) is None
+
     def test_missing_pattern(self, tmp_path):
         with pytest.raises(FileNotFoundError, match="neither a built-in pattern"):
             DisplaySpec(pattern=str(tmp_path / "nope.png")).pattern_image()
