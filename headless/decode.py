@@ -11,7 +11,6 @@ decoding succeed. Bad input prints one line "error: <message>" on stderr and exi
 usable pixel (all dark, all saturated, dark then saturated, black level at or above the data).
 A capture whose maps hold no object above the noise floor is decoded but prints one line
 "warning: <message>" on stderr.
-The positional form `decode.py CAPTURE_DIR` still works for one release (use --input).
 """
 
 from __future__ import annotations
@@ -27,7 +26,7 @@ if not __package__:  # run as a file (python headless/x.py, blender -b -P): the 
 
 import numpy as np  # noqa: E402
 
-from headless._cli import add_deprecated_positional, require  # noqa: E402
+from headless._cli import require  # noqa: E402
 from pbrdf.data.capture import CAPTURE_FORMAT, CAPTURE_JSON, load_capture  # noqa: E402
 from pbrdf.data.capture_decode import check_usable, decode_capture  # noqa: E402
 from pbrdf.io.atomic import atomic_write_bytes  # noqa: E402
@@ -70,7 +69,6 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--preview", action="store_true", help="also write preview.png of the nine maps")
     parser.add_argument("--quiet", action="store_true", help="no progress output (decode shows none)")
-    add_deprecated_positional(parser, "CAPTURE_DIR", new="--input", type=Path)
     return parser
 
 

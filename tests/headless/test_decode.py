@@ -1,7 +1,6 @@
 """headless/decode.py: a capture folder -> maps.npy, mask.npy (and preview.png); one-line errors.
 
-The same tests as the CLI tests beside pbrdf.data.capture's, with the --input flag; plus the old
-positional form, which still works for one release with one deprecation line.
+The same tests as the CLI tests beside pbrdf.data.capture's, with the --input flag.
 """
 
 import json
@@ -62,16 +61,6 @@ def test_module_full_grid(tmp_path, synthetic):
     assert res.returncode == 0, res.stderr
     assert np.load(tmp_path / "out" / "maps.npy").shape == (H, W, 9)
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == ["maps.npy", "mask.npy"]
-
-
-def test_old_positional_form_still_works(tmp_path, synthetic):
-    folder = cap.save_capture(tmp_path / "c", *synthetic, file_format="npy")
-    res = _run("headless/decode.py", str(folder), "--out", str(tmp_path / "out"))
-    assert res.returncode == 0, res.stderr
-    assert res.stderr.splitlines() == [
-        "decode.py: deprecated: the positional CAPTURE_DIR is now --input (the old form goes away in the next release)"
-    ]
-    assert (tmp_path / "out" / "maps.npy").is_file()
 
 
 def _truncate_first_raw(folder: Path) -> None:
