@@ -241,7 +241,7 @@ def test_camera_file_gives_the_capture_camera(clean_file, tmp_path):
     folder = write_pbr_maps(tmp_path / "c", n, mask=mask, depth=depth)
     _write_camera(folder / "cap_camera.json", K, W, H)
     _write_camera(folder / "other_camera.json", K * [[2], [2], [1]], W, H)  # another capture's: ignored
-    # the explicit {kind: file} of blender_addon/reconstruct.py: the camera file is found beside the normal map
+    # the explicit {kind: file} of blender_addon/reconstruct_operator.py: the camera file is found beside the normal map
     files = {kind: folder / f"cap_{kind}.exr" for kind in ("normal", "mask", "depth")}
     obj = pbr_import.import_pbr_maps(bpy.context, files, normal_space="OBJECT")
     assert obj["pdir_camera"] == str(folder / "cap_camera.json")
