@@ -26,7 +26,7 @@ from bpy.props import EnumProperty, PointerProperty, StringProperty
 
 from . import prefs
 from .core import reconstruct_job
-from .pbr_import import PBRImportWarning, import_pbr_maps
+from .pbr_import import ImportOptions, PBRImportWarning, import_pbr_maps
 from .render_operator import PYTHON_ENV, external_python
 from .ui import SidebarPanel
 
@@ -122,9 +122,8 @@ def _finish(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context, job) ->
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PBRImportWarning)
         try:
-            obj = import_pbr_maps(
-                context, job.outputs, use_depth=relief, normal_space="OBJECT" if relief else "TANGENT", name=job.name
-            )
+            options = ImportOptions(use_depth=relief, normal_space="OBJECT" if relief else "TANGENT")
+            obj = import_pbr_maps(context, job.outputs, options, name=job.name)
         except (ValueError, OSError) as e:
             op.report({"ERROR"}, _one_line(f"Reconstructed {job.name}, but the import failed: {e}"))
             return {"CANCELLED"}

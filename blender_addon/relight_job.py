@@ -99,7 +99,7 @@ def relight_maps(
     files = sorted(maps.glob(f"{name}_*.exr")) if name else [maps]
     if name and not files:
         raise FileNotFoundError(f"{maps}: no {name}_*.exr maps")
-    obj = pbr_import.import_pbr_maps(bpy.context, files, distance=distance, name=name or None)
+    obj = pbr_import.import_pbr_maps(bpy.context, files, pbr_import.ImportOptions(distance=distance), name=name or None)
     scale = size / max(scene.render.resolution_x, scene.render.resolution_y)
     scene.render.resolution_x = max(round(scene.render.resolution_x * scale), 8)
     scene.render.resolution_y = max(round(scene.render.resolution_y * scale), 8)

@@ -25,14 +25,16 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import NoReturn
 
 from pbrdf.io.errors import one_line
 
 __all__ = [
+    "flag_wording",
     "in_blender_binary",
     "model_override",
     "held_warnings",
@@ -70,6 +72,33 @@ def require(parser: argparse.ArgumentParser, args: argparse.Namespace, *flags: s
     missing = [f for f in flags if getattr(args, f.lstrip("-").replace("-", "_"), None) is None]
     if missing:
         parser.error(f"the following arguments are required: {', '.join(missing)}")
+
+
+def flag_wording(message: str, names: Iterable[str]) -> str:
+    """A library error in a script's words: ``name=value`` of a parameter becomes its flag ``--name value``.
+
+    Libraries name their parameters (``max_skipped=3``); a script maps the ones that are its flags
+    (underscores become dashes; ``=True`` becomes the bare switch). Other text stays as it is.
+
+    Args:
+        message: the library's error message.
+        names: the parameter names that are flags of the script.
+
+    Returns:
+        The message with each ``name=value`` of ``names`` written as the flag.
+
+    Example:
+        >>> flag_wording("pass resume=True; inputs='polar', not 'full'; table_fraction=0.3 > 0", ["resume", "inputs",
+        ...              "table_fraction"])
+        "pass --resume; --inputs polar, not 'full'; --table-fraction 0.3 > 0"
+    """
+
+    def flag(m: re.Match) -> str:
+        name, value = "--" + m[1].replace("_", "-"), m[2].strip("'")
+        return name if value == "True" else f"{name} {value}"
+
+    pattern = "|".join(re.escape(n) for n in names)
+    return re.sub(rf"(?<![\w-])({pattern})=('[^']*'|\{{[^}}]*\}}|[^\s,;)]+)", flag, message)
 
 
 def script_args(argv: list[str]) -> list[str]:

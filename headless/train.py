@@ -23,37 +23,20 @@ import argparse
 import json
 import logging
 import os
-import re
 import sys
 from pathlib import Path
 
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import model_override, require  # noqa: E402
+from headless._cli import flag_wording, model_override, require  # noqa: E402
 
 INPUTS = ("white", "spectral", "polar", "full")  # network.inputs.INPUT_VARIANTS (not imported: --help stays fast)
 SCALES = ("calibrated", "exposure-invariant")  # network.data.INPUT_SCALES
 
 
-#: network.train's errors name TrainConfig fields as ``name=value``; these are the flags that set them.
-FLAGS = {"resume": "--resume", "max_skipped": "--max-skipped", "config": "--config", "overrides": "--overrides",
-         "inputs": "--inputs", "input_scale": "--input-scale"}  # fmt: skip
-
-
-def flag_wording(message: str) -> str:
-    """A library error in flag words: ``max_skipped=3`` -> ``--max-skipped 3``, ``resume=True`` -> ``--resume``.
-
-    Example:
-        >>> flag_wording("pass resume=True or another out; trained with inputs='polar', not 'full'")
-        "pass --resume or another out; trained with --inputs polar, not 'full'"
-    """
-
-    def flag(m: re.Match) -> str:
-        value = m[2].strip("'")
-        return FLAGS[m[1]] if value == "True" else f"{FLAGS[m[1]]} {value}"
-
-    return re.sub(rf"\b({'|'.join(FLAGS)})=('[^']*'|{{[^}}]*}}|[^\s,;)]+)", flag, message)
+#: The TrainConfig fields that network.train's errors name (``max_skipped=3``), all flags here.
+FLAGGED = ("resume", "max_skipped", "config", "overrides", "inputs", "input_scale")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -144,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         )  # fmt: skip
         losses = train(cfg, progress=not args.quiet)
     except (ValueError, OSError, FloatingPointError) as exc:
-        print(f"error: {flag_wording(str(exc))}", file=sys.stderr)
+        print(f"error: {flag_wording(str(exc), FLAGGED)}", file=sys.stderr)
         return 2
     if losses and os.environ.get("RANK", "0") == "0":
         print(f"steps {len(losses)}, loss first {losses[0]:.4f}, last {losses[-1]:.4f}; model: {args.out / 'model.pt'}")

@@ -27,7 +27,7 @@ def _flat_plane(scene, tmp_path, albedo=0.5, distance=1.0):
     normal = np.zeros((H, W, 3), np.float32)
     normal[..., 2] = 1
     folder = write_pbr_maps(tmp_path / "flat", normal, albedo=np.full((H, W, 3), albedo, np.float32))
-    obj = pbr_import.import_pbr_maps(bpy.context, folder, distance=distance)
+    obj = pbr_import.import_pbr_maps(bpy.context, folder, pbr_import.ImportOptions(distance=distance))
     _principled(obj).inputs["Specular IOR Level"].default_value = 0.0  # pure Lambert
     return obj
 
