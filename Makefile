@@ -11,7 +11,7 @@ MODELS_STAMP := $(VENV)/.testmodels-ok
 BLENDER_STAMP := $(VENV)/.blender-ok
 OUT ?= out
 
-.PHONY: setup demo test test-fast bench lint format clean help addon train-model test-sets train-data train-engine-model ship-engine-model ablation-data ablation
+.PHONY: setup demo test test-fast bench lint format clean help addon test-sets train-data train-engine-model ship-engine-model ablation-data ablation
 
 help:  ## list targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -68,20 +68,6 @@ lint: setup  ## ruff lint and format check
 format: setup  ## apply ruff formatting and safe fixes
 	$(VENV)/bin/ruff check --fix .
 	$(VENV)/bin/ruff format .
-
-# The first model (shipped until 2026-11-24, now superseded by train-engine-model): 158 training
-# scenes (seed 100) and 12 held-out scenes (seed 9000) at 128x128, `small` at 128 px, batch 4.
-MODEL_DATA := $(OUT)/model-data
-MODEL_RUN := $(OUT)/model-small
-MODEL_STEPS ?= 700
-train-model: setup  ## the first 128-px model (superseded): render data, train `small`, evaluate on held-out scenes
-	$(PY) headless/render.py --split train --out $(MODEL_DATA)/train --resume --quiet
-	$(PY) headless/render.py --split val --out $(MODEL_DATA)/val --resume --quiet
-	$(PY) headless/train.py --input $(MODEL_DATA)/train --val $(MODEL_DATA)/val --config small \
-	    --overrides image_size=128 canonical_size=64 train_pixels=1024 infer_chunk=4096 \
-	    --steps $(MODEL_STEPS) --batch-size 4 --lr 2e-4 --min-lr-ratio 1.0 --seed 0 --checkpoint-every 25 \
-	    --out $(MODEL_RUN) --resume
-	$(PY) headless/evaluate.py --checkpoint $(MODEL_RUN)/model.pt --input $(MODEL_DATA)/val --out $(MODEL_RUN)/eval
 
 # The data engine's model (issue 14): `small` at 192 px with a 16 x 16 token grid, calibrated input,
 # trained on train-engine, selected on val-engine only (best.pt). About 7 s per step on 2 CPU cores:

@@ -29,7 +29,7 @@ Packaging:
 
 Registration:
     This file never imports bpy at module level, so ``import blender_addon.core`` works under
-    plain Python. :func:`register` imports the modules of :data:`MODULES` that exist, registers
+    plain Python. :func:`register` imports the modules of :data:`MODULES`, registers
     each one's ``CLASSES`` in order and calls its ``register_extra()``; :func:`unregister` undoes
     it in reverse. Both may be called repeatedly (register, unregister, register, ...).
 """
@@ -53,7 +53,7 @@ bl_info = {
 }
 
 #: Add-on modules in registration order. ``ui`` (the main panel) comes before the modules whose
-#: sub-panels name it as ``bl_parent_id``. Modules that do not exist (yet) are skipped.
+#: sub-panels name it as ``bl_parent_id``.
 MODULES = (
     "properties",
     "prefs",
@@ -62,8 +62,8 @@ MODULES = (
     "scene_builder",
     "render_operator",
     "pbr_import",
-    "reconstruct",
-    "relight",
+    "reconstruct_operator",
+    "relight_operator",
     "bake",
 )
 
@@ -94,7 +94,7 @@ ensure_vendor_path()
 
 
 def _modules() -> list[ModuleType]:
-    """Import the existing modules of :data:`MODULES` (relative to this package).
+    """Import the modules of :data:`MODULES` (relative to this package).
 
     A module that needs a third-party package Blender's Python lacks is left out (recorded in
     :data:`UNAVAILABLE` and shown in the main panel), so the rest of the add-on still works.
@@ -102,8 +102,6 @@ def _modules() -> list[ModuleType]:
     UNAVAILABLE.clear()
     out = []
     for name in MODULES:
-        if importlib.util.find_spec(f"{__package__}.{name}") is None:
-            continue
         try:
             out.append(importlib.import_module(f".{name}", __package__))
         except ModuleNotFoundError as e:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Iterable, Mapping
+from contextlib import contextmanager
 
 import bpy
 import numpy as np
@@ -259,16 +260,8 @@ def bake_to_mesh(
     Raises:
         ValueError: not a mesh, bad camera or arguments, no maps.
     """
-    if obj is None or obj.type != "MESH":
-        raise ValueError(f"bake needs a mesh object, got {getattr(obj, 'type', None)!r}")
-    if normal_space not in NORMAL_SPACES:
-        raise ValueError(f"normal_space must be one of {NORMAL_SPACES}, got {normal_space!r}")
-    if isinstance(size, bool) or not isinstance(size, int) or not 8 <= size <= 16384:
-        raise ValueError(f"size must be an integer in [8, 16384], got {size!r}")
-    context = bpy.context
-    scene = context.scene
-    if scene.objects.get(obj.name) is None:
-        raise ValueError(f"{obj.name!r} is not in the scene {scene.name!r}")
+    scene = bpy.context.scene
+    _check_bake_args(obj, scene, normal_space, size)
     camera = ensure_camera(scene, camera)
     maps = _load(maps)
     kinds = [k for k in ("albedo", "roughness", "metallic", "normal") if getattr(maps, k) is not None]
@@ -278,9 +271,8 @@ def bake_to_mesh(
     frustum = camera_frustum(camera, w, h, scene=scene)
 
     unwrap_object(obj)
-    vis = vertex_visibility(obj, camera)
     attr = obj.data.attributes.new(VISIBLE_ATTRIBUTE, "FLOAT", "POINT")
-    attr.data.foreach_set("value", vis)
+    attr.data.foreach_set("value", vertex_visibility(obj, camera))
 
     sources = {}
     for kind in kinds:
@@ -288,24 +280,53 @@ def bake_to_mesh(
         sources[kind] = image_from_array(f"{obj.name}_proj_{kind}", data, pack=False)
     sources["mask"] = image_from_array(f"{obj.name}_proj_mask", maps.mask, pack=False)
     proj, outs, normal = _projection_material(f"{obj.name}_projection", camera, frustum, sources)
+    baked: dict = {}
+    try:
+        with _baking(bpy.context, obj, proj, samples, margin):
+            bake_kind = _baker(proj, outs, normal, normal_space=normal_space, margin=margin)
+            emit_kinds = [k for k in _EMIT_KINDS if k in outs and k != "normal"]
+            for kind in [*emit_kinds, *(["normal"] if normal is not None else [])]:
+                img = bpy.data.images.new(f"{obj.name}_{kind}", width=size, height=size, alpha=True, float_buffer=True)
+                img.colorspace_settings.name = "Linear Rec.709" if kind == "albedo" else "Non-Color"
+                bake_kind(kind, img)
+                img.file_format = "OPEN_EXR"
+                img.pack()
+                baked[kind] = img
+    finally:
+        for img in sources.values():
+            bpy.data.images.remove(img)
+        bpy.data.materials.remove(proj)
+    final = {k: v for k, v in baked.items() if k in ("albedo", "roughness", "metallic", "normal")}
+    obj.data.materials.append(build_material(f"{obj.name}_baked", final, normal_space=normal_space, use_alpha=False))
+    obj["pdir_baked"] = ",".join(baked)
+    obj["pdir_normal_space"] = normal_space
+    return baked
 
-    nt = proj.node_tree
-    emit = nt.nodes.new("ShaderNodeEmission")
-    emit.inputs["Strength"].default_value = 1.0
-    diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
-    out = nt.nodes.new("ShaderNodeOutputMaterial")
-    target = nt.nodes.new("ShaderNodeTexImage")
 
+def _check_bake_args(obj, scene, normal_space: str, size: int) -> None:
+    """Refuse what :func:`bake_to_mesh` cannot bake (one line naming the argument)."""
+    if obj is None or obj.type != "MESH":
+        raise ValueError(f"bake needs a mesh object, got {getattr(obj, 'type', None)!r}")
+    if normal_space not in NORMAL_SPACES:
+        raise ValueError(f"normal_space must be one of {NORMAL_SPACES}, got {normal_space!r}")
+    if isinstance(size, bool) or not isinstance(size, int) or not 8 <= size <= 16384:
+        raise ValueError(f"size must be an integer in [8, 16384], got {size!r}")
+    if scene.objects.get(obj.name) is None:
+        raise ValueError(f"{obj.name!r} is not in the scene {scene.name!r}")
+
+
+@contextmanager
+def _baking(context, obj, material, samples: int, margin: int):
+    """Cycles with ``samples``, ``obj`` alone selected and active, wearing ``material``; all restored after."""
+    scene = context.scene
     saved = {
         "engine": scene.render.engine,
         "samples": scene.cycles.samples,
-        "materials": list(obj.data.materials),
         "selected": [o for o in context.view_layer.objects if o.select_get()],
         "active": context.view_layer.objects.active,
     }
     obj.data.materials.clear()
-    obj.data.materials.append(proj)
-    baked: dict = {}
+    obj.data.materials.append(material)
     try:
         scene.render.engine = "CYCLES"
         scene.cycles.samples = samples
@@ -315,41 +336,7 @@ def bake_to_mesh(
         context.view_layer.objects.active = obj
         bake = scene.render.bake
         bake.margin, bake.margin_type, bake.use_clear, bake.target = margin, "EXTEND", True, "IMAGE_TEXTURES"
-        emit_kinds = [k for k in _EMIT_KINDS if k in outs and k != "normal"]
-        for kind in [*emit_kinds, *(["normal"] if normal is not None else [])]:
-            img = bpy.data.images.new(f"{obj.name}_{kind}", width=size, height=size, alpha=True, float_buffer=True)
-            img.colorspace_settings.name = "Linear Rec.709" if kind == "albedo" else "Non-Color"
-            target.image = img
-            nt.nodes.active = target
-            if kind == "normal":
-                nt.links.new(normal, diffuse.inputs["Normal"])
-                nt.links.new(diffuse.outputs["BSDF"], out.inputs["Surface"])
-                bpy.ops.object.bake(
-                    type="NORMAL",
-                    normal_space=normal_space,
-                    normal_r="POS_X",
-                    normal_g="POS_Y",
-                    normal_b="POS_Z",
-                    uv_layer=UV_NAME,
-                    margin=margin,
-                    margin_type="EXTEND",
-                    use_clear=True,
-                    target="IMAGE_TEXTURES",
-                )
-            else:
-                nt.links.new(outs[kind], emit.inputs["Color"])
-                nt.links.new(emit.outputs["Emission"], out.inputs["Surface"])
-                bpy.ops.object.bake(
-                    type="EMIT",
-                    uv_layer=UV_NAME,
-                    margin=margin,
-                    margin_type="EXTEND",
-                    use_clear=True,
-                    target="IMAGE_TEXTURES",
-                )
-            img.file_format = "OPEN_EXR"
-            img.pack()
-            baked[kind] = img
+        yield
     finally:
         scene.render.engine = saved["engine"]
         scene.cycles.samples = saved["samples"]
@@ -358,15 +345,38 @@ def bake_to_mesh(
             if o.name in context.view_layer.objects:
                 o.select_set(True)
         context.view_layer.objects.active = saved["active"] if saved["active"] is not None else obj
-        for img in sources.values():
-            bpy.data.images.remove(img)
         obj.data.materials.clear()
-        bpy.data.materials.remove(proj)
-    final = {k: v for k, v in baked.items() if k in ("albedo", "roughness", "metallic", "normal")}
-    obj.data.materials.append(build_material(f"{obj.name}_baked", final, normal_space=normal_space, use_alpha=False))
-    obj["pdir_baked"] = ",".join(baked)
-    obj["pdir_normal_space"] = normal_space
-    return baked
+
+
+def _baker(material, outs: Mapping, normal, *, normal_space: str, margin: int):
+    """A function ``bake(kind, image)`` that bakes one kind of the projection material into ``image``.
+
+    Values bake as Emission (exact); the normal as a NORMAL bake of a diffuse BSDF reading the
+    projected normal, in ``normal_space`` (Blender's own conversion).
+    """
+    nt = material.node_tree
+    emit = nt.nodes.new("ShaderNodeEmission")
+    emit.inputs["Strength"].default_value = 1.0
+    diffuse = nt.nodes.new("ShaderNodeBsdfDiffuse")
+    out = nt.nodes.new("ShaderNodeOutputMaterial")
+    target = nt.nodes.new("ShaderNodeTexImage")
+    common = {"uv_layer": UV_NAME, "margin": margin, "margin_type": "EXTEND", "use_clear": True,
+              "target": "IMAGE_TEXTURES"}  # fmt: skip
+
+    def bake(kind: str, image) -> None:
+        target.image = image
+        nt.nodes.active = target
+        if kind == "normal":
+            nt.links.new(normal, diffuse.inputs["Normal"])
+            nt.links.new(diffuse.outputs["BSDF"], out.inputs["Surface"])
+            bpy.ops.object.bake(type="NORMAL", normal_space=normal_space, normal_r="POS_X", normal_g="POS_Y",
+                                normal_b="POS_Z", **common)  # fmt: skip
+        else:
+            nt.links.new(outs[kind], emit.inputs["Color"])
+            nt.links.new(emit.outputs["Emission"], out.inputs["Surface"])
+            bpy.ops.object.bake(type="EMIT", **common)
+
+    return bake
 
 
 # --------------------------------------------------------------------------- settings, operator, panel

@@ -33,9 +33,7 @@ tangent frame is too (tangent = +x, bitangent = +y, normal = +z). The normal ima
 space. A depth mesh is not flat, so its tangent frames are not the camera frame: it always uses
 OBJECT space, and (imported from files, not a sequence) it carries the normals itself, as custom
 normals of its smooth-shaded vertices (one per pixel); its Normal Map node stays in the material,
-unlinked. Linked, Cycles would treat the normals as bump detail on the mesh's flat triangles and
-darken them by its bump-shadowing term wherever a triangle tilts away from the pixel's normal (dark
-blotches where the relief is not exactly the integral of the normals).
+unlinked (why: docs/measurements/blender_addon.md, "the dark blotches").
 
 Outline: the maps go on two pixels past the mask (:func:`blender_addon.core.map_io.extend_past_mask`)
 and a depth mesh one pixel past it, so bilinear texture lookups at the outline never blend in the
@@ -49,6 +47,7 @@ import importlib.util
 import os
 import warnings
 from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
 from pathlib import Path
 
 import bpy
@@ -63,6 +62,7 @@ from .core.frustum import BlenderCamera, Frustum, blender_frustum, depth_mesh, r
 __all__ = [
     "CLASSES",
     "NORMAL_SPACES",
+    "ImportOptions",
     "PBRImportWarning",
     "image_from_array",
     "import_pbr_maps",
@@ -342,27 +342,11 @@ def _packed_images(name: str, maps: map_io.PBRMaps) -> dict[str, object]:
 # --------------------------------------------------------------------------- import
 
 
-def import_pbr_maps(
-    context,
-    paths_or_folder: str | os.PathLike | Iterable[str | os.PathLike] | Mapping[str, str | os.PathLike],
-    *,
-    camera=None,
-    distance: float = 1.0,
-    normal_space: str = "TANGENT",
-    use_depth: bool = True,
-    match_resolution: bool = True,
-    use_camera_file: bool = True,
-    name: str | None = None,
-):
-    """Import PBR maps as a camera-parented plane (or depth mesh) with a Principled material.
+@dataclass(frozen=True)
+class ImportOptions:
+    """How :func:`import_pbr_maps` builds the asset.
 
-    Args:
-        context: ``bpy.context`` (its scene and collection receive the object).
-        paths_or_folder: a folder, a list of files, or ``{kind: file}``; matched by filename
-            tokens (see :func:`blender_addon.core.map_names.match_map_files`). A normal map is
-            required; the others are optional (Principled defaults stand in). A folder holding
-            a ``<name>_sequence.json`` (or that file) imports the sequence (module docstring).
-        camera: the capture camera; default the scene camera, else a new one at the origin.
+    Attributes:
         distance: plane distance from the camera in metres (ignored for a depth mesh).
         normal_space: ``"TANGENT"`` or ``"OBJECT"`` (identical on the plane; a depth mesh uses OBJECT).
         use_depth: build a depth-displaced mesh when a depth map is present.
@@ -370,6 +354,42 @@ def import_pbr_maps(
             asset exactly (the plane is sized for the maps' aspect ratio either way).
         use_camera_file: give the camera the intrinsics of the maps' ``<prefix>_camera.json``
             when there is one (else, and with False, the mesh is built in the camera's own frustum).
+
+    Raises:
+        ValueError: an unknown normal space or a distance that is not > 0.
+    """
+
+    distance: float = 1.0
+    normal_space: str = "TANGENT"
+    use_depth: bool = True
+    match_resolution: bool = True
+    use_camera_file: bool = True
+
+    def __post_init__(self) -> None:
+        if self.normal_space not in NORMAL_SPACES:
+            raise ValueError(f"normal_space must be one of {NORMAL_SPACES}, got {self.normal_space!r}")
+        if not self.distance > 0:
+            raise ValueError(f"distance must be > 0 metres, got {self.distance}")
+
+
+def import_pbr_maps(
+    context,
+    source: str | os.PathLike | Iterable[str | os.PathLike] | Mapping[str, str | os.PathLike],
+    options: ImportOptions | None = None,
+    *,
+    camera=None,
+    name: str | None = None,
+):
+    """Import PBR maps as a camera-parented plane (or depth mesh) with a Principled material.
+
+    Args:
+        context: ``bpy.context`` (its scene and collection receive the object).
+        source: a folder, a list of files, or ``{kind: file}``; matched by filename tokens (see
+            :func:`blender_addon.core.map_names.match_map_files`). A normal map is required; the
+            others are optional (Principled defaults stand in). A folder holding a
+            ``<name>_sequence.json`` (or that file) imports the sequence (module docstring).
+        options: how to build the asset (default :class:`ImportOptions`).
+        camera: the capture camera; default the scene camera, else a new one at the origin.
         name: object name; default from the file names (a sequence: its name).
 
     Returns:
@@ -383,97 +403,153 @@ def import_pbr_maps(
         ValueError: ambiguous names, bad values, a malformed camera or sequence file (one line
             naming the file and the field), bad camera or arguments.
     """
-    if normal_space not in NORMAL_SPACES:
-        raise ValueError(f"normal_space must be one of {NORMAL_SPACES}, got {normal_space!r}")
-    if not distance > 0:
-        raise ValueError(f"distance must be > 0 metres, got {distance}")
+    options = ImportOptions() if options is None else options
+    sequence_file = map_names.find_sequence(source)
+    if sequence_file is not None:
+        return _import_sequence(context, map_names.match_sequence_files(sequence_file), options, camera, name)
+    files = map_names.match_map_files(source, required=("normal",))
+    return _import_view(context, files, options, camera, name)
+
+
+def _import_view(context, files: map_names.MapFiles, options: ImportOptions, camera, name: str | None):
+    """One view's maps: packed float images, the normals on a depth mesh's vertices."""
+    files = _used_files(files, options)
+    maps = _load(files)
+    camera, frustum, camera_path = _place_camera(context.scene, camera, files, maps, options)
+    name = name or _asset_name(files.files)
+    mesh, local, normal_space = _asset_mesh(name, files, maps, frustum, options, custom_normals=True)
+    obj = _link(context, name, mesh, camera, local)
+    images = _packed_images(name, maps)
+    mesh.materials.append(build_material(
+        name, images, normal_space=normal_space, use_alpha="mask" in images, normals_on_mesh=maps.depth is not None
+    ))  # fmt: skip
+    source = ", ".join(str(p) for p in files.files.values())
+    return _tag(context, obj, maps, source, normal_space, camera_path, frames=1)
+
+
+def _import_sequence(context, sequence: map_names.SequenceFiles, options: ImportOptions, camera, name: str | None):
+    """A sequence: frame 1's mesh, image sequences in the material, the scene's frame range 1..n."""
+    files = _used_files(sequence.first, options)
+    maps = _load(files)  # frame 1 only: Blender reads the others as they play
+    camera, frustum, camera_path = _place_camera(context.scene, camera, files, maps, options)
+    name = name or sequence.name
+    mesh, local, normal_space = _asset_mesh(name, files, maps, frustum, options, custom_normals=False)
+    obj = _link(context, name, mesh, camera, local)
+    images = {k: sequence_image(p, k) for k, p in files.files.items() if k != "depth"}
+    normal_raw = files.files["normal"].suffix.lower() == ".exr"
+    mesh.materials.append(build_material(
+        name, images, normal_space=normal_space, use_alpha="mask" in images, frames=sequence.frames,
+        normal_raw=normal_raw,
+    ))  # fmt: skip
     scene = context.scene
-    sequence_file = map_names.find_sequence(paths_or_folder)
-    sequence = None if sequence_file is None else map_names.match_sequence_files(sequence_file)
-    files = sequence.first if sequence else map_names.match_map_files(paths_or_folder, required=("normal",))
-    if not use_depth:
-        files = map_names.MapFiles({k: v for k, v in files.files.items() if k != "depth"}, files.unmatched)
+    scene.frame_start, scene.frame_end = 1, sequence.frames
+    scene.frame_set(1)
+    return _tag(context, obj, maps, str(sequence.path), normal_space, camera_path, frames=sequence.frames)
+
+
+def _used_files(files: map_names.MapFiles, options: ImportOptions) -> map_names.MapFiles:
+    """The matched files to import (the depth map left out without ``use_depth``)."""
+    if options.use_depth:
+        return files
+    return map_names.MapFiles({k: v for k, v in files.files.items() if k != "depth"}, files.unmatched)
+
+
+def _load(files: map_names.MapFiles) -> map_io.PBRMaps:
+    """Read and validate the maps (warning about clipped values), extended past the mask (module docstring)."""
     maps = map_io.load_maps(files, reader=read_channels)
     for line in maps.warnings:
-        warnings.warn(line, PBRImportWarning, stacklevel=2)
-    maps = map_io.extend_past_mask(maps)  # the outline keeps its own values (module docstring)
+        warnings.warn(line, PBRImportWarning, stacklevel=3)
+    return map_io.extend_past_mask(maps)
+
+
+def _place_camera(scene, camera, files: map_names.MapFiles, maps: map_io.PBRMaps, options: ImportOptions):
+    """The capture camera, with the intrinsics of the maps' camera file when used; and the render size.
+
+    Returns:
+        ``(camera, frustum, camera_path)``: the camera object, the frustum the mesh is built in
+        (the camera file's, in float64, else the camera's own), the camera file used or None.
+    """
     h, w = maps.shape
-    camera_path = map_names.camera_file(files.files) if use_camera_file else None
+    camera_path = map_names.camera_file(files.files) if options.use_camera_file else None
     capture = None if camera_path is None else read_camera_json(camera_path)
     if capture is not None and (capture.height, capture.width) != (h, w):
         raise ValueError(
             f"{camera_path}: width, height: {capture.width} x {capture.height}, but the maps are {w} x {h}"
         )
     camera = ensure_camera(scene, camera)
-    if match_resolution:
+    if options.match_resolution:
         scene.render.resolution_x, scene.render.resolution_y = w, h
         scene.render.resolution_percentage = 100
         scene.render.pixel_aspect_x = scene.render.pixel_aspect_y = 1.0
-    if capture is not None:
-        match_camera(scene, camera, capture.blender)
-        frustum = capture.blender.frustum(w, h)  # in float64 (the camera holds it in float32)
-        ratio = capture.blender.fy_over_fx
-        if abs(ratio - 1.0) > 1e-6:
-            warnings.warn(
-                f"{camera_path.name}: fx != fy; Blender's camera has square pixels, so the camera and the relief "
-                f"use fx for both axes (the relief's height is fy / fx = {ratio:.6g} of the capture's)",
-                PBRImportWarning,
-                stacklevel=2,
-            )
-    else:
-        frustum = camera_frustum(camera, w, h, scene=scene)
-    name = name or (sequence.name if sequence else _asset_name(files.files))
+    if capture is None:
+        return camera, camera_frustum(camera, w, h, scene=scene), None
+    match_camera(scene, camera, capture.blender)
+    ratio = capture.blender.fy_over_fx
+    if abs(ratio - 1.0) > 1e-6:
+        warnings.warn(
+            f"{camera_path.name}: fx != fy; Blender's camera has square pixels, so the camera and the relief "
+            f"use fx for both axes (the relief's height is fy / fx = {ratio:.6g} of the capture's)",
+            PBRImportWarning,
+            stacklevel=3,
+        )
+    return camera, capture.blender.frustum(w, h), camera_path  # in float64 (the camera holds it in float32)
 
-    if maps.depth is not None:
-        support = map_io.dilate(maps.valid)  # one pixel past the outline, cut by the mask as alpha
-        vertices, faces, uvs = depth_mesh(maps.depth, support, frustum)
-        if len(faces) == 0:
-            raise ValueError(f"{files.files['depth']}: the depth map gives no triangles inside the mask")
-        mesh = _mesh(name, vertices, faces, uvs)
-        if not sequence:
-            _vertex_normals(mesh, maps.normal[support])
-        local = Matrix.Identity(4)
-        if normal_space != "OBJECT":
-            warnings.warn(
-                "depth mesh: normals use OBJECT space (tangent frames of a curved mesh are not the camera frame)",
-                PBRImportWarning,
-                stacklevel=2,
-            )
-            normal_space = "OBJECT"
-    else:
-        mesh = _plane(name, frustum, distance)
-        local = Matrix.Translation(Vector((frustum.center_x * distance, frustum.center_y * distance, -distance)))
 
+def _asset_mesh(name: str, files: map_names.MapFiles, maps: map_io.PBRMaps, frustum: Frustum,
+                options: ImportOptions, *, custom_normals: bool):  # fmt: skip
+    """The depth mesh (when there is a depth map) or the plane, its local matrix and the normal space it uses.
+
+    Args:
+        name: the mesh's name.
+        files: the matched files (named in errors).
+        maps: the validated maps.
+        frustum: the camera frustum the mesh is built in.
+        options: the import's options (distance, normal space).
+        custom_normals: give a depth mesh the normals as custom vertex normals (not for a sequence).
+
+    Returns:
+        ``(mesh, local, normal_space)``: a depth mesh always uses OBJECT space (with a warning
+        when another was asked for).
+    """
+    if maps.depth is None:
+        d = options.distance
+        local = Matrix.Translation(Vector((frustum.center_x * d, frustum.center_y * d, -d)))
+        return _plane(name, frustum, d), local, options.normal_space
+    support = map_io.dilate(maps.valid)  # one pixel past the outline, cut by the mask as alpha
+    vertices, faces, uvs = depth_mesh(maps.depth, support, frustum)
+    if len(faces) == 0:
+        raise ValueError(f"{files.files['depth']}: the depth map gives no triangles inside the mask")
+    mesh = _mesh(name, vertices, faces, uvs)
+    if custom_normals:
+        _vertex_normals(mesh, maps.normal[support])
+    if options.normal_space != "OBJECT":
+        warnings.warn(
+            "depth mesh: normals use OBJECT space (tangent frames of a curved mesh are not the camera frame)",
+            PBRImportWarning,
+            stacklevel=3,
+        )
+    return mesh, Matrix.Identity(4), "OBJECT"
+
+
+def _link(context, name: str, mesh, camera, local):
+    """A new object of ``mesh`` in the context's collection, parented to ``camera`` at ``local``."""
     obj = bpy.data.objects.new(name, mesh)
-    (context.collection or scene.collection).objects.link(obj)
+    (context.collection or context.scene.collection).objects.link(obj)
     obj.parent = camera
     obj.matrix_parent_inverse = Matrix.Identity(4)
     obj.matrix_basis = local
+    return obj
 
-    if sequence:
-        images = {k: sequence_image(p, k) for k, p in files.files.items() if k != "depth"}
-        use_alpha = "mask" in images
-        normal_raw = files.files["normal"].suffix.lower() == ".exr"
-        material = build_material(
-            name, images, normal_space=normal_space, use_alpha=use_alpha, frames=sequence.frames, normal_raw=normal_raw
-        )
-        scene.frame_start, scene.frame_end = 1, sequence.frames
-        scene.frame_set(1)
-    else:
-        images = _packed_images(name, maps)
-        use_alpha = "mask" in images
-        material = build_material(
-            name, images, normal_space=normal_space, use_alpha=use_alpha, normals_on_mesh=maps.depth is not None
-        )
-    mesh.materials.append(material)
 
+def _tag(context, obj, maps: map_io.PBRMaps, source: str, normal_space: str, camera_path: Path | None, frames: int):
+    """Record what was imported as the object's custom properties (see :func:`import_pbr_maps`); return it."""
     present = maps.present()
     obj["pdir_maps"] = ",".join(present)
     obj["pdir_missing"] = ",".join(k for k in map_names.MAP_KINDS if k not in present)
-    obj["pdir_source"] = str(sequence.path) if sequence else ", ".join(str(p) for p in files.files.values())
+    obj["pdir_source"] = source
     obj["pdir_normal_space"] = normal_space
-    obj["pdir_camera"] = str(camera_path) if capture is not None else ""
-    obj["pdir_frames"] = sequence.frames if sequence else 1
+    obj["pdir_camera"] = str(camera_path) if camera_path is not None else ""
+    obj["pdir_frames"] = frames
     context.view_layer.update()  # matrix_world of the new child, for callers that place lights around it
     return obj
 
@@ -537,15 +613,14 @@ class PDIR_OT_import_pbr(bpy.types.Operator, ImportHelper):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", PBRImportWarning)
             try:
-                obj = import_pbr_maps(
-                    context,
-                    source,
+                options = ImportOptions(
                     distance=self.distance,
                     normal_space=self.normal_space,
                     use_depth=self.use_depth,
                     match_resolution=self.match_resolution,
                     use_camera_file=self.use_camera_file,
                 )
+                obj = import_pbr_maps(context, source, options)
             except (ValueError, OSError) as e:
                 self.report({"ERROR"}, str(e))
                 return {"CANCELLED"}

@@ -4,7 +4,7 @@ Blender's bundled Python has numpy but not mitsuba/drjit. Rendering with Mitsuba
 Blender's own Python (after ``<blender python> -m pip install mitsuba``) or through an external
 Python that has mitsuba (the project's ``.venv/bin/python``), set in the add-on preferences and
 run as a subprocess by :mod:`.render_operator`. The same Python runs the network for "Reconstruct
-Capture" (:mod:`.reconstruct`).
+Capture" (:mod:`.reconstruct_operator`).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ The body of ``headless/relight.py`` (which runs it in its own process: bpy never
 torch or Mitsuba). :func:`relight_maps` empties the session, imports the maps as the
 camera-parented Principled BSDF asset (:func:`blender_addon.pbr_import.import_pbr_maps`),
 renders a point light orbiting it and one frame under a procedural sky or an HDR environment
-with Cycles (:mod:`blender_addon.relight`), and optionally saves the scene for artists: Cycles
+with Cycles (:mod:`blender_addon.relight_operator`), and optionally saves the scene for artists: Cycles
 with denoising, the world of the environment frame, the orbit light (at frame 1, keyframed over
 the orbit; added even when no frame is rendered), the capture camera with the camera-parented
 asset, and every image packed, so the ``.blend`` opens lit and self-contained anywhere. It
@@ -23,8 +23,7 @@ from mathutils import Vector
 
 from pbrdf.io.atomic import temporary_path
 
-from . import pbr_import
-from . import relight as brelight
+from . import pbr_import, relight_operator
 
 __all__ = ["relight_maps", "point_light_power", "ARTIST_SAMPLES"]
 
@@ -80,7 +79,7 @@ def relight_maps(
         exposure: point-light power scale.
         hdr: environment map (``.hdr``/``.exr``); None for a procedural sky.
         env_strength: environment strength.
-        sun: give the procedural sky its sun disc (see :func:`blender_addon.relight.add_environment`).
+        sun: give the procedural sky its sun disc (see :func:`blender_addon.relight_operator.add_environment`).
         device: Cycles device, ``"CPU"`` or ``"GPU"`` (falls back to the CPU).
         save_blend: also save ``OUT/<name>.blend`` (asset, camera, orbit light, environment, Cycles,
             packed images; see the module docstring).
@@ -100,7 +99,7 @@ def relight_maps(
     files = sorted(maps.glob(f"{name}_*.exr")) if name else [maps]
     if name and not files:
         raise FileNotFoundError(f"{maps}: no {name}_*.exr maps")
-    obj = pbr_import.import_pbr_maps(bpy.context, files, distance=distance, name=name or None)
+    obj = pbr_import.import_pbr_maps(bpy.context, files, pbr_import.ImportOptions(distance=distance), name=name or None)
     scale = size / max(scene.render.resolution_x, scene.render.resolution_y)
     scene.render.resolution_x = max(round(scene.render.resolution_x * scale), 8)
     scene.render.resolution_y = max(round(scene.render.resolution_y * scale), 8)
@@ -110,14 +109,14 @@ def relight_maps(
     # Orbit in front of the asset's centre (its +z faces the camera); kept in the .blend even without frames.
     radius = height = 0.6 * distance
     power = point_light_power(radius, height, exposure)
-    light = brelight.add_point_light_orbit(scene, _asset_centre(scene, obj), radius=radius, height=height,
+    light = relight_operator.add_point_light_orbit(scene, _asset_centre(scene, obj), radius=radius, height=height,
                                            frames=max(frames, 1), energy=power)  # fmt: skip
     if frames > 0:
-        written += brelight.render_relit(scene, out, device=device, samples=samples, prefix="point_")
+        written += relight_operator.render_relit(scene, out, device=device, samples=samples, prefix="point_")
     light.hide_render = True
-    brelight.add_environment(scene, hdr_path=hdr, strength=env_strength, sun=sun)
+    relight_operator.add_environment(scene, hdr_path=hdr, strength=env_strength, sun=sun)
     if frames > 0:
-        written += brelight.render_relit(scene, out, device=device, samples=samples,
+        written += relight_operator.render_relit(scene, out, device=device, samples=samples,
                                          frames=[scene.frame_start], prefix="env_")  # fmt: skip
     light.hide_render = False
     if save_blend:

@@ -2,5 +2,5 @@
 
 The library code they call lives in the packages below (``pbrdf``, ``blender_addon``,
 ``network``; the demo in ``network.demo``, the benchmarks in ``network.bench``). The shared
-flag conventions and the deprecation of old spellings are in :mod:`headless._cli`.
+flag conventions are in :mod:`headless._cli`.
 """

@@ -3,8 +3,7 @@
 Flags: ``--input`` (a file or folder the script reads), ``--out`` (what it writes), ``--seed``
 (where it draws random numbers), ``--quiet`` (no progress bars; the lines a script prints at the
 end, its summary or the paths it wrote, still print so that scripts chain) and ``--help`` (the
-module docstring). Older spellings keep working for one release: :func:`add_deprecated` adds
-them hidden from ``--help``; using one prints exactly one line to stderr naming the new flag.
+module docstring).
 
 Every script is a thin ``main(argv=None) -> int`` over a ``build_parser()`` and starts with the
 same bootstrap, so that it runs as ``python headless/x.py``, as ``python -m headless.x`` and
@@ -20,34 +19,22 @@ SystemExit(main())``: ``blender -b -P`` prints an uncaught exception's traceback
 status 0 (unless ``--python-exit-code N`` comes before ``-P``), so there an uncaught exception
 becomes one ``error:`` line and status 1, and the script's own status reaches the shell through
 ``sys.exit`` (which does exit Blender with that code).
-
-Example:
-    >>> import argparse, contextlib, io
-    >>> parser = argparse.ArgumentParser(prog="x")
-    >>> _ = parser.add_argument("--input")
-    >>> add_deprecated(parser, "--maps", new="--input")
-    >>> err = io.StringIO()
-    >>> with contextlib.redirect_stderr(err):
-    ...     args = parser.parse_args(["--maps", "pred/"])
-    >>> args.input, err.getvalue()
-    ('pred/', 'x: deprecated: --maps is now --input (the old form goes away in the next release)\\n')
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import re
 import sys
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import NoReturn
 
 from pbrdf.io.errors import one_line
 
 __all__ = [
-    "DEPRECATION",
-    "add_deprecated",
-    "add_deprecated_positional",
+    "flag_wording",
     "in_blender_binary",
     "model_override",
     "held_warnings",
@@ -56,9 +43,6 @@ __all__ = [
     "run_main",
     "script_args",
 ]
-
-#: The one deprecation line (``prog``, ``old``, ``new``).
-DEPRECATION = "{prog}: deprecated: {old} is now {new} (the old form goes away in the next release)"
 
 
 def model_override(text: str) -> tuple[str, object]:
@@ -77,56 +61,8 @@ def model_override(text: str) -> tuple[str, object]:
         return key, value  # a plain string, e.g. cross_observation=token
 
 
-class _Deprecated(argparse.Action):
-    """Store like ``store`` under the new flag's dest; print the deprecation line once per old form."""
-
-    def __init__(self, option_strings, dest, *, new: str, old: str, **kwargs):
-        self.new, self.old = new, old
-        self.target = new.lstrip("-").replace("-", "_")
-        super().__init__(option_strings, dest, **kwargs)
-
-    def __call__(self, parser, namespace, values, option_string=None):
-        if values is None:  # an optional positional that was not given
-            return
-        if getattr(namespace, self.target, None) not in (None, values):
-            parser.error(f"{self.old} and {self.new} given together: use {self.new} only")
-        warned = vars(namespace).setdefault("_deprecated_warned", set())
-        if self.old not in warned:
-            warned.add(self.old)
-            print(DEPRECATION.format(prog=parser.prog, old=self.old, new=self.new), file=sys.stderr)
-        setattr(namespace, self.target, values)
-
-
-def add_deprecated(parser: argparse.ArgumentParser, old: str, *, new: str, **kwargs) -> None:
-    """Accept the old flag ``old`` as a hidden alias of ``new`` for one release.
-
-    Args:
-        parser: the script's parser (``new`` already added, with default None: giving both the old
-            and the new flag with different values is an error).
-        old: the old option string, e.g. ``"--maps"``.
-        new: the new option string, e.g. ``"--input"``; the value lands in its ``dest``.
-        **kwargs: further ``add_argument`` arguments (e.g. ``type``).
-    """
-    dest = "_deprecated_" + old.lstrip("-").replace("-", "_")
-    parser.add_argument(old, dest=dest, action=_Deprecated, new=new, old=old, default=argparse.SUPPRESS,
-                        help=argparse.SUPPRESS, **kwargs)  # fmt: skip
-
-
-def add_deprecated_positional(parser: argparse.ArgumentParser, metavar: str, *, new: str, **kwargs) -> None:
-    """Accept an old positional argument as a hidden alias of ``new`` for one release.
-
-    Args:
-        parser: the script's parser (``new`` already added).
-        metavar: the positional's old name, e.g. ``"CAPTURE_DIR"`` (named in the deprecation line).
-        new: the new option string, e.g. ``"--input"``; the value lands in its ``dest``.
-        **kwargs: further ``add_argument`` arguments (e.g. ``type``).
-    """
-    parser.add_argument(f"_deprecated_{metavar.lower()}", nargs="?", metavar=metavar, action=_Deprecated, new=new,
-                        old=f"the positional {metavar}", default=None, help=argparse.SUPPRESS, **kwargs)  # fmt: skip
-
-
 def require(parser: argparse.ArgumentParser, args: argparse.Namespace, *flags: str) -> None:
-    """Fail like argparse's ``required=True`` when a flag (or its deprecated alias) was not given.
+    """Fail like argparse's ``required=True`` when a flag was not given (for flags required only in some modes).
 
     Args:
         parser: the script's parser (its ``error`` exits with status 2).
@@ -136,6 +72,33 @@ def require(parser: argparse.ArgumentParser, args: argparse.Namespace, *flags: s
     missing = [f for f in flags if getattr(args, f.lstrip("-").replace("-", "_"), None) is None]
     if missing:
         parser.error(f"the following arguments are required: {', '.join(missing)}")
+
+
+def flag_wording(message: str, names: Iterable[str]) -> str:
+    """A library error in a script's words: ``name=value`` of a parameter becomes its flag ``--name value``.
+
+    Libraries name their parameters (``max_skipped=3``); a script maps the ones that are its flags
+    (underscores become dashes; ``=True`` becomes the bare switch). Other text stays as it is.
+
+    Args:
+        message: the library's error message.
+        names: the parameter names that are flags of the script.
+
+    Returns:
+        The message with each ``name=value`` of ``names`` written as the flag.
+
+    Example:
+        >>> flag_wording("pass resume=True; inputs='polar', not 'full'; table_fraction=0.3 > 0", ["resume", "inputs",
+        ...              "table_fraction"])
+        "pass --resume; --inputs polar, not 'full'; --table-fraction 0.3 > 0"
+    """
+
+    def flag(m: re.Match) -> str:
+        name, value = "--" + m[1].replace("_", "-"), m[2].strip("'")
+        return name if value == "True" else f"{name} {value}"
+
+    pattern = "|".join(re.escape(n) for n in names)
+    return re.sub(rf"(?<![\w-])({pattern})=('[^']*'|\{{[^}}]*\}}|[^\s,;)]+)", flag, message)
 
 
 def script_args(argv: list[str]) -> list[str]:

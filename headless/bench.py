@@ -20,7 +20,7 @@ decoding stride against stride 1 (network.bench.model).
 One timing rule everywhere (network.bench.timing): --warmup untimed calls, then --repeat timed
 calls; every timed entry reports what it timed, its median (seconds_median) and all samples
 (seconds_all). The JSON goes to stdout and, with --out, to FILE. --quick shrinks the sizes for
-a smoke test. `network --capture` still works for one release (use --input).
+a smoke test.
 """
 
 from __future__ import annotations
@@ -33,7 +33,6 @@ from pathlib import Path
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import add_deprecated  # noqa: E402
 from pbrdf.io.strict_json import dumps_strict  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -147,7 +146,6 @@ def build_parser() -> argparse.ArgumentParser:
     nb.add_argument("--input", type=Path, metavar="CAPTURE",
                     help="capture folder or sample for predict() (default examples/capture)")  # fmt: skip
     _common(nb, repeat=1)
-    add_deprecated(nb, "--capture", new="--input", type=Path)
     return parser
 
 

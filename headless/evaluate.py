@@ -38,7 +38,7 @@ from pathlib import Path
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import add_deprecated, require  # noqa: E402
+from headless._cli import require  # noqa: E402
 
 
 def _checkpoints(values: list[str]) -> dict[str, Path] | Path:
@@ -85,7 +85,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, help="output folder (default INPUT/eval)")
     parser.add_argument("--limit", type=int, help="evaluate only the first N samples")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_deprecated(parser, "--data", new="--input", type=Path)
     return parser
 
 

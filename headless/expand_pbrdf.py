@@ -13,7 +13,6 @@ DoLP under unpolarized light and its signed CP/S0 under 45-degree linear light, 
 fitted to it, for every seed (figure_seeds.png) and up to 8 generated tables
 (figure_generated.png). A killed run continues where it
 stopped when started again with the same arguments (the temporary files it left are removed).
---measured still works for one release (use --input).
 """
 
 from __future__ import annotations
@@ -25,8 +24,6 @@ from pathlib import Path
 
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from headless._cli import add_deprecated  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -42,7 +39,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--components", type=int, nargs=2, default=[10, 10], metavar=("K_I", "K_P"),
                         help="PCA components for intensity and polarization, each >= 1 (default 10 10)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_deprecated(parser, "--measured", new="--input", type=Path)
     return parser
 
 

@@ -12,7 +12,7 @@ Cycles with denoising, the world, the orbit light, the capture camera with the a
 images. Runs with the bpy wheel (`pip install bpy`) or inside Blender 4.2+:
 `blender -b --python-exit-code 1 -P headless/relight.py -- <args>` (an older Blender is refused
 with one line and status 2; inside the binary an uncaught error is one "error: ..." line with
-status 1). --maps still works for one release (use --input).
+status 1).
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from pathlib import Path
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import add_deprecated, refuse_old_blender, require, run_main, script_args  # noqa: E402
+from headless._cli import refuse_old_blender, require, run_main, script_args  # noqa: E402
 
 if __name__ == "__main__":
     refuse_old_blender("relight.py")  # inside the Blender binary: an old Blender is refused first
@@ -51,7 +51,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--device", default="CPU", choices=["CPU", "GPU"], help="Cycles device (default CPU)")
     parser.add_argument("--save-blend", action="store_true", help="save OUT/<NAME>.blend")
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
-    add_deprecated(parser, "--maps", new="--input", type=Path)
     return parser
 
 

@@ -65,7 +65,7 @@ from pathlib import Path
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import in_blender_binary, refuse_old_blender, run_main, script_args  # noqa: E402
+from headless._cli import flag_wording, in_blender_binary, refuse_old_blender, run_main, script_args  # noqa: E402
 
 if __name__ == "__main__":
     refuse_old_blender("render.py")  # the Blender binary's route: an old Blender is refused before other imports
@@ -107,6 +107,11 @@ def _apply_split(args: argparse.Namespace) -> str | None:
     args.variant = args.variant or "llvm"  # the variant the splits were made with, GPU or not
     args.out = args.out or Path("out/splits") / split.name
     return split.name
+
+
+#: The GenerateConfig fields that are flags here (its errors name them as ``field=value``).
+GENERATE_FLAGS = ("count", "resolution", "seed", "spp", "shapes", "objects", "table_fraction", "variant", "assets",
+                  "pbrdfs", "rig", "pattern", "scene", "shard")  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -217,7 +222,7 @@ def main(argv: list[str] | None = None) -> int:
         )
         report = generate(cfg, progress=not args.quiet, spec_hook=spec_hook)
     except (ValueError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {flag_wording(str(exc), GENERATE_FLAGS)}", file=sys.stderr)
         return 2
     print(report.summary())
     return 1 if report.failed else 0

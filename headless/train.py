@@ -8,7 +8,7 @@ losses, learning rate, real-loss weight, gradient norm), OUT/val.csv (with --val
 TensorBoard events in OUT/tb (when tensorboard is installed). --resume continues a killed run
 exactly where its last checkpoint was (network.train); at the final step it rewrites a missing or
 stale model.pt from the checkpoint. Every run removes the temporary files (.NAME.tmp-PID-HEX) a
-killed run left beside these files. --data still works for one release (use --input).
+killed run left beside these files.
 
 Several GPUs or machines: launch the same command with torchrun, e.g.
 
@@ -29,10 +29,14 @@ from pathlib import Path
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import add_deprecated, model_override, require  # noqa: E402
+from headless._cli import flag_wording, model_override, require  # noqa: E402
 
 INPUTS = ("white", "spectral", "polar", "full")  # network.inputs.INPUT_VARIANTS (not imported: --help stays fast)
 SCALES = ("calibrated", "exposure-invariant")  # network.data.INPUT_SCALES
+
+
+#: The TrainConfig fields that network.train's errors name (``max_skipped=3``), all flags here.
+FLAGGED = ("resume", "max_skipped", "config", "overrides", "inputs", "input_scale")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -85,7 +89,6 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard events")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
-    add_deprecated(parser, "--data", new="--input", type=Path)
     return parser
 
 
@@ -124,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
         )  # fmt: skip
         losses = train(cfg, progress=not args.quiet)
     except (ValueError, OSError, FloatingPointError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
+        print(f"error: {flag_wording(str(exc), FLAGGED)}", file=sys.stderr)
         return 2
     if losses and os.environ.get("RANK", "0") == "0":
         print(f"steps {len(losses)}, loss first {losses[0]:.4f}, last {losses[-1]:.4f}; model: {args.out / 'model.pt'}")

@@ -56,24 +56,25 @@ from typing import Any
 
 import torch
 import torch.distributed as dist
-from torch import nn
+from torch import Tensor, nn
 from torch.utils.data import DataLoader, Dataset
 
 from pbrdf.data.splits import require_role
 from pbrdf.io.atomic import remove_leftovers
 
-from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, model_file_state, params_sha256, save_checkpoint
+from .checkpoint import CHECKPOINT_FORMAT, model_file_state, params_sha256, save_checkpoint
 from .config import get_config
 from .data import INPUT_SCALES, TARGET_KEYS, SampleDataset, checkpoint_input_scale, gather_pixels
 from .distributed import DistContext, init_distributed, resolve_device, rng_state, set_rng_state
 from .inputs import INPUT_VARIANTS, apply_inputs, checkpoint_inputs
-from .losses import LossWeights, synthetic_loss
+from .losses import LossWeights, real_loss, synthetic_loss
 from .metrics import normal_mae_deg
 from .model.polar_model import PolarInverseModel
+from .realdata import RealDataset
 from .schedules import StepBatches, learning_rate, pixel_seed, real_loss_weight, sample_batch_pixels
-from .train_files import LOG_COLUMNS, OUT_FILES, Logs, sync_best_file, sync_model_file, val_rows
+from .train_files import OUT_FILES, Logs, sync_best_file, sync_model_file, val_rows
 
-__all__ = ["LOG_COLUMNS", "TrainConfig", "load_checkpoint", "train"]
+__all__ = ["TrainConfig", "Trainer", "train"]
 
 log = logging.getLogger(__name__)
 
@@ -232,15 +233,6 @@ def _validate(model: PolarInverseModel, ds: SampleDataset, count: int, inputs: s
 # Training
 
 
-def _real_modules() -> tuple[Any, Any]:
-    try:
-        from .losses import real_loss  # noqa: PLC0415
-        from .realdata import RealDataset  # noqa: PLC0415
-    except ImportError as exc:
-        raise ValueError(f"real-data training needs network/realdata.py and network.losses.real_loss: {exc}") from None
-    return RealDataset, real_loss
-
-
 def train(cfg: TrainConfig, *, progress: bool = True, stats: dict | None = None) -> list[float]:
     """Train (or resume) and return the loss per completed step of the whole run (skipped steps excluded).
 
@@ -265,187 +257,230 @@ def train(cfg: TrainConfig, *, progress: bool = True, stats: dict | None = None)
     dd, device = init_distributed(device)
     stats.update(rank=dd.rank, world_size=dd.world)
     try:
-        return _train(cfg, progress, stats, dd, device)
+        return Trainer(cfg, stats, dd, device).run(progress)
     finally:
         if dd.owned and dist.is_initialized():
             dist.destroy_process_group()
 
 
-def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, device: torch.device) -> list[float]:
-    out = Path(cfg.out)
-    ckpt_path = out / "checkpoint.pt"
-    main = dd.rank == 0
-    model_cfg = get_config(cfg.config, **cfg.overrides)
-    # Test splits are read by the final evaluation only; selection reads val only.
+@dataclass(frozen=True)
+class _Data:
+    """The run's datasets: synthetic training samples, real captures (optional), validation samples (optional)."""
+
+    synthetic: SampleDataset
+    real: RealDataset | None
+    val: SampleDataset | None
+
+    def sizes(self) -> dict[str, int | None]:
+        """What a checkpoint records of the training data (a change of size changes the data order)."""
+        return {"synthetic": len(self.synthetic), "real": len(self.real) if self.real is not None else None}
+
+
+def _datasets(cfg: TrainConfig, image_size: int) -> _Data:
+    """Open the run's datasets after checking their roles (test splits are read by the final evaluation only)."""
     require_role(cfg.data, ("train",), "training")
     if cfg.val is not None:
         require_role(cfg.val, ("val",), "validation")
     if cfg.real is not None:
         require_role(cfg.real, ("train",), "training (real-data loss)")
     ds = SampleDataset(
-        cfg.data, size=model_cfg.image_size, input_scale=cfg.input_scale,
+        cfg.data, size=image_size, input_scale=cfg.input_scale,
         indices=list(cfg.indices) if cfg.indices is not None else None,
     )  # fmt: skip
     if cfg.indices is not None and len(ds) != len(cfg.indices):
         missing = sorted(set(cfg.indices) - set(ds.indices))
         raise ValueError(f"{cfg.data}: {len(missing)} of the requested indices are not completed samples "
                          f"(first: {missing[0]})")  # fmt: skip
-    real_ds, real_loss = None, None
+    real = None
     if cfg.real is not None:
-        real_dataset_cls, real_loss = _real_modules()
-        real_ds = real_dataset_cls(cfg.real, size=model_cfg.image_size, input_scale=cfg.input_scale)
-        if len(real_ds) == 0:
+        real = RealDataset(cfg.real, size=image_size, input_scale=cfg.input_scale)
+        if len(real) == 0:
             raise ValueError(f"{cfg.real}: no real captures found")
-    val_ds = None
-    if cfg.val is not None:
-        val_ds = SampleDataset(cfg.val, size=model_cfg.image_size, input_scale=cfg.input_scale)
-    if device.type == "cuda":
-        torch.backends.cuda.matmul.allow_tf32 = True
-        torch.backends.cudnn.allow_tf32 = True
+    val = SampleDataset(cfg.val, size=image_size, input_scale=cfg.input_scale) if cfg.val is not None else None
+    return _Data(ds, real, val)
 
-    torch.manual_seed(cfg.seed)  # identical initial weights on every rank
-    model = PolarInverseModel(model_cfg).to(device)
-    opt = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
-    torch.manual_seed(cfg.seed + 1 + dd.rank)  # per-rank stream for anything random after init
-    start, losses, skipped_total, ckpt = 0, [], 0, None
-    if cfg.resume and ckpt_path.is_file():
-        ckpt = torch.load(ckpt_path, weights_only=True, map_location="cpu")
-        if ckpt["config"] != model_cfg.to_dict():
-            raise ValueError(f"{ckpt_path}: checkpoint config differs from --config {cfg.config} (and --overrides)")
-        if checkpoint_inputs(ckpt) != cfg.inputs:
-            raise ValueError(
-                f"{ckpt_path}: checkpoint was trained with --inputs {checkpoint_inputs(ckpt)}, not {cfg.inputs}"
-            )
-        if checkpoint_input_scale(ckpt) != cfg.input_scale:
-            raise ValueError(
-                f"{ckpt_path}: checkpoint was trained with --input-scale {checkpoint_input_scale(ckpt)}, "
-                f"not {cfg.input_scale}"
-            )
-        model.load_state_dict(ckpt["model"])
-        opt.load_state_dict(ckpt["optimizer"])
-        start, losses, skipped_total = int(ckpt["step"]), list(ckpt["losses"]), int(ckpt.get("skipped", 0))
-        rngs = ckpt.get("rng")
-        if rngs is not None and len(rngs) == dd.world:
-            set_rng_state(rngs[dd.rank], device)
-        elif "torch_rng" in ckpt and dd.world == 1:
-            torch.set_rng_state(ckpt["torch_rng"])
+
+class Trainer:
+    """One training run: the model, its optimizer, the data and the counters a checkpoint records.
+
+    :meth:`run` resumes (:meth:`resume`), prepares the output folder, then calls :meth:`step` for
+    every step of this invocation, validating and saving (:meth:`save`) at their steps.
+
+    Args:
+        cfg: the run's settings.
+        stats: counters of this call (see :func:`train`), updated in place.
+        dd: the process group (one process: a no-op context).
+        device: where the model runs.
+    """
+
+    def __init__(self, cfg: TrainConfig, stats: dict, dd: DistContext, device: torch.device) -> None:
+        self.cfg, self.stats, self.dd, self.device = cfg, stats, dd, device
+        self.out = Path(cfg.out)
+        self.ckpt_path = self.out / "checkpoint.pt"
+        self.main = dd.rank == 0
+        self.model_cfg = get_config(cfg.config, **cfg.overrides)
+        self.data = _datasets(cfg, self.model_cfg.image_size)
+        if device.type == "cuda":
+            torch.backends.cuda.matmul.allow_tf32 = True
+            torch.backends.cudnn.allow_tf32 = True
+        torch.manual_seed(cfg.seed)  # identical initial weights on every rank
+        self.model = PolarInverseModel(self.model_cfg).to(device)
+        self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+        torch.manual_seed(cfg.seed + 1 + dd.rank)  # per-rank stream for anything random after init
+        self.start, self.losses, self.skipped = 0, [], 0
+        self.best_mae = math.inf
+        self.logs: Logs | None = None
+        self.bar = None
+
+    # -- resume and the output folder
+
+    def resume(self) -> dict | None:
+        """Load ``checkpoint.pt`` when resuming (weights, optimizer, step, losses, RNG); return it (None: fresh run).
+
+        Raises:
+            FileExistsError: a checkpoint exists and ``resume`` is off.
+            ValueError: the checkpoint's model config, input variant or input scale differ from the settings.
+        """
+        cfg, path = self.cfg, self.ckpt_path
+        if not cfg.resume:
+            if path.exists():
+                raise FileExistsError(f"{path}: exists; pass resume=True to continue or choose another out")
+            return None
+        if not path.is_file():
+            return None
+        ckpt = torch.load(path, weights_only=True, map_location="cpu")
+        trained = {"inputs": checkpoint_inputs(ckpt), "input_scale": checkpoint_input_scale(ckpt)}
+        if ckpt["config"] != self.model_cfg.to_dict():
+            raise ValueError(f"{path}: checkpoint config differs from config={cfg.config!r} with "
+                             f"overrides={cfg.overrides}")  # fmt: skip
+        for name, value in trained.items():
+            if value != getattr(cfg, name):
+                raise ValueError(f"{path}: checkpoint was trained with {name}={value!r}, not {getattr(cfg, name)!r}")
+        self.model.load_state_dict(ckpt["model"])
+        self.opt.load_state_dict(ckpt["optimizer"])
+        self.start, self.losses, self.skipped = int(ckpt["step"]), list(ckpt["losses"]), int(ckpt["skipped"])
+        if len(ckpt["rng"]) == self.dd.world:
+            set_rng_state(ckpt["rng"][self.dd.rank], self.device)
         else:
-            log.warning("%s: saved RNG states are for another number of processes; resume is not bitwise", ckpt_path)
-        if "format" not in ckpt:
-            log.warning("%s: written by an older version: its data order differs from this one's", ckpt_path)
-        sizes = ckpt.get("data", {})
-        for name, d in (("synthetic", ds), ("real", real_ds)):
-            if d is not None and sizes.get(name) not in (None, len(d)):
-                log.warning("%s: the %s data had %s samples, now %d: the data order changes", ckpt_path, name,
-                            sizes.get(name), len(d))  # fmt: skip
-    elif ckpt_path.exists() and not cfg.resume:
-        raise FileExistsError(f"{ckpt_path}: exists; pass --resume to continue or choose another --out")
-    starts = dd.gather(start)
-    if len(set(starts)) != 1:
-        raise ValueError(f"{ckpt_path}: ranks resume from different steps {starts}; every node must see the checkpoint")
-    if main:
-        out.mkdir(parents=True, exist_ok=True)
-        removed = remove_leftovers(out, OUT_FILES)  # of a killed run (a live writer's stay)
-        if removed:
-            log.info("removed %d temporary file(s) of a killed run from %s", len(removed), out)
-        if start >= cfg.steps:  # nothing left to train: model.pt must still be the checkpoint's
-            sync_model_file(out / "model.pt", ckpt)
-        if ckpt is not None and cfg.val is not None:
-            sync_best_file(out, ckpt)
-    best_mae = min((mae for step, mae in val_rows(out / "val.csv") if step <= start), default=math.inf)
-    ckpt = None  # the loaded copy (optimizer state included) is not needed any more
-    dd.barrier()
-    logs = Logs(out, start, cfg.resume, main, cfg.tensorboard)
+            log.warning("%s: saved RNG states are for another number of processes; resume is not bitwise", path)
+        for name, size in self.data.sizes().items():
+            if size is not None and ckpt["data"].get(name) not in (None, size):
+                log.warning("%s: the %s data had %s samples, now %d: the data order changes", path, name,
+                            ckpt["data"].get(name), size)  # fmt: skip
+        return ckpt
 
-    net: nn.Module = _PixelModel(model)
-    if dd.active:
-        net = nn.parallel.DistributedDataParallel(net, device_ids=[device.index] if device.type == "cuda" else None)
-    decay = cfg.decay_steps or cfg.steps
-    stop = cfg.steps if cfg.stop_after is None else min(cfg.steps, cfg.stop_after)
-    steps = list(range(start, stop))
-    syn_sampler = StepBatches(len(ds), cfg.seed, "synthetic", steps, cfg.batch_size, dd.rank, dd.world)
-    syn_batches = _loader(ds, syn_sampler, cfg.workers)
-    real_sampler = real_batches = None
-    if real_ds is not None:
-        real_steps = [s for s in steps if real_loss_weight(s, cfg.real_weight, cfg.real_start, cfg.real_warmup) > 0]
-        real_sampler = StepBatches(len(real_ds), cfg.seed, "real", real_steps, cfg.batch_size, dd.rank, dd.world)
-        real_batches = _loader(real_ds, real_sampler, cfg.workers)
+    def prepare_out(self, ckpt: dict | None) -> None:
+        """Rank 0: create ``out``, remove a killed run's temporaries, repair ``model.pt``/``best.pt`` from ``ckpt``."""
+        starts = self.dd.gather(self.start)
+        if len(set(starts)) != 1:
+            raise ValueError(f"{self.ckpt_path}: ranks resume from different steps {starts}; "
+                             "every node must see the checkpoint")  # fmt: skip
+        out = self.out
+        if self.main:
+            out.mkdir(parents=True, exist_ok=True)
+            removed = remove_leftovers(out, OUT_FILES)  # of a killed run (a live writer's stay)
+            if removed:
+                log.info("removed %d temporary file(s) of a killed run from %s", len(removed), out)
+            if self.start >= self.cfg.steps:  # nothing left to train: model.pt must still be the checkpoint's
+                sync_model_file(out / "model.pt", ckpt)
+            if ckpt is not None and self.cfg.val is not None:
+                sync_best_file(out, ckpt)
+        self.best_mae = min((mae for step, mae in val_rows(out / "val.csv") if step <= self.start), default=math.inf)
+        self.dd.barrier()
 
-    def prepare(batch: dict, loader: str, step: int, sampler: StepBatches) -> tuple[dict, torch.Tensor, torch.Tensor]:
-        seeds = [pixel_seed(cfg.seed, loader, step, p) for p in sampler.positions(step)]
-        pixels, valid = sample_batch_pixels(batch["mask"], model_cfg.train_pixels, seeds)
+    # -- one step
+
+    def _batches(self, steps: list[int]) -> None:
+        """The loaders of this invocation's ``steps`` (the real one only over steps whose real weight is > 0)."""
+        cfg, dd = self.cfg, self.dd
+        self.syn_sampler = StepBatches(len(self.data.synthetic), cfg.seed, "synthetic", steps, cfg.batch_size,
+                                       dd.rank, dd.world)  # fmt: skip
+        self.syn_batches = _loader(self.data.synthetic, self.syn_sampler, cfg.workers)
+        self.real_sampler = self.real_batches = None
+        if self.data.real is not None:
+            real_steps = [s for s in steps if self._real_weight(s) > 0]
+            self.real_sampler = StepBatches(len(self.data.real), cfg.seed, "real", real_steps, cfg.batch_size,
+                                            dd.rank, dd.world)  # fmt: skip
+            self.real_batches = _loader(self.data.real, self.real_sampler, cfg.workers)
+
+    def _real_weight(self, step: int) -> float:
+        cfg = self.cfg
+        if self.data.real is None:
+            return 0.0
+        return real_loss_weight(step, cfg.real_weight, cfg.real_start, cfg.real_warmup)
+
+    def _prepare(self, batch: dict, loader: str, step: int, sampler: StepBatches) -> tuple[dict, Tensor, Tensor]:
+        """Move a batch to the device and draw its training pixels (a pure function of seed, loader, step, position)."""
+        seeds = [pixel_seed(self.cfg.seed, loader, step, p) for p in sampler.positions(step)]
+        pixels, valid = sample_batch_pixels(batch["mask"], self.model_cfg.train_pixels, seeds)
+        device = self.device
         batch = {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v for k, v in batch.items()}
         return batch, pixels.to(device), valid.to(device)
 
-    def forward(batch: dict, pixels: torch.Tensor, valid: torch.Tensor) -> dict:
-        with torch.autocast(device_type=device.type, dtype=torch.bfloat16, enabled=cfg.bf16):
+    def _forward(self, batch: dict, pixels: Tensor, valid: Tensor) -> dict:
+        with torch.autocast(device_type=self.device.type, dtype=torch.bfloat16, enabled=self.cfg.bf16):
             # The network sees the variant's maps; the losses keep the measured ones.
-            pred = net(apply_inputs(batch["maps"], cfg.inputs), batch["mask"].to(batch["maps"].dtype), pixels, valid)
+            maps = apply_inputs(batch["maps"], self.cfg.inputs)
+            pred = self.net(maps, batch["mask"].to(batch["maps"].dtype), pixels, valid)
         return {k: v.float() for k, v in pred.items()}  # losses and backward in float32, outside autocast
 
-    bar = None
-    if progress and main:
-        from tqdm import tqdm  # noqa: PLC0415
-
-        bar = tqdm(total=cfg.steps, initial=start, desc=f"train {cfg.config}", unit="step")
-    model.train()
-
-    def skip(step: int, reason: str, row: dict) -> None:
-        nonlocal skipped_total
-        skipped_total += 1
-        stats["skipped"] += 1
-        log.warning("step %d: %s; step skipped (%d skipped so far)", step, reason, skipped_total)
-        opt.zero_grad(set_to_none=True)
-        logs.step({**row, "skipped": reason.replace(",", ";")}, {})
-        if skipped_total > cfg.max_skipped:
+    def _skip(self, step: int, reason: str, row: dict) -> None:
+        """Report a skipped step (log, ``log.csv``); more than ``max_skipped`` stop the run."""
+        self.skipped += 1
+        self.stats["skipped"] += 1
+        log.warning("step %d: %s; step skipped (%d skipped so far)", step, reason, self.skipped)
+        self.opt.zero_grad(set_to_none=True)
+        self.logs.step({**row, "skipped": reason.replace(",", ";")}, {})
+        if self.skipped > self.cfg.max_skipped:
             raise FloatingPointError(
-                f"{skipped_total} steps skipped for non-finite values (more than --max-skipped {cfg.max_skipped}); "
+                f"{self.skipped} steps skipped for non-finite values (more than max_skipped={self.cfg.max_skipped}); "
                 f"stopping at step {step}: {reason}"
             )
 
-    def run_step(step: int) -> None:
-        """One optimizer step (or a reported skip)."""
+    def step(self, step: int) -> None:
+        """One optimizer step (or a reported skip): synthetic pass, real pass (weight > 0), clip, AdamW."""
+        cfg, stats, device = self.cfg, self.stats, self.device
         t0 = time.perf_counter()
-        lr = learning_rate(step, cfg.lr, cfg.warmup_steps, decay, cfg.min_lr_ratio)
-        for group in opt.param_groups:
+        lr = learning_rate(step, cfg.lr, cfg.warmup_steps, cfg.decay_steps or cfg.steps, cfg.min_lr_ratio)
+        for group in self.opt.param_groups:
             group["lr"] = lr
-        w_real = real_loss_weight(step, cfg.real_weight, cfg.real_start, cfg.real_warmup) if real_ds else 0.0
+        w_real = self._real_weight(step)
         row: dict[str, Any] = {"step": step, "lr": lr, "real_weight": w_real}
-        syn, pix, valid = prepare(next(syn_batches), "synthetic", step, syn_sampler)
+        syn, pix, valid = self._prepare(next(self.syn_batches), "synthetic", step, self.syn_sampler)
         stats["synthetic_batches"] += 1
         real = None
         if w_real > 0:  # the real batch is loaded only when its pass runs
-            real, rpix, rvalid = prepare(next(real_batches), "real", step, real_sampler)
+            real, rpix, rvalid = self._prepare(next(self.real_batches), "real", step, self.real_sampler)
             stats["real_batches"] += 1
         bad = [f"synthetic {k}" for k in _nonfinite_keys(syn)]
         bad += [f"real {k}" for k in _nonfinite_keys(real)] if real is not None else []
-        if dd.any_true(bool(bad), device):  # every rank skips together
-            skip(step, f"non-finite input ({', '.join(bad) or 'on another rank'})", row)
+        if self.dd.any_true(bool(bad), device):  # every rank skips together
+            self._skip(step, f"non-finite input ({', '.join(bad) or 'on another rank'})", row)
             return
 
-        opt.zero_grad(set_to_none=True)
-        pred = forward(syn, pix, valid)
+        self.opt.zero_grad(set_to_none=True)
+        pred = self._forward(syn, pix, valid)
         target = {k: gather_pixels(syn[k], pix) for k in TARGET_KEYS}
         loss_syn, parts = synthetic_loss(pred, target, valid[:, None].float(), cfg.weights)
         loss_syn.backward()
         del pred
         loss_real, real_parts = torch.zeros((), device=device), {}
         if real is not None:
-            rpred = forward(real, rpix, rvalid)
+            rpred = self._forward(real, rpix, rvalid)
             loss_real, real_parts = real_loss(rpred, real, rpix, rvalid[:, None].float())
             (w_real * loss_real).backward()  # gradients accumulate onto the synthetic ones
             stats["real_passes"] += 1
             del rpred
         # After DDP's all-reduce the gradients, hence their norm, are the same on every rank.
-        grad_norm = float(torch.nn.utils.clip_grad_norm_(model.parameters(), cfg.clip))
-        mean_syn, mean_real = dd.mean([float(loss_syn.detach()), float(loss_real.detach())], device)
+        grad_norm = float(torch.nn.utils.clip_grad_norm_(self.model.parameters(), cfg.clip))
+        mean_syn, mean_real = self.dd.mean([float(loss_syn.detach()), float(loss_real.detach())], device)
         total = mean_syn + w_real * mean_real
         row.update(loss=total, synthetic=mean_syn, real=mean_real if real is not None else None, grad_norm=grad_norm)
         if not (math.isfinite(total) and math.isfinite(grad_norm)):
-            skip(step, f"non-finite loss {total} or gradient norm {grad_norm}", row)
+            self._skip(step, f"non-finite loss {total} or gradient norm {grad_norm}", row)
             return
-        opt.step()
-        losses.append(total)
+        self.opt.step()
+        self.losses.append(total)
         stats["steps"] += 1
         row["seconds"] = time.perf_counter() - t0
         row.update({k: parts.get(k) for k in (*TARGET_KEYS, "chromaticity")})
@@ -454,52 +489,80 @@ def _train(cfg: TrainConfig, progress: bool, stats: dict, dd: DistContext, devic
         if real is not None:
             scalars.update({"loss/real": mean_real, "real_weight": w_real})
             scalars.update({f"real/{k}": v for k, v in real_parts.items()})
-        logs.step(row, scalars)
-        if bar is not None:
-            bar.set_postfix(loss=f"{total:.4f}")
+        self.logs.step(row, scalars)
+        if self.bar is not None:
+            self.bar.set_postfix(loss=f"{total:.4f}")
 
-    def save(done: int, val_mae: float | None) -> None:
-        nonlocal best_mae
-        state = model.state_dict()
+    # -- validation and checkpoints
+
+    def validate(self, done: int) -> float | None:
+        """Rank 0: the validation normal MAE after step ``done`` when one is due (else None, and on other ranks)."""
+        cfg, val = self.cfg, self.data.val
+        if val is None or not (done % (cfg.val_every or cfg.checkpoint_every) == 0 or done == cfg.steps):
+            return None
+        mae = None
+        if self.main:
+            mae = _validate(self.model, val, cfg.val_samples, cfg.inputs, self.device)
+            self.logs.val(done, mae, min(cfg.val_samples, len(val)))
+        self.dd.barrier()
+        return mae
+
+    def save(self, done: int, val_mae: float | None) -> None:
+        """Write ``checkpoint.pt``, then ``model.pt`` (and ``best.pt`` on a new best validation) on rank 0."""
+        cfg, dd = self.cfg, self.dd
+        state = self.model.state_dict()
         shas = dd.gather(params_sha256(state))
-        rngs = dd.gather(rng_state(device))
+        rngs = dd.gather(rng_state(self.device))
         if len(set(shas)) != 1:
             raise RuntimeError(f"step {done}: ranks hold different parameters (sha256 {shas})")
-        if main:
+        if self.main:
             record = {
-                "format": CHECKPOINT_FORMAT, "config": model_cfg.to_dict(), "inputs": cfg.inputs,
-                "input_scale": cfg.input_scale, "model": state,
-                "optimizer": opt.state_dict(), "step": done, "losses": losses, "skipped": skipped_total, "rng": rngs,
-                "rank_params_sha256": shas, "world_size": dd.world,
-                "data": {"synthetic": len(ds), "real": len(real_ds) if real_ds is not None else None},
-                "train": _plain(cfg),
+                "format": CHECKPOINT_FORMAT, "config": self.model_cfg.to_dict(), "inputs": cfg.inputs,
+                "input_scale": cfg.input_scale, "model": state, "optimizer": self.opt.state_dict(), "step": done,
+                "losses": self.losses, "skipped": self.skipped, "rng": rngs, "rank_params_sha256": shas,
+                "world_size": dd.world, "data": self.data.sizes(), "train": _plain(cfg),
             }  # fmt: skip
-            save_checkpoint(ckpt_path, record)  # first: a kill before model.pt is repaired by the resume
-            save_checkpoint(out / "model.pt", model_file_state(record, shas[0]))
-            if val_mae is not None and val_mae < best_mae:  # after the checkpoint: see sync_best_file
-                best_mae = val_mae
-                save_checkpoint(out / "best.pt", {**model_file_state(record, shas[0]), "val_normal_mae_deg": val_mae})
+            save_checkpoint(self.ckpt_path, record)  # first: a kill before model.pt is repaired by the resume
+            save_checkpoint(self.out / "model.pt", model_file_state(record, shas[0]))
+            if val_mae is not None and val_mae < self.best_mae:  # after the checkpoint: see sync_best_file
+                self.best_mae = val_mae
+                best = {**model_file_state(record, shas[0]), "val_normal_mae_deg": val_mae}
+                save_checkpoint(self.out / "best.pt", best)
         dd.barrier()
 
-    try:
-        for step in steps:
-            run_step(step)
-            if bar is not None:
-                bar.update()
-            done = step + 1
-            mae = None
-            if val_ds is not None and (done % (cfg.val_every or cfg.checkpoint_every) == 0 or done == cfg.steps):
-                if main:
-                    mae = _validate(model, val_ds, cfg.val_samples, cfg.inputs, device)
-                    logs.val(done, mae, min(cfg.val_samples, len(val_ds)))
-                dd.barrier()
-            if done % cfg.checkpoint_every == 0 or done in (cfg.steps, stop):
-                save(done, mae)
-    finally:
-        if bar is not None:
-            bar.close()
-        logs.close()
-    return losses
+    # -- the run
+
+    def run(self, progress: bool) -> list[float]:
+        """Resume, then train up to ``steps`` (or ``stop_after``); returns the losses of every completed step."""
+        cfg, dd, device = self.cfg, self.dd, self.device
+        self.prepare_out(self.resume())  # the loaded checkpoint (optimizer state included) is dropped here
+        self.logs = Logs(self.out, self.start, cfg.resume, self.main, cfg.tensorboard)
+        self.net: nn.Module = _PixelModel(self.model)
+        if dd.active:
+            ids = [device.index] if device.type == "cuda" else None
+            self.net = nn.parallel.DistributedDataParallel(self.net, device_ids=ids)
+        stop = cfg.steps if cfg.stop_after is None else min(cfg.steps, cfg.stop_after)
+        steps = list(range(self.start, stop))
+        self._batches(steps)
+        if progress and self.main:
+            from tqdm import tqdm  # noqa: PLC0415
+
+            self.bar = tqdm(total=cfg.steps, initial=self.start, desc=f"train {cfg.config}", unit="step")
+        self.model.train()
+        try:
+            for step in steps:
+                self.step(step)
+                if self.bar is not None:
+                    self.bar.update()
+                done = step + 1
+                mae = self.validate(done)
+                if done % cfg.checkpoint_every == 0 or done in (cfg.steps, stop):
+                    self.save(done, mae)
+        finally:
+            if self.bar is not None:
+                self.bar.close()
+            self.logs.close()
+        return self.losses
 
 
 def _plain(cfg: TrainConfig) -> dict[str, Any]:

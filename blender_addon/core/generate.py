@@ -41,6 +41,7 @@ __all__ = [
     "SHAPE_SETS",
     "VARIANT_ALIASES",
     "GenerateConfig",
+    "GenerateInputs",
     "GenerateReport",
     "generate",
     "parse_objects",
@@ -71,7 +72,7 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class GenerateConfig:
-    """What to generate (command-line flags of ``headless/render.py``)."""
+    """What to generate (the flags of ``headless/render.py``; errors name fields, the script words them as flags)."""
 
     out: Path
     count: int
@@ -96,44 +97,117 @@ class GenerateConfig:
     variant: str = "auto"
 
     def __post_init__(self) -> None:
-        """Check the flags; ``shapes`` None becomes ``none`` with ``assets``, else ``procedural``."""
+        """Check the fields; ``shapes`` None becomes ``none`` with ``assets``, else ``procedural``."""
         if self.count < 1:
-            raise ValueError(f"--count must be >= 1, got {self.count}")
+            raise ValueError(f"count={self.count} must be >= 1")
         for name in ("assets", "pbrdfs", "rig", "scene"):
             p = getattr(self, name)
             if p is not None and not Path(p).exists():
-                raise FileNotFoundError(f"--{name} {p}: does not exist")
+                raise FileNotFoundError(f"{name}={p}: does not exist")
         if self.pattern is not None and self.pattern not in BUILTIN_PATTERNS and not Path(self.pattern).is_file():
-            raise ValueError(
-                f"--pattern must be one of {list(BUILTIN_PATTERNS)} or an image file, got {self.pattern!r}"
-            )
+            raise ValueError(f"pattern={self.pattern!r} must be one of {list(BUILTIN_PATTERNS)} or an image file")
         if self.shapes is None:
             object.__setattr__(self, "shapes", "none" if self.assets is not None else "procedural")
         if self.shapes not in SHAPE_SETS:
-            raise ValueError(f"--shapes must be one of {sorted(SHAPE_SETS)}, got {self.shapes!r}")
+            raise ValueError(f"shapes={self.shapes!r} must be one of {sorted(SHAPE_SETS)}")
         if self.shapes == "none" and self.assets is None and self.scene is None:
-            raise ValueError("--shapes none leaves nothing to draw: give --assets DIR")
+            raise ValueError("shapes='none' leaves nothing to draw: give assets=DIR")
         if self.scene is not None and (self.assets is not None or self.pbrdfs is not None):
-            raise ValueError("--scene renders the given scene: it cannot be combined with --assets or --pbrdfs")
+            raise ValueError("scene renders the given scene: it cannot be combined with assets or pbrdfs")
         object.__setattr__(self, "objects", parse_objects(self.objects))
         if self.scene is not None and (self.objects != (1, 1) or self.table_fraction is not None):
-            raise ValueError(
-                "--scene renders the given scene: it cannot be combined with --objects or --table-fraction"
-            )
+            raise ValueError("scene renders the given scene: it cannot be combined with objects or table_fraction")
         if self.table_fraction is not None:
             if not 0.0 <= self.table_fraction <= 1.0:
-                raise ValueError(f"--table-fraction must be in [0, 1], got {self.table_fraction}")
+                raise ValueError(f"table_fraction={self.table_fraction} must be in [0, 1]")
             if self.table_fraction > 0 and self.pbrdfs is None:
-                raise ValueError(
-                    f"--table-fraction {self.table_fraction} > 0 needs --pbrdfs DIR (a pBRDF table library)"
-                )
+                raise ValueError(f"table_fraction={self.table_fraction} > 0 needs pbrdfs=DIR (a pBRDF table library)")
         if self.variant not in VARIANT_ALIASES and not self.variant.endswith("_polarized"):
             valid = f"one of {list(VARIANT_ALIASES)} or a *_polarized Mitsuba variant"
-            raise ValueError(f"--variant must be {valid}, got {self.variant!r}")
+            raise ValueError(f"variant={self.variant!r} must be {valid}")
+
+    def load_inputs(self) -> GenerateInputs:
+        """Read and check the files the fields name: rig and pattern, the given scene, asset files, pBRDF tables.
+
+        Returns:
+            What every sample of the run draws from, and the render settings (with the Mitsuba
+            variant chosen for ``variant``).
+
+        Raises:
+            ValueError: a pattern the display refuses, an invalid scene, an asset folder without
+                usable mesh files, a variant this machine cannot run, bad render settings.
+        """
+        rig = Rig.load(self.rig) if self.rig else Rig()
+        if self.pattern is not None:  # the display's pattern only: the scenes stay those of the seed
+            try:
+                rig = replace(rig, display=replace(rig.display, pattern=self.pattern))
+            except ValueError as e:
+                raise ValueError(f"pattern={self.pattern!r}: {e}") from None
+        fixed = SceneSpec.load(self.scene) if self.scene else None
+        if fixed is not None:
+            if self.rig:
+                fixed = replace(fixed, rig=rig)
+            try:
+                fixed.validate()
+            except ValueError as e:
+                raise ValueError(f"scene={self.scene}: {e}") from None
+        asset_files = self._asset_files()
+        materials = scenegen.load_material_library(self.pbrdfs) if self.pbrdfs else None
+        try:
+            variant = passes.choose_variant(self.variant)
+        except RuntimeError as e:
+            raise ValueError(f"variant={self.variant!r}: {e}") from None
+        settings = render.RenderSettings(resolution=self.resolution, spp=self.spp, noise=self.noise, variant=variant)
+        return GenerateInputs(rig, fixed, asset_files, materials, settings)
+
+    def _asset_files(self) -> list[Path] | None:
+        """The usable mesh files of ``assets`` (None without it); files the pipeline refuses are left out."""
+        if not self.assets:
+            return None
+        files = assets.list_assets(self.assets)
+        if not files:
+            raise ValueError(f"assets={self.assets}: no {'/'.join(s[1:].upper() for s in assets.MESH_SUFFIXES)} files")
+        # The same pool for every shard and rerun.
+        files, refused = assets.usable_assets(files)
+        if refused:
+            log.warning("assets=%s: %d of %d files refused and left out", self.assets, len(refused),
+                        len(refused) + len(files))  # fmt: skip
+        if not files:
+            first = next(iter(refused.values()))
+            raise ValueError(f"assets={self.assets}: every file was refused (first: {first})")
+        return files
+
+    def scene_args(self) -> dict:
+        """The scene-content settings recorded in every sidecar when they differ from the single-object defaults."""
+        args = {}
+        if self.objects != (1, 1):
+            args["objects_range"] = list(self.objects)
+        if self.table_fraction is not None:
+            args["table_fraction"] = self.table_fraction
+        return args
+
+
+@dataclass(frozen=True)
+class GenerateInputs:
+    """What a run draws its samples from, loaded and checked once (:meth:`GenerateConfig.load_inputs`).
+
+    Attributes:
+        rig: the display-camera rig (with ``pattern`` applied).
+        fixed: the given scene (``scene``), or None for random scenes.
+        asset_files: the usable mesh files of ``assets``, or None.
+        materials: the pBRDF table library of ``pbrdfs``, or None.
+        settings: the render settings (resolution, spp, noise, the chosen Mitsuba variant).
+    """
+
+    rig: Rig
+    fixed: SceneSpec | None
+    asset_files: list[Path] | None
+    materials: list | None
+    settings: render.RenderSettings
 
 
 def parse_objects(value: str | int | tuple[int, int]) -> tuple[int, int]:
-    """``--objects``: ``"N"``, ``"MIN-MAX"``, an int or a pair -> ``(min, max)`` with ``1 <= min <= max``.
+    """``objects``: ``"N"``, ``"MIN-MAX"``, an int or a pair -> ``(min, max)`` with ``1 <= min <= max``.
 
     Example:
         >>> parse_objects("2-4"), parse_objects("3"), parse_objects((1, 1))
@@ -150,7 +224,7 @@ def parse_objects(value: str | int | tuple[int, int]) -> tuple[int, int]:
     except (TypeError, ValueError):
         lo, hi = 0, -1
     if not 1 <= lo <= hi:
-        raise ValueError(f"--objects must be N or MIN-MAX with 1 <= MIN <= MAX, got {value!r}")
+        raise ValueError(f"objects={value!r} must be N or MIN-MAX with 1 <= MIN <= MAX")
     return lo, hi
 
 
@@ -259,37 +333,7 @@ def generate(
         spec_hook: applied to every scene spec before rendering (the Blender route); the
             sidecar records the spec it returns.
     """
-    rig = Rig.load(cfg.rig) if cfg.rig else Rig()
-    if cfg.pattern is not None:  # the display's pattern only: the scenes stay those of the seed
-        try:
-            rig = replace(rig, display=replace(rig.display, pattern=cfg.pattern))
-        except ValueError as e:
-            raise ValueError(f"--pattern {cfg.pattern}: {e}") from None
-    fixed = SceneSpec.load(cfg.scene) if cfg.scene else None
-    if fixed is not None:
-        if cfg.rig:
-            fixed = replace(fixed, rig=rig)
-        try:
-            fixed.validate()
-        except ValueError as e:
-            raise ValueError(f"--scene {cfg.scene}: {e}") from None
-    asset_files = assets.list_assets(cfg.assets) if cfg.assets else None
-    if cfg.assets and not asset_files:
-        raise ValueError(f"--assets {cfg.assets}: no {'/'.join(s[1:].upper() for s in assets.MESH_SUFFIXES)} files")
-    if asset_files:
-        # Files the pipeline refuses are left out of the pool (the same for every shard and rerun).
-        asset_files, refused = assets.usable_assets(asset_files)
-        if refused:
-            log.warning("--assets %s: %d of %d files refused and left out", cfg.assets, len(refused),
-                        len(refused) + len(asset_files))  # fmt: skip
-        if not asset_files:
-            first = next(iter(refused.values()))
-            raise ValueError(f"--assets {cfg.assets}: every file was refused (first: {first})")
-    materials = scenegen.load_material_library(cfg.pbrdfs) if cfg.pbrdfs else None
-    try:
-        variant = passes.choose_variant(cfg.variant)
-    except RuntimeError as e:
-        raise ValueError(f"--variant {cfg.variant}: {e}") from None
+    inputs = cfg.load_inputs()
     out = Path(cfg.out)
     todo = dataset.plan_work(out, cfg.count, cfg.shard, cfg.resume)
     if cfg.resume:
@@ -297,28 +341,7 @@ def generate(
     dataset.remove_manifest_leftovers(out)
     remove_leftovers(out / ARRAYS_DIR, lambda name: _array_in_shard(name, cfg.shard))
     report = GenerateReport(skipped=len(dataset.shard_indices(cfg.count, cfg.shard)) - len(todo))
-    settings = render.RenderSettings(resolution=cfg.resolution, spp=cfg.spp, noise=cfg.noise, variant=variant)
-    info = {
-        "count": cfg.count,
-        "resolution": cfg.resolution,
-        "seed": cfg.seed,
-        "spp": cfg.spp,
-        "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
-        "rig": rig.to_dict(),
-        "versions": versions(),
-        "variant": variant,
-    }
-    if cfg.split is not None:
-        info["split"] = cfg.split
-    # Recorded in every sidecar when they differ from the single-object defaults.
-    scene_args = {}
-    if cfg.objects != (1, 1):
-        scene_args["objects_range"] = list(cfg.objects)
-    if cfg.table_fraction is not None:
-        scene_args["table_fraction"] = cfg.table_fraction
-    info.update(scene_args)
-    if spec_hook is not None:
-        info["spec_hook"] = f"{spec_hook.__module__}.{spec_hook.__qualname__}"
+    info = _run_info(cfg, inputs, spec_hook)
     bar = None
     if progress:
         from tqdm import tqdm  # noqa: PLC0415
@@ -326,43 +349,15 @@ def generate(
         bar = tqdm(total=len(todo), desc=f"render shard {cfg.shard[0]}/{cfg.shard[1]}", unit="sample")
     for index in todo:
         t0 = time.perf_counter()
-        seed = scenegen.sample_seed(cfg.seed, index)
         try:
-            if fixed is not None:
-                spec = fixed
-            else:
-                spec = scenegen.random_scene(
-                    rig,
-                    seed,
-                    asset_files=asset_files,
-                    materials=materials,
-                    shapes=SHAPE_SETS[cfg.shapes],
-                    objects=cfg.objects,
-                    table_fraction=cfg.table_fraction,
-                )
-            if spec_hook is not None:
-                spec = spec_hook(spec)
-            t1 = time.perf_counter()
-            sample, meta, stages = render_sample(
-                spec, settings, sample_seed=seed, noise=cfg.noise, keep_stokes=cfg.keep_stokes, keep_raw=cfg.keep_raw
-            )
-            meta.update(sample_seed=seed, run_seed=cfg.seed, versions=info["versions"], spec=spec.to_dict())
-            if cfg.split is not None:
-                meta["split"] = cfg.split
-            meta.update(scene_args)
-            t3 = time.perf_counter()
-            t2 = t1 + stages["render"]
-            dataset.write_sample(out, index, sample, meta)
-            if cfg.npz:
-                write_arrays(out, index, sample, meta)
-            t4 = time.perf_counter()
+            stages = _write_one(cfg, inputs, index, info, spec_hook)
         except Exception as exc:  # noqa: BLE001 - one bad sample must not stop a long run
             report.failed[index] = f"{type(exc).__name__}: {exc}"
             log.debug("sample %d failed:\n%s", index, traceback.format_exc())
         else:
             report.written.append(index)
-            report.seconds.append(t4 - t0)
-            for k, v in (("scene", t1 - t0), ("render", t2 - t1), ("camera+decode", t3 - t2), ("write", t4 - t3)):
+            report.seconds.append(time.perf_counter() - t0)
+            for k, v in stages.items():
                 report.stage_seconds[k] = report.stage_seconds.get(k, 0.0) + v
         if bar is not None:
             bar.set_postfix(failed=len(report.failed))
@@ -371,3 +366,55 @@ def generate(
         bar.close()
     dataset.write_manifest(out, info)
     return report
+
+
+def _run_info(cfg: GenerateConfig, inputs: GenerateInputs, spec_hook: Callable | None) -> dict:
+    """The manifest's record of the run: sizes, settings, rig, software versions, variant, split, scene content."""
+    info = {
+        "count": cfg.count,
+        "resolution": cfg.resolution,
+        "seed": cfg.seed,
+        "spp": cfg.spp,
+        "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
+        "rig": inputs.rig.to_dict(),
+        "versions": versions(),
+        "variant": inputs.settings.variant,
+    }
+    if cfg.split is not None:
+        info["split"] = cfg.split
+    info.update(cfg.scene_args())
+    if spec_hook is not None:
+        info["spec_hook"] = f"{spec_hook.__module__}.{spec_hook.__qualname__}"
+    return info
+
+
+def _write_one(
+    cfg: GenerateConfig, inputs: GenerateInputs, index: int, info: dict, spec_hook: Callable | None
+) -> dict[str, float]:
+    """Draw, render and write sample ``index``; returns the seconds of its stages (scene, render, decode, write)."""
+    t0 = time.perf_counter()
+    seed = scenegen.sample_seed(cfg.seed, index)
+    if inputs.fixed is not None:
+        spec = inputs.fixed
+    else:
+        spec = scenegen.random_scene(
+            inputs.rig, seed, asset_files=inputs.asset_files, materials=inputs.materials,
+            shapes=SHAPE_SETS[cfg.shapes], objects=cfg.objects, table_fraction=cfg.table_fraction,
+        )  # fmt: skip
+    if spec_hook is not None:
+        spec = spec_hook(spec)
+    t1 = time.perf_counter()
+    sample, meta, stages = render_sample(
+        spec, inputs.settings, sample_seed=seed, noise=cfg.noise, keep_stokes=cfg.keep_stokes, keep_raw=cfg.keep_raw
+    )
+    meta.update(sample_seed=seed, run_seed=cfg.seed, versions=info["versions"], spec=spec.to_dict())
+    if cfg.split is not None:
+        meta["split"] = cfg.split
+    meta.update(cfg.scene_args())
+    t3 = time.perf_counter()
+    dataset.write_sample(cfg.out, index, sample, meta)
+    if cfg.npz:
+        write_arrays(cfg.out, index, sample, meta)
+    t4 = time.perf_counter()
+    t2 = t1 + stages["render"]
+    return {"scene": t1 - t0, "render": t2 - t1, "camera+decode": t3 - t2, "write": t4 - t3}

@@ -48,6 +48,9 @@ from pbrdf.io.strict_json import dumps_strict
 
 __all__ = ["DemoConfig", "run_demo"]
 
+#: The stages in order (the overall progress bar; ``decode`` runs inside ``infer``'s capture path).
+STAGES = ("pbrdf", "render", "decode", "infer", "evaluate", "blender", "report")
+
 #: Generated pBRDF tables drawn in ``pbrdfs/figure_generated.png`` (the seed figure shows every seed).
 FIGURE_TABLES = 8
 
@@ -125,6 +128,33 @@ def _samples(root: Path) -> list[Path]:
     return sorted((root / "samples").glob("*.json"))
 
 
+@contextmanager
+def _stage(overall, name: str, stages: int = 1):
+    """Show ``name`` on the overall bar; advance it by ``stages`` when the block succeeds."""
+    overall.set_postfix_str(name)
+    yield
+    overall.update(stages)
+
+
+@dataclass
+class _Results:
+    """What the scoring stages produce for the report.
+
+    Attributes:
+        rows: one row per scene (``network.split_eval.score_scene`` plus ``scene``, ``material``).
+        figures: the per-scene figures, ``(path, caption)``.
+        relit: the relighting figures, ``(path relative to out, caption)``.
+        relight_rows: relit prediction against relit truth per scene (``psnr``, ``lpips``, ``frames``).
+        blender_note: a sentence for the summary when the Blender stage was skipped.
+    """
+
+    rows: list[dict] = field(default_factory=list)
+    figures: list[tuple[str, str]] = field(default_factory=list)
+    relit: list[tuple[str, str]] = field(default_factory=list)
+    relight_rows: list[dict] = field(default_factory=list)
+    blender_note: str = ""
+
+
 def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
     """Run every stage and write the report.
 
@@ -145,129 +175,132 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
         RuntimeError: a sample failed to render or a relighting process failed.
         ValueError, OSError: from the stages (bad checkpoint, unwritable folder).
     """
+    from tqdm import tqdm  # noqa: PLC0415
+
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
-    from network.constant import load_statistics  # noqa: PLC0415
     from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
-    from network.split_eval import predict_scene, score_scene  # noqa: PLC0415
-    from pbrdf.expansion.run import ExpansionConfig, run_expansion  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
 
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
-    fig_dir = out / "figures"
     timer = _Timer()
     ckpt_path = Path(cfg.checkpoint) if cfg.checkpoint else DEFAULT_CHECKPOINT
-    stages = ["pbrdf", "render", "decode", "infer", "evaluate", "blender", "report"]
-    from tqdm import tqdm  # noqa: PLC0415
-
-    overall = tqdm(total=len(stages), desc="demo", unit="stage", disable=not cfg.progress)
-
-    def step(name: str) -> None:
-        overall.set_postfix_str(name)
-
-    # 1. pBRDF expansion from the built-in seeds.
-    step("pbrdf")
-    with timer.stage("pbrdf expansion"):
-        exp = run_expansion(
-            ExpansionConfig(
-                out=out / "pbrdfs", count=cfg.tables, seed=cfg.seed, generator_steps=300, figures=FIGURE_TABLES
-            ),  # fmt: skip
-            progress=cfg.progress,
-        )
-    overall.update()
-
-    # 2. Scenes, polarized rendering, camera model (raw brackets kept as capture folders).
-    step("render")
-    with timer.stage("render (Mitsuba + camera model)"):
-        analytic = cfg.scenes - cfg.measured_scenes
-        reports = []
-        if analytic:
-            reports.append(render_dataset(
-                out=out / "data" / "analytic", count=analytic, resolution=cfg.resolution, spp=cfg.spp,
-                seed=cfg.seed, pbrdfs=None, progress=cfg.progress))  # fmt: skip
-        if cfg.measured_scenes:
-            reports.append(render_dataset(
-                out=out / "data" / "measured", count=cfg.measured_scenes, resolution=cfg.resolution, spp=cfg.spp,
-                seed=cfg.seed + 1, pbrdfs=out / "pbrdfs", progress=cfg.progress))  # fmt: skip
-        failed = {k: v for r in reports for k, v in r.failed.items()}
-        if failed:
-            raise RuntimeError(f"rendering failed for samples {failed}")
+    overall = tqdm(total=len(STAGES), desc="demo", unit="stage", disable=not cfg.progress)
+    with _stage(overall, "pbrdf"), timer.stage("pbrdf expansion"):
+        expansion = _expand_pbrdfs(cfg, out)
+    with _stage(overall, "render"), timer.stage("render (Mitsuba + camera model)"):
+        _render(cfg, out, render_dataset)
     samples = [p for sub in ("analytic", "measured") for p in _samples(out / "data" / sub)]
-    overall.update()
-
-    # 3-4. Every raw capture folder through the user's path (decode, automatic foreground mask),
-    # then the shipped model, the photometric-stereo baseline and the constant predictor.
-    step("infer")
-    model, ckpt = load_checkpoint(ckpt_path)
-    variant = ckpt.get("inputs", "full")
-    stats = load_statistics(_stats_path(cfg, ckpt_path))
-    scenes, names = {}, {}
-    with timer.stage("capture path: decode, mask, model, baselines"):
-        bar = _bar(len(samples), "predict", cfg.progress)
-        for s in samples:
-            name = f"{s.parent.parent.name}_{s.stem}"
-            scene = predict_scene(model, variant, s.parent.parent, int(s.stem), stats, input_scale=ckpt["input_scale"])
-            if scene.ours is not None:
-                _write_assets(out, name, scene)
-            scenes[s], names[s] = scene, name
-            bar.update()
-        bar.close()
-    overall.update()
-    overall.update()  # the decode stage is part of the capture path above
-
-    # 5. Metrics against the ground truth, on the object coverage.
-    step("evaluate")
-    rows, figures = [], []
-    with timer.stage("evaluate"):
-        bar = _bar(len(samples), "evaluate", cfg.progress)
-        for s in samples:
-            scene = scenes[s]
-            row = score_scene(scene, lpips=True)
-            kind = next(iter(scene.meta["materials"].values()))["kind"]
-            rows.append({"scene": names[s], "material": kind, **row})
-            figures += scene_figs.scene_figures(
-                fig_dir, names[s], scene.maps, scene.region, scene.gt, scene.preds["ours"], scene.preds["baseline"]
-            )
-            bar.update()
-        bar.close()
-    overall.update()
-
-    # 6. Blender: import the predictions as Principled BSDF assets and relight them with Cycles.
-    step("blender")
-    relit: list[tuple[str, str]] = []
-    relight_rows: list[dict] = []
-    blender_note = ""
-    if cfg.blender:
-        with timer.stage("Blender import + Cycles relight"):
-            bar = _bar(len(samples), "relight", cfg.progress)
-            for s in samples:  # one Blender process per asset: bpy never shares a process with torch
-                name = names[s]
-                if scenes[s].ours is None:
-                    continue
-                kw = {"frames": cfg.relight_frames, "size": cfg.relight_size, "samples": cfg.relight_samples}
-                frames = relight(out / "predictions" / name, name, out / "relit" / name, **kw)
-                truth = relight(out / "truth" / name, name, out / "relit_truth" / name, **kw)
-                if frames:
-                    scores = compare_relit(frames, truth)
-                    relight_rows.append({"scene": name, "frames": scores, **_mean_scores(scores)})
-                    fig, caption = scene_figs.relit_figure(fig_dir / f"{name}_relit.png", name, truth, frames, scores)
-                    relit.append((fig.relative_to(out).as_posix(), caption))
-                bar.update()
-            bar.close()
-    else:
-        blender_note = "Blender stage skipped (--no-blender)."
-    overall.update()
-
-    # 7. Report.
-    step("report")
-    with timer.stage("report"):
-        summary = _write_outputs(
-            out, cfg, rows, figures, (relit, relight_rows), timer, exp, ckpt_path, variant, blender_note
-        )
-    overall.update()
+    with _stage(overall, "infer", 2):  # the decode stage is part of the capture path
+        model, ckpt = load_checkpoint(ckpt_path)
+        variant = ckpt.get("inputs", "full")
+        with timer.stage("capture path: decode, mask, model, baselines"):
+            scenes = _predict(cfg, out, samples, model, ckpt, _stats_path(ckpt_path))
+    with _stage(overall, "evaluate"), timer.stage("evaluate"):
+        results = _evaluate(cfg, out, scenes)
+    with _stage(overall, "blender"):
+        if cfg.blender:
+            with timer.stage("Blender import + Cycles relight"):
+                _relight(cfg, out, scenes, results)
+        else:
+            results.blender_note = "Blender stage skipped (--no-blender)."
+    with _stage(overall, "report"), timer.stage("report"):
+        summary = _write_outputs(out, cfg, results, timer, expansion, ckpt_path, variant)
     overall.close()
     atomic_write_text(out / "timings.json", dumps_strict(timer.seconds) + "\n")
     return summary
+
+
+def _expand_pbrdfs(cfg: DemoConfig, out: Path):
+    """Stage 1: expand the built-in seeds into ``cfg.tables`` new pBRDF tables under ``out/pbrdfs``."""
+    from pbrdf.expansion.run import ExpansionConfig, run_expansion  # noqa: PLC0415
+
+    exp_cfg = ExpansionConfig(out=out / "pbrdfs", count=cfg.tables, seed=cfg.seed, generator_steps=300,
+                              figures=FIGURE_TABLES)  # fmt: skip
+    return run_expansion(exp_cfg, progress=cfg.progress)
+
+
+def _render(cfg: DemoConfig, out: Path, render_dataset: Callable[..., Any]) -> None:
+    """Stage 2: scenes, polarized rendering, camera model (raw brackets kept as capture folders)."""
+    analytic = cfg.scenes - cfg.measured_scenes
+    reports = []
+    if analytic:
+        reports.append(render_dataset(
+            out=out / "data" / "analytic", count=analytic, resolution=cfg.resolution, spp=cfg.spp,
+            seed=cfg.seed, pbrdfs=None, progress=cfg.progress))  # fmt: skip
+    if cfg.measured_scenes:
+        reports.append(render_dataset(
+            out=out / "data" / "measured", count=cfg.measured_scenes, resolution=cfg.resolution, spp=cfg.spp,
+            seed=cfg.seed + 1, pbrdfs=out / "pbrdfs", progress=cfg.progress))  # fmt: skip
+    failed = {k: v for r in reports for k, v in r.failed.items()}
+    if failed:
+        raise RuntimeError(f"rendering failed for samples {failed}")
+
+
+def _predict(cfg: DemoConfig, out: Path, samples: list[Path], model, ckpt: dict, stats_path: Path) -> dict:
+    """Stages 3-4: every raw capture folder through the user's path, then the model and the baselines.
+
+    Decode, automatic foreground mask, the shipped model, the photometric-stereo baseline and the
+    constant predictor (:func:`network.split_eval.predict_scene`); the prediction and the truth are
+    written for the Blender import.
+
+    Returns:
+        ``{name: scene}`` in sample order, ``name`` = ``<dataset>_<index>``.
+    """
+    from network.constant import load_statistics  # noqa: PLC0415
+    from network.split_eval import predict_scene  # noqa: PLC0415
+
+    variant, stats = ckpt.get("inputs", "full"), load_statistics(stats_path)
+    scenes = {}
+    bar = _bar(len(samples), "predict", cfg.progress)
+    for s in samples:
+        name = f"{s.parent.parent.name}_{s.stem}"
+        scene = predict_scene(model, variant, s.parent.parent, int(s.stem), stats, input_scale=ckpt["input_scale"])
+        if scene.ours is not None:
+            _write_assets(out, name, scene)
+        scenes[name] = scene
+        bar.update()
+    bar.close()
+    return scenes
+
+
+def _evaluate(cfg: DemoConfig, out: Path, scenes: dict) -> _Results:
+    """Stage 5: metrics against the ground truth on the object coverage, and the per-scene figures."""
+    from network.split_eval import score_scene  # noqa: PLC0415
+
+    results = _Results()
+    bar = _bar(len(scenes), "evaluate", cfg.progress)
+    for name, scene in scenes.items():
+        row = score_scene(scene, lpips=True)
+        kind = next(iter(scene.meta["materials"].values()))["kind"]
+        results.rows.append({"scene": name, "material": kind, **row})
+        results.figures += scene_figs.scene_figures(
+            out / "figures", name, scene.maps, scene.region, scene.gt, scene.preds["ours"], scene.preds["baseline"]
+        )
+        bar.update()
+    bar.close()
+    return results
+
+
+def _relight(cfg: DemoConfig, out: Path, scenes: dict, results: _Results) -> None:
+    """Stage 6: import prediction and truth as Principled BSDF assets, relight both with Cycles, compare.
+
+    One Blender process per asset: bpy never shares a process with torch.
+    """
+    kw = {"frames": cfg.relight_frames, "size": cfg.relight_size, "samples": cfg.relight_samples}
+    bar = _bar(len(scenes), "relight", cfg.progress)
+    for name, scene in scenes.items():
+        bar.update()
+        if scene.ours is None:
+            continue
+        frames = relight(out / "predictions" / name, name, out / "relit" / name, **kw)
+        truth = relight(out / "truth" / name, name, out / "relit_truth" / name, **kw)
+        if frames:
+            scores = compare_relit(frames, truth)
+            results.relight_rows.append({"scene": name, "frames": scores, **_mean_scores(scores)})
+            fig, caption = scene_figs.relit_figure(out / "figures" / f"{name}_relit.png", name, truth, frames, scores)
+            results.relit.append((fig.relative_to(out).as_posix(), caption))
+    bar.close()
 
 
 def _write_assets(out: Path, name: str, scene) -> None:
@@ -313,7 +346,7 @@ def _deg(x: float | None) -> str:
     return "n/a" if x is None else f"{x:.1f} deg"
 
 
-def _stats_path(cfg: DemoConfig, ckpt_path: Path) -> Path:
+def _stats_path(ckpt_path: Path) -> Path:
     """Training statistics for the constant row: beside the checkpoint, else the shipped model's."""
     from network.constant import STATS_FILE  # noqa: PLC0415
     from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
@@ -322,33 +355,44 @@ def _stats_path(cfg: DemoConfig, ckpt_path: Path) -> Path:
     return beside if beside.is_file() else Path(DEFAULT_CHECKPOINT).parent / STATS_FILE
 
 
-def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, variant, blender_note) -> dict:
-    """Write metrics.json, metrics.md, the charts and report.html; returns the summary."""
-    relit, relight_rows = relit
-    from network.split_eval import split_markdown, split_table, summarize_rows  # noqa: PLC0415
-    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
-    from pbrdf.io.strict_json import dumps_strict  # noqa: PLC0415
+#: The per-scene table of metrics.md and report.html.
+PER_SCENE_HEADER = ("scene", "material", "mask IoU", "normal MAE ours", "normal MAE baseline",
+                    "normal MAE constant", "albedo si-PSNR ours", "roughness RMSE ours", "roughness RMSE constant",
+                    "metallic RMSE ours")  # fmt: skip
+RELIGHT_HEADER = ("scene", "relit PSNR (dB)", "relit LPIPS")
 
-    fig_dir = out / "figures"
-    result = {"split": "demo scenes", "data": str(out / "data"), "scenes": len(rows), "lpips": True,
+
+def _per_scene(rows: list[dict]) -> list[list]:
+    """The per-scene table's rows (columns: :data:`PER_SCENE_HEADER`)."""
+    return [[r["scene"], r["material"], r["mask_iou"], r["ours"]["normal_mae"], r["baseline"]["normal_mae"],
+             r["constant"]["normal_mae"], r["ours"]["albedo_si_psnr"], r["ours"]["roughness_rmse"],
+             r["constant"]["roughness_rmse"], r["ours"]["metallic_rmse"]] for r in rows]  # fmt: skip
+
+
+def _write_outputs(out: Path, cfg: DemoConfig, results: _Results, timer: _Timer, expansion, ckpt_path: Path,
+                   variant: str) -> dict:  # fmt: skip
+    """Stage 7: write metrics.json, metrics.md, the charts and report.html; returns the summary.
+
+    Args:
+        out: the demo's output folder.
+        cfg: the demo's sizes.
+        results: the scored scenes (and the relighting's, if it ran).
+        timer: seconds per stage so far.
+        expansion: the pBRDF expansion's result (its ``summary()`` goes into metrics.json).
+        ckpt_path: the model that ran.
+        variant: its input variant.
+
+    Returns:
+        The summary written to ``metrics.json`` (see :func:`run_demo`).
+    """
+    from network.split_eval import summarize_rows  # noqa: PLC0415
+    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
+
+    result = {"split": "demo scenes", "data": str(out / "data"), "scenes": len(results.rows), "lpips": True,
               "description": "the demo's scenes through the real-capture path (raw brackets, decode, automatic "
                              "mask), scored on the object coverage",
-              **summarize_rows(rows)}  # fmt: skip
-    header, table = split_table(result)
+              **summarize_rows(results.rows)}  # fmt: skip
     means = {m: {k: v["mean"] for k, v in result["methods"][m].items()} for m in ("baseline", "constant", "ours")}
-    per_scene_header = ["scene", "material", "mask IoU", "normal MAE ours", "normal MAE baseline",
-                        "normal MAE constant", "albedo si-PSNR ours", "roughness RMSE ours",
-                        "roughness RMSE constant", "metallic RMSE ours"]  # fmt: skip
-    per_scene = [[r["scene"], r["material"], r["mask_iou"], r["ours"]["normal_mae"], r["baseline"]["normal_mae"],
-                  r["constant"]["normal_mae"], r["ours"]["albedo_si_psnr"], r["ours"]["roughness_rmse"],
-                  r["constant"]["roughness_rmse"], r["ours"]["metallic_rmse"]] for r in rows]  # fmt: skip
-    chart = report.metric_chart(
-        fig_dir / "metrics.png",
-        {"baseline (PS)": means["baseline"], "constant": means["constant"], "ours": means["ours"]},
-        [("normal_mae", "normal MAE (deg)", True), ("albedo_si_psnr", "albedo si-PSNR (dB)", False),
-         ("roughness_rmse", "roughness RMSE", True), ("metallic_rmse", "metallic RMSE", True)],
-    )  # fmt: skip
-    timing = report.timing_chart(fig_dir / "timings.png", timer.seconds)
     summary = {
         "config": {k: (str(v) if isinstance(v, Path) else v) for k, v in asdict(cfg).items()},
         "checkpoint": str(ckpt_path),
@@ -356,49 +400,80 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
         "mean": means,
         "methods": result["methods"],
         "mask_iou": result["mask_iou"],
-        "scenes": rows,
+        "scenes": results.rows,
         "timings_s": timer.seconds,
-        "pbrdf_expansion": exp.summary(),
-        "relight": relight_rows,
+        "pbrdf_expansion": expansion.summary(),
+        "relight": results.relight_rows,
     }
     atomic_write_text(out / "metrics.json", dumps_strict(summary) + "\n")
-    md = "# Demo metrics\n\n" + split_markdown(result) + "\n## Per scene\n\n"
-    md += report.markdown_table(per_scene_header, per_scene)
-    relight_header = ["scene", "relit PSNR (dB)", "relit LPIPS"]
-    relight_table = [[r["scene"], r["psnr"], r["lpips"]] for r in relight_rows]
-    if relight_rows:
-        md += "\n## Relit prediction against the relit truth\n\n" + report.markdown_table(relight_header, relight_table)
-    md += "\n## Time per stage (s)\n\n" + report.markdown_table(["stage", "seconds"], list(timer.seconds.items()))
-    atomic_write_text(out / "metrics.md", md)
-    ours_mae, base_mae, const_mae = (means[m]["normal_mae"] for m in ("ours", "baseline", "constant"))
-    exp_figs = _expansion_figures(out)
+    atomic_write_text(out / "metrics.md", _metrics_markdown(result, results, timer))
+    summary_text = _summary_text(cfg, results, means, ckpt_path, variant)
     sections = [
-        {
-            "title": "Summary",
-            "text": (
-                f"{len(rows)} synthetic scenes ({cfg.resolution}x{cfg.resolution} maps, {cfg.spp} spp per colour pass) "
-                f"were rendered with Mitsuba 3 under the polarized RGB display, captured through the camera model as "
-                f"four noisy 12-bit raw brackets, decoded into the nine maps, and reconstructed by the shipped model "
-                f"({ckpt_path.name}, inputs '{variant}') from the automatic foreground mask, exactly as a user's "
-                f"capture is processed. Mean normal error on the object coverage: ours {_deg(ours_mae)}, "
-                f"photometric stereo {_deg(base_mae)}, the constant normal facing the camera {_deg(const_mae)}. "
-                + blender_note
-            ),
-        },  # fmt: skip
-        {
-            "title": "Metrics (per-scene means with 95 % bootstrap intervals, object coverage)",
-            "html": report.html_table(header, table),
-            "figures": [
-                (
-                    chart.relative_to(out).as_posix(),
-                    "Mean over the scenes of each metric (one panel each; its title says whether lower or higher "
-                    "is better) for our model, the classical photometric-stereo baseline (PS) and the constant "
-                    "predictor from the training-set statistics; the number above a bar is its value, n/a where "
-                    "a method does not predict that map. The table above gives the 95 % intervals.",
-                )
-            ],
-        },
-        {"title": "Per scene", "html": report.html_table(per_scene_header, per_scene)},
+        {"title": "Summary", "text": summary_text},
+        _metrics_section(out, result, means),
+        {"title": "Per scene", "html": report.html_table(PER_SCENE_HEADER, _per_scene(results.rows))},
+        *_figure_sections(out, cfg, results),
+        _timing_section(out, timer),
+    ]
+    report.write_report(out / "report.html", "Snapshot polarimetric display inverse rendering: demo", sections)
+    return summary
+
+
+def _metrics_markdown(result: dict, results: _Results, timer: _Timer) -> str:
+    """metrics.md: the split table, the per-scene table, the relighting scores and the time per stage."""
+    from network.split_eval import split_markdown  # noqa: PLC0415
+
+    md = "# Demo metrics\n\n" + split_markdown(result) + "\n## Per scene\n\n"
+    md += report.markdown_table(PER_SCENE_HEADER, _per_scene(results.rows))
+    if results.relight_rows:
+        relight_table = [[r["scene"], r["psnr"], r["lpips"]] for r in results.relight_rows]
+        md += "\n## Relit prediction against the relit truth\n\n" + report.markdown_table(RELIGHT_HEADER, relight_table)
+    md += "\n## Time per stage (s)\n\n" + report.markdown_table(["stage", "seconds"], list(timer.seconds.items()))
+    return md
+
+
+def _summary_text(cfg: DemoConfig, results: _Results, means: dict, ckpt_path: Path, variant: str) -> str:
+    """The report's opening paragraph: what ran and the mean normal errors."""
+    ours_mae, base_mae, const_mae = (means[m]["normal_mae"] for m in ("ours", "baseline", "constant"))
+    return (
+        f"{len(results.rows)} synthetic scenes ({cfg.resolution}x{cfg.resolution} maps, {cfg.spp} spp per colour "
+        f"pass) were rendered with Mitsuba 3 under the polarized RGB display, captured through the camera model as "
+        f"four noisy 12-bit raw brackets, decoded into the nine maps, and reconstructed by the shipped model "
+        f"({ckpt_path.name}, inputs '{variant}') from the automatic foreground mask, exactly as a user's "
+        f"capture is processed. Mean normal error on the object coverage: ours {_deg(ours_mae)}, "
+        f"photometric stereo {_deg(base_mae)}, the constant normal facing the camera {_deg(const_mae)}. "
+        + results.blender_note
+    )
+
+
+def _metrics_section(out: Path, result: dict, means: dict) -> dict:
+    """The report's metrics table with its chart (``figures/metrics.png``)."""
+    from network.split_eval import split_table  # noqa: PLC0415
+
+    header, table = split_table(result)
+    chart = report.metric_chart(
+        out / "figures" / "metrics.png",
+        {"baseline (PS)": means["baseline"], "constant": means["constant"], "ours": means["ours"]},
+        [("normal_mae", "normal MAE (deg)", True), ("albedo_si_psnr", "albedo si-PSNR (dB)", False),
+         ("roughness_rmse", "roughness RMSE", True), ("metallic_rmse", "metallic RMSE", True)],
+    )  # fmt: skip
+    caption = (
+        "Mean over the scenes of each metric (one panel each; its title says whether lower or higher "
+        "is better) for our model, the classical photometric-stereo baseline (PS) and the constant "
+        "predictor from the training-set statistics; the number above a bar is its value, n/a where "
+        "a method does not predict that map. The table above gives the 95 % intervals."
+    )
+    return {
+        "title": "Metrics (per-scene means with 95 % bootstrap intervals, object coverage)",
+        "html": report.html_table(header, table),
+        "figures": [(chart.relative_to(out).as_posix(), caption)],
+    }
+
+
+def _figure_sections(out: Path, cfg: DemoConfig, results: _Results) -> list[dict]:
+    """The report's figure sections: per-scene maps, relighting, expanded pBRDFs."""
+    relight_table = [[r["scene"], r["psnr"], r["lpips"]] for r in results.relight_rows]
+    return [
         {
             "title": "Inputs, predictions, ground truth and errors",
             "text": (
@@ -406,19 +481,19 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
                 "photometric-stereo baseline and the error maps. Each caption says how its colours read; normals "
                 "use x right = red, y up = green, z toward the camera = blue, with a key in the figure."
             ),
-            "figures": figures,
+            "figures": results.figures,
         },
         {
             "title": "Relighting in Blender: prediction against truth",
-            "figures": relit,
+            "figures": results.relit,
             "text": (
                 "Both map sets go through the same import (relief mesh from the depth, the capture's camera) and "
                 "the same Cycles lights; scores are over the pixels either asset covers. The prediction's relief "
                 "is anchored at the true median depth, the distance a user enters as distance_m."
-                if relit
+                if results.relit
                 else "No relit frames (Blender stage skipped)."
             ),
-            "html": report.html_table(relight_header, relight_table) if relight_rows else "",
+            "html": report.html_table(RELIGHT_HEADER, relight_table) if results.relight_rows else "",
         },
         {
             "title": "Expanded pBRDFs",
@@ -428,19 +503,20 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
                 f"with their Disney fit ({cfg.measured_scenes} scene(s) above use them). The spheres show what each "
                 f"material does to light; the captions say how to read the three panels."
             ),
-            "figures": exp_figs,
-        },
-        {
-            "title": "Time per stage",
-            "figures": [
-                (
-                    timing.relative_to(out).as_posix(),
-                    "Wall-clock seconds of each demo stage on this machine, in pipeline order (the total in the "
-                    "title); the table below has the same numbers.",
-                )
-            ],
-            "html": report.html_table(["stage", "seconds"], [[k, v] for k, v in timer.seconds.items()]),
+            "figures": _expansion_figures(out),
         },
     ]
-    report.write_report(out / "report.html", "Snapshot polarimetric display inverse rendering: demo", sections)
-    return summary
+
+
+def _timing_section(out: Path, timer: _Timer) -> dict:
+    """The report's time-per-stage chart (``figures/timings.png``) and table."""
+    timing = report.timing_chart(out / "figures" / "timings.png", timer.seconds)
+    caption = (
+        "Wall-clock seconds of each demo stage on this machine, in pipeline order (the total in the "
+        "title); the table below has the same numbers."
+    )
+    return {
+        "title": "Time per stage",
+        "figures": [(timing.relative_to(out).as_posix(), caption)],
+        "html": report.html_table(["stage", "seconds"], [[k, v] for k, v in timer.seconds.items()]),
+    }

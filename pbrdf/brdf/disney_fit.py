@@ -190,6 +190,42 @@ def fit_disney(
     Raises:
         ValueError: on wrong shapes, non-finite inputs, negative weights or fewer than 5 usable samples.
     """
+    wi_a, wo_a, v, w = _checked_samples(wi, wo, values, weights)
+    cos_i, cos_o, n_dot_h, i_dot_h, above = _half_vector_cosines(_NUMPY_OPS, wi_a, wo_a)
+    used = above & np.any(w > 0, axis=-1)
+    if np.count_nonzero(used) < 5:
+        raise ValueError(
+            f"need at least 5 samples above the horizon with positive weight; got {np.count_nonzero(used)}"
+        )
+    cos_weight = cos_o if cosine else np.ones_like(cos_o)
+    geom = tuple(x[used] for x in (cos_i, cos_o, n_dot_h, i_dot_h, cos_weight))
+    objective = _Objective(geom, np.maximum(v[used], 0.0), w[used])
+    lower = np.array([0.0, 0.0, 0.0, _ROUGHNESS_FLOOR, 0.0])
+    best = None
+    for x0 in sorted(_starts(objective, init), key=objective.robust_cost)[:_REFINED_STARTS]:
+        res = least_squares(objective.residual, x0, jac=objective.jacobian, bounds=(lower, 1.0), loss=_FIT_LOSS,
+                            f_scale=_FIT_F_SCALE, method="trf")  # fmt: skip
+        if best is None or res.cost < best.cost:
+            best = res
+
+    x, v, w = best.x, objective.values, objective.weights
+    err = _model(geom, x[:3], x[3], x[4]) - v
+    rmse = float(np.sqrt(np.sum(w * err**2) / np.sum(w)))
+    rms = float(np.sqrt(np.sum(w * v**2) / np.sum(w)))
+    return FitResult(
+        albedo=np.array(x[:3], dtype=np.float64),
+        roughness=float(x[3]),
+        metallic=float(x[4]),
+        rmse=rmse,
+        rel_rmse=rmse / rms if rms > 0 else float("inf"),
+        success=bool(best.success) and bool(np.all(np.isfinite(x))),
+    )
+
+
+def _checked_samples(
+    wi: ArrayLike, wo: ArrayLike, values: ArrayLike, weights: ArrayLike | None
+) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """The samples of :func:`fit_disney` as float64 ``(N, 3)`` arrays, weights broadcast to ``(N, 3)`` (ones: None)."""
     wi_a = as_float_array(wi).astype(np.float64)
     wo_a = as_float_array(wo).astype(np.float64)
     v = as_float_array(values).astype(np.float64)
@@ -203,73 +239,62 @@ def fit_disney(
     if wi_a.shape[0] != n or wo_a.shape[0] != n:
         raise ValueError(f"wi, wo and values need the same N; got {wi_a.shape[0]}, {wo_a.shape[0]}, {n}")
     if weights is None:
-        w = np.ones((n, 3))
-    else:
-        w = np.broadcast_to(as_float_array(weights).astype(np.float64).reshape(n, -1), (n, 3))
-        if not np.all(np.isfinite(w)) or np.any(w < 0):
-            raise ValueError("weights must be finite and non-negative")
+        return wi_a, wo_a, v, np.ones((n, 3))
+    w = np.broadcast_to(as_float_array(weights).astype(np.float64).reshape(n, -1), (n, 3))
+    if not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise ValueError("weights must be finite and non-negative")
+    return wi_a, wo_a, v, w
 
-    cos_i, cos_o, n_dot_h, i_dot_h, above = _half_vector_cosines(_NUMPY_OPS, wi_a, wo_a)
-    used = above & np.any(w > 0, axis=-1)
-    if np.count_nonzero(used) < 5:
-        raise ValueError(
-            f"need at least 5 samples above the horizon with positive weight; got {np.count_nonzero(used)}"
-        )
-    cos_weight = cos_o if cosine else np.ones_like(cos_o)
-    geom = tuple(x[used] for x in (cos_i, cos_o, n_dot_h, i_dot_h, cos_weight))
-    v, w = np.maximum(v[used], 0.0), w[used]
-    sqrt_w = np.sqrt(w)
-    # Per-channel compression scale; the floor keeps an all-dark channel well defined.
-    peak = max(float(np.max(v)), 1e-12)
-    scale = np.maximum(np.median(v, axis=0), 1e-3 * peak)
-    target = np.log1p(v / scale)
 
-    last: dict[bytes, NDArray] = {}  # the model at the latest x: least_squares asks for jac(x) after fun(x)
+class _Objective:
+    """The fit's residuals on the usable samples: ``sqrt(w) * (log(1 + model / s) - log(1 + v / s))``.
 
-    def model_at(x: NDArray) -> NDArray:
+    Args:
+        geom: the samples' cosines (:func:`_model`'s ``geom``).
+        values: non-negative measured values, ``(N, 3)``.
+        weights: sample weights, ``(N, 3)``.
+    """
+
+    def __init__(self, geom: tuple[NDArray, ...], values: NDArray, weights: NDArray) -> None:
+        self.geom, self.values, self.weights = geom, values, weights
+        self.sqrt_w = np.sqrt(weights)
+        # Per-channel compression scale; the floor keeps an all-dark channel well defined.
+        peak = max(float(np.max(values)), 1e-12)
+        self.scale = np.maximum(np.median(values, axis=0), 1e-3 * peak)
+        self.target = np.log1p(values / self.scale)
+        self._last: dict[bytes, NDArray] = {}  # the model at the latest x: least_squares asks jac(x) after fun(x)
+
+    def model_at(self, x: NDArray) -> NDArray:
+        """The model at parameters ``x`` (albedo (3), roughness, metallic), ``(N, 3)``."""
         key = x.tobytes()
-        if key not in last:
-            last.clear()
-            last[key] = _model(geom, x[:3], x[3], x[4])
-        return last[key]
+        if key not in self._last:
+            self._last.clear()
+            self._last[key] = _model(self.geom, x[:3], x[3], x[4])
+        return self._last[key]
 
-    def residual(x: NDArray) -> NDArray:
-        return (sqrt_w * (np.log1p(model_at(x) / scale) - target)).ravel()
+    def residual(self, x: NDArray) -> NDArray:
+        """The residuals, ``(3 N,)``."""
+        return (self.sqrt_w * (np.log1p(self.model_at(x) / self.scale) - self.target)).ravel()
 
-    def jacobian(x: NDArray) -> NDArray:
-        return ((sqrt_w / (scale + model_at(x)))[..., None] * _model_jacobian(geom, x)).reshape(-1, 5)
+    def jacobian(self, x: NDArray) -> NDArray:
+        """The residuals' Jacobian, ``(3 N, 5)``."""
+        factor = self.sqrt_w / (self.scale + self.model_at(x))
+        return (factor[..., None] * _model_jacobian(self.geom, x)).reshape(-1, 5)
 
-    lower = np.array([0.0, 0.0, 0.0, _ROUGHNESS_FLOOR, 0.0])
+    def robust_cost(self, x: NDArray) -> float:
+        """The robust (scipy ``soft_l1``) cost at ``x``, which ranks the starts."""
+        z = (self.residual(x) / _FIT_F_SCALE) ** 2
+        return float(_FIT_F_SCALE**2 * np.sum(np.sqrt(1.0 + z) - 1.0))
+
+
+def _starts(objective: _Objective, init: tuple[ArrayLike, float, float] | None) -> list[NDArray]:
+    """The starts: ``init`` (clipped to the bounds), then metallic x roughness, each with its closed-form albedo."""
     starts = []
     if init is not None:
         a0 = np.clip(np.broadcast_to(as_float_array(init[0]).astype(np.float64), (3,)), 0.0, 1.0)
         starts.append(np.r_[a0, np.clip(init[1], _ROUGHNESS_FLOOR, 1.0), np.clip(init[2], 0.0, 1.0)])
+    v, w = objective.values, objective.weights
     for m0 in _START_METALLIC:
         for r0 in _START_ROUGHNESS:
-            starts.append(np.r_[_solve_albedo(geom, v, w, scale, r0, m0), r0, m0])
-
-    def robust_cost(x: NDArray) -> float:  # scipy's soft_l1 cost, to rank the starts
-        z = (residual(x) / _FIT_F_SCALE) ** 2
-        return float(_FIT_F_SCALE**2 * np.sum(np.sqrt(1.0 + z) - 1.0))
-
-    starts = sorted(starts, key=robust_cost)[:_REFINED_STARTS]
-    best = None
-    for x0 in starts:
-        res = least_squares(
-            residual, x0, jac=jacobian, bounds=(lower, 1.0), loss=_FIT_LOSS, f_scale=_FIT_F_SCALE, method="trf"
-        )
-        if best is None or res.cost < best.cost:
-            best = res
-
-    x = best.x
-    err = _model(geom, x[:3], x[3], x[4]) - v
-    rmse = float(np.sqrt(np.sum(w * err**2) / np.sum(w)))
-    rms = float(np.sqrt(np.sum(w * v**2) / np.sum(w)))
-    return FitResult(
-        albedo=np.array(x[:3], dtype=np.float64),
-        roughness=float(x[3]),
-        metallic=float(x[4]),
-        rmse=rmse,
-        rel_rmse=rmse / rms if rms > 0 else float("inf"),
-        success=bool(best.success) and bool(np.all(np.isfinite(x))),
-    )
+            starts.append(np.r_[_solve_albedo(objective.geom, v, w, objective.scale, r0, m0), r0, m0])
+    return starts

@@ -131,8 +131,8 @@ class Split:
 #: What the data engine's train and val splits share (scenes from one distribution).
 _ENGINE = {"resolution": 192, "spp": 16, "shapes": "train", "pbrdfs": True, "objects": (1, 3), "table_fraction": 0.5}
 
-#: Every split of the project. Train and val reproduce the first model's data
-#: (``make train-model``); the test seeds are far from both.
+#: Every split of the project. Train and val reproduce the first (128-px, superseded) model's data;
+#: the test seeds are far from both.
 SPLITS: dict[str, Split] = {
     s.name: s
     for s in (

@@ -113,7 +113,7 @@ def test_rendered_normals_match_input(clean_file, tmp_path, space):
     cam = add_camera(scene, (0.3, -2.0, 0.5), (1.3, 0.1, 0.2))
     n, mask, _ = _sphere_field(H * 2, W * 2)
     obj = pbr_import.import_pbr_maps(
-        bpy.context, write_pbr_maps(tmp_path / "s", n, mask=mask), distance=1.5, normal_space=space
+        bpy.context, write_pbr_maps(tmp_path / "s", n, mask=mask), pbr_import.ImportOptions(1.5, normal_space=space)
     )
     # AOV of the Normal Map node's output (the shading normal the BSDF receives)
     nt = obj.active_material.node_tree
@@ -241,9 +241,9 @@ def test_camera_file_gives_the_capture_camera(clean_file, tmp_path):
     folder = write_pbr_maps(tmp_path / "c", n, mask=mask, depth=depth)
     _write_camera(folder / "cap_camera.json", K, W, H)
     _write_camera(folder / "other_camera.json", K * [[2], [2], [1]], W, H)  # another capture's: ignored
-    # the explicit {kind: file} of blender_addon/reconstruct.py: the camera file is found beside the normal map
+    # the explicit {kind: file} of blender_addon/reconstruct_operator.py: the camera file is found beside the normal map
     files = {kind: folder / f"cap_{kind}.exr" for kind in ("normal", "mask", "depth")}
-    obj = pbr_import.import_pbr_maps(bpy.context, files, normal_space="OBJECT")
+    obj = pbr_import.import_pbr_maps(bpy.context, files, pbr_import.ImportOptions(normal_space="OBJECT"))
     assert obj["pdir_camera"] == str(folder / "cap_camera.json")
     want = camera_from_intrinsics(K, W, H)
     data, render = cam.data, scene.render

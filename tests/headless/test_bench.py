@@ -74,16 +74,12 @@ def test_bench_network_toy(tmp_path):
         assert "at stride 2" in pred["stride_2"]["what"] and "error_vs_stride_1" not in pred["stride_1"]
 
 
-def test_bench_quick_and_old_capture_flag(tmp_path):
-    """--quick runs the toy network only; the old --capture flag still works with one deprecation line."""
+def test_bench_quick(tmp_path):
+    """--quick runs the toy network only."""
     out = tmp_path / "quick.json"
-    proc = _run("headless/bench.py", "network", "--quick", "--no-train", "--capture", str(tmp_path), "--out", str(out))
+    proc = _run("headless/bench.py", "network", "--quick", "--no-train", "--input", str(tmp_path), "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     assert list(json.loads(out.read_text())["configs"]) == ["toy"]
-    lines = [line for line in proc.stderr.splitlines() if "deprecated" in line]
-    assert lines == [
-        "bench.py network: deprecated: --capture is now --input (the old form goes away in the next release)"
-    ]
 
 
 def test_bench_render_scenes_and_argument_checks(tmp_path):

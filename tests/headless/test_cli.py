@@ -3,11 +3,9 @@
 Every ``headless/*.py`` script: ``--help`` exits 0 and prints the module's one-line summary, from
 any working directory (the bootstrap puts the repository root on ``sys.path``) and as
 ``python -m headless.x``; each has ``build_parser()`` and ``main(argv=None) -> int``; the flags
-follow one convention (``--input``, ``--out``, ``--seed``, ``--quiet``); old spellings still work
-for one release and print exactly one deprecation line naming the new flag.
+follow one convention (``--input``, ``--out``, ``--seed``, ``--quiet``) and the old spellings are gone.
 """
 
-import argparse
 import ast
 import importlib
 import subprocess
@@ -15,8 +13,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from headless._cli import DEPRECATION
 
 ROOT = Path(__file__).resolve().parents[2]
 SCRIPTS = sorted(p.stem for p in (ROOT / "headless").glob("*.py") if not p.name.startswith("_"))
@@ -69,45 +65,7 @@ def test_thin_main_and_conventions(script):
     assert {"--help", "--quiet"} <= options
     assert ("--seed" in options) == (script in SEEDED), script
     assert ("--input" in options) == (script in WITH_INPUT), script
-    shown = {s for a in parser._actions if a.help != argparse.SUPPRESS for s in a.option_strings}
-    assert not {"--data", "--maps", "--measured", "--capture"} & shown
-
-
-OLD_FLAGS = [
-    # script, old arguments, new flag, attribute, the old form's name in the message
-    ("relight", ["--maps", "pred", "--out", "o"], "--input", "input", "--maps"),
-    ("train", ["--data", "ds", "--out", "o"], "--input", "input", "--data"),
-    ("evaluate", ["--data", "ds", "--checkpoint", "m.pt"], "--input", "input", "--data"),
-    ("expand_pbrdf", ["--measured", "tabs", "--out", "o"], "--input", "input", "--measured"),
-    ("bench", ["network", "--capture", "cap"], "--input", "input", "--capture"),
-]
-
-
-@pytest.mark.parametrize(("script", "argv", "new", "attr", "old"), OLD_FLAGS, ids=[f[0] for f in OLD_FLAGS])
-def test_old_flag_still_works_with_one_deprecation_line(script, argv, new, attr, old, capsys):
-    parser = importlib.import_module(f"headless.{script}").build_parser()
-    args = parser.parse_args(argv)
-    value = argv[argv.index(old) + 1] if old in argv else argv[0]
-    assert str(getattr(args, attr)) == value
-    err = capsys.readouterr().err.splitlines()
-    assert len(err) == 1, err
-    assert err[0] == DEPRECATION.format(prog=parser.prog + (" network" if script == "bench" else ""), old=old,
-                                        new=new)  # fmt: skip
-
-
-def test_old_and_new_flag_together_is_an_error(capsys):
-    from headless import relight
-
-    with pytest.raises(SystemExit) as exc:
-        relight.build_parser().parse_args(["--input", "a", "--maps", "b", "--out", "o"])
-    assert exc.value.code == 2 and "use --input only" in capsys.readouterr().err
-
-
-def test_repeated_old_flag_warns_once(capsys):
-    from headless import relight
-
-    relight.build_parser().parse_args(["--maps", "a", "--maps", "a", "--out", "o"])
-    assert len(capsys.readouterr().err.splitlines()) == 1
+    assert not {"--data", "--maps", "--measured", "--capture"} & options
 
 
 def test_bootstrap_is_identical_everywhere():

@@ -1,4 +1,4 @@
-"""headless/evaluate.py: the --input flag, the old --data spelling and one-line errors.
+"""headless/evaluate.py: the --input flag and one-line errors.
 
 Evaluation itself and the CLI run on a trained checkpoint are tested with network.evaluate.
 """
@@ -10,14 +10,6 @@ def test_missing_dataset_is_one_error_line(tmp_path, capsys):
     code = evaluate.main(["--checkpoint", str(tmp_path / "m.pt"), "--input", str(tmp_path / "missing"), "--quiet"])
     lines = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and lines[0].startswith("error: "), lines
-
-
-def test_old_data_flag_reaches_the_same_check(tmp_path, capsys):
-    code = evaluate.main(["--checkpoint", str(tmp_path / "m.pt"), "--data", str(tmp_path / "missing"), "--quiet"])
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(lines) == 2
-    assert lines[0] == "evaluate.py: deprecated: --data is now --input (the old form goes away in the next release)"
-    assert lines[1].startswith("error: ")
 
 
 def test_checkpoint_variants():

@@ -1,4 +1,4 @@
-"""headless/expand_pbrdf.py: the --input flag, the old --measured spelling and one-line errors.
+"""headless/expand_pbrdf.py: the --input flag and one-line errors.
 
 The expansion itself is tested with pbrdf.expansion.run.
 """
@@ -10,14 +10,6 @@ def test_input_must_be_a_folder(tmp_path, capsys):
     code = expand_pbrdf.main(["--out", str(tmp_path / "o"), "--input", str(tmp_path / "none"), "--quiet"])
     lines = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and lines == [f"error: --input {tmp_path / 'none'}: not a folder"]
-
-
-def test_old_measured_flag_reaches_the_same_check(tmp_path, capsys):
-    code = expand_pbrdf.main(["--out", str(tmp_path / "o"), "--measured", str(tmp_path / "none"), "--quiet"])
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(lines) == 2
-    assert lines[0].startswith("expand_pbrdf.py: deprecated: --measured is now --input")
-    assert lines[1] == f"error: --input {tmp_path / 'none'}: not a folder"
 
 
 def test_count_must_be_positive(tmp_path, capsys):

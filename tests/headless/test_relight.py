@@ -54,7 +54,6 @@ def test_relight_writes_frames_and_blend(maps, tmp_path):
     assert (out / "blob.blend").is_file()
     assert not list(out.glob("*.tmp*")) and not list(out.glob(".*"))
     assert ".tmp" not in proc.stdout + proc.stderr  # the log names the final files only
-    assert "deprecated" not in proc.stderr
 
 
 #: Opens a saved .blend in a fresh process and prints what an artist gets, as JSON.
@@ -114,17 +113,6 @@ def test_saved_blend_is_lit_and_self_contained(tmp_path):
     assert all(got["packed"]) and all(got["loaded"])
     # frame 1 of the orbit: radius = height = 0.6 m around the asset's centre
     assert got["light_to_asset"] == [pytest.approx(0.6 * 2**0.5, rel=1e-4)]
-
-
-@pytest.mark.bpy
-def test_old_maps_flag_still_works(maps, tmp_path):
-    pytest.importorskip("bpy")
-    proc = _run("--maps", maps, "--name", "blob", "--out", tmp_path / "o", "--frames", "0", "--save-blend")
-    assert proc.returncode == 0, proc.stderr[-2000:]
-    assert (tmp_path / "o" / "blob.blend").is_file()
-    assert [line for line in proc.stderr.splitlines() if "deprecated" in line] == [
-        "relight.py: deprecated: --maps is now --input (the old form goes away in the next release)"
-    ]
 
 
 @pytest.mark.bpy

@@ -217,11 +217,11 @@ def test_split_prefix_is_labelled_and_keeps_raw(tmp_path):
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--count", "1", "--objects", "3-2"], "--objects must be N or MIN-MAX with 1 <= MIN <= MAX, got '3-2'"),
-        (["--count", "1", "--objects", "0"], "--objects must be N or MIN-MAX"),
+        (["--count", "1", "--objects", "3-2"], "--objects 3-2 must be N or MIN-MAX with 1 <= MIN <= MAX"),
+        (["--count", "1", "--objects", "0"], "--objects 0 must be N or MIN-MAX"),
         (["--count", "1", "--table-fraction", "0.3"], "--table-fraction 0.3 > 0 needs --pbrdfs DIR"),
         (["--count", "1", "--shapes", "none"], "--shapes none leaves nothing to draw: give --assets DIR"),
-        (["--count", "1", "--variant", "gpu"], "--variant must be one of ['auto', 'llvm', 'cuda', 'scalar']"),
+        (["--count", "1", "--variant", "gpu"], "--variant gpu must be one of ['auto', 'llvm', 'cuda', 'scalar']"),
         (["--split", "val", "--objects", "2"], "--split val fixes the objects and materials: drop --objects"),
         (["--split", "val", "--table-fraction", "0"], "drop --objects and --table-fraction"),
     ],

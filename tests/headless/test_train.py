@@ -1,4 +1,4 @@
-"""headless/train.py: the --input flag, the old --data spelling and one-line usage errors.
+"""headless/train.py: the --input flag and one-line usage errors.
 
 Training itself and the CLI run on a rendered dataset are tested with network.train.
 """
@@ -24,11 +24,3 @@ def test_missing_dataset_is_one_error_line(tmp_path, capsys):
                        "--no-tensorboard"])  # fmt: skip
     lines = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(lines) == 1 and "dataset folder not found" in lines[0], lines
-
-
-def test_old_data_flag_reaches_the_same_check(tmp_path, capsys):
-    code = train.main(["--data", str(tmp_path / "missing"), "--out", str(tmp_path / "x"), "--quiet"])
-    lines = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(lines) == 2
-    assert lines[0] == "train.py: deprecated: --data is now --input (the old form goes away in the next release)"
-    assert "dataset folder not found" in lines[1]

@@ -20,7 +20,7 @@ def fixed_set(tmp_path_factory):
 
 
 def test_checkpoint_is_small_and_loads():
-    assert DEFAULT_CHECKPOINT.is_file(), "models/small/model.pt is missing (make train-model)"
+    assert DEFAULT_CHECKPOINT.is_file(), "models/small/model.pt is missing (make ship-engine-model)"
     assert DEFAULT_CHECKPOINT.stat().st_size <= 20 * 2**20
     model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
     assert set(ckpt) >= {"config", "model"}

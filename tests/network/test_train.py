@@ -20,7 +20,8 @@ import pytest
 import torch
 
 from network.checkpoint import load_checkpoint
-from network.train import LOG_COLUMNS, TrainConfig, train
+from network.train import TrainConfig, train
+from network.train_files import LOG_COLUMNS
 from pbrdf.data import dataset as pdataset
 from pbrdf.io import exr
 
@@ -61,14 +62,6 @@ def _copy_with(src, dst, edit):
     return dst
 
 
-def _needs_real():
-    try:
-        from network.losses import real_loss  # noqa: F401
-        from network.realdata import RealDataset  # noqa: F401
-    except ImportError:
-        pytest.skip("waits for network/realdata.py")
-
-
 # ------------------------------------------------------------------------------------------------
 # settings, overfitting and exact resume
 
@@ -93,7 +86,7 @@ def test_toy_model_overfits_and_resume_is_exact(tiny_dataset, tmp_path):
     train(TrainConfig(out=tmp_path / "b", steps=20, **common), progress=False)
     resumed = train(TrainConfig(out=tmp_path / "b", steps=40, resume=True, **common), progress=False)
     np.testing.assert_allclose(resumed, full, rtol=1e-6, atol=1e-7)
-    with pytest.raises(FileExistsError, match="--resume"):
+    with pytest.raises(FileExistsError, match="pass resume=True"):
         train(TrainConfig(out=tmp_path / "b", steps=41, **common), progress=False)
 
 
@@ -103,7 +96,6 @@ def test_toy_model_overfits_and_resume_is_exact(tiny_dataset, tmp_path):
 
 @pytest.mark.mitsuba
 def test_real_pass_skipped_while_weight_is_zero(tiny_dataset, tmp_path):
-    _needs_real()
     stats = {}
     # Rendered samples serve as "real" captures (their ground truth is ignored by RealDataset).
     cfg = _cfg(tiny_dataset, tmp_path / "r", steps=4, real=tiny_dataset, real_weight=0.1, real_start=2, real_warmup=2)
@@ -124,7 +116,6 @@ def test_real_pass_skipped_while_weight_is_zero(tiny_dataset, tmp_path):
 
 @pytest.mark.mitsuba
 def test_resume_with_real_loader_is_exact(tiny_dataset, tmp_path):
-    _needs_real()
     kw = {"real": tiny_dataset, "real_weight": 0.1, "real_start": 1, "real_warmup": 2, "decay_steps": 6}
     full = train(_cfg(tiny_dataset, tmp_path / "a", steps=6, checkpoint_every=3, **kw), progress=False)
     train(_cfg(tiny_dataset, tmp_path / "b", steps=3, checkpoint_every=3, **kw), progress=False)  # "killed" at 3
@@ -163,7 +154,7 @@ def test_nan_inputs_are_reported_skipped_and_stop_the_run(tiny_dataset, tmp_path
     for step, msg in zip(skipped, messages, strict=True):
         assert msg.startswith(f"step {step}: non-finite input (synthetic maps")
     # Too many: a clear error naming the limit.
-    with pytest.raises(FloatingPointError, match="more than --max-skipped 1"):
+    with pytest.raises(FloatingPointError, match="more than max_skipped=1"):
         train(_cfg(bad, tmp_path / "o2", steps=6, max_skipped=1), progress=False)
 
 
@@ -222,7 +213,7 @@ def test_input_variant_is_applied_and_stored(tiny_dataset, tmp_path):
     torch.save(old, tmp_path / "old.pt")
     assert load_checkpoint(tmp_path / "old.pt")[1]["inputs"] == "full"
     # Resuming with another variant is refused.
-    with pytest.raises(ValueError, match="--inputs polar, not full"):
+    with pytest.raises(ValueError, match="inputs='polar', not 'full'"):
         train(_cfg(tiny_dataset, tmp_path / "polar_a", steps=4, resume=True, inputs="full"), progress=False)
 
 
@@ -414,7 +405,7 @@ def test_input_scale_is_stored_and_checked_on_resume(tiny_dataset, tmp_path):
     train(_cfg(tiny_dataset, out, steps=2, checkpoint_every=2), progress=False)
     _, ckpt = load_checkpoint(out / "model.pt")
     assert ckpt["input_scale"] == "calibrated"
-    with pytest.raises(ValueError, match="--input-scale calibrated, not exposure-invariant"):
+    with pytest.raises(ValueError, match="input_scale='calibrated', not 'exposure-invariant'"):
         train(_cfg(tiny_dataset, out, steps=4, resume=True, input_scale="exposure-invariant"), progress=False)
     with pytest.raises(ValueError, match="unknown input scale"):
         _cfg(tiny_dataset, out, input_scale="absolute")

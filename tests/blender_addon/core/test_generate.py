@@ -69,7 +69,7 @@ def test_resume_after_kill_loses_and_duplicates_nothing(tmp_path):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--count", "0"], "--count must be >= 1"),
+        (["--count", "0"], "--count 0 must be >= 1"),
         (["--count", "2", "--assets", "/nonexistent"], "does not exist"),
         (["--count", "2", "--shard", "3/2"], "shard"),
         (["--count", "2", "--resolution", "31"], "resolution must be even"),
@@ -191,16 +191,16 @@ def test_default_config_keeps_the_single_object_run():
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
-        ({"objects": "0"}, "--objects must be N or MIN-MAX with 1 <= MIN <= MAX, got '0'"),
-        ({"objects": "3-2"}, "--objects must be N or MIN-MAX"),
-        ({"objects": "two"}, "--objects must be N or MIN-MAX"),
-        ({"objects": (1, 2, 3)}, "--objects must be N or MIN-MAX"),
-        ({"table_fraction": 0.5}, "--table-fraction 0.5 > 0 needs --pbrdfs DIR"),
-        ({"table_fraction": -0.1}, r"--table-fraction must be in \[0, 1\]"),
-        ({"shapes": "none"}, "--shapes none leaves nothing to draw: give --assets DIR"),
-        ({"shapes": "cubes"}, "--shapes must be one of"),
-        ({"variant": "gpu"}, r"--variant must be one of \['auto', 'llvm', 'cuda', 'scalar'\]"),
-        ({"scene": ROOT / "pyproject.toml", "objects": (2, 2)}, "cannot be combined with --objects"),
+        ({"objects": "0"}, "objects='0' must be N or MIN-MAX with 1 <= MIN <= MAX"),
+        ({"objects": "3-2"}, "must be N or MIN-MAX"),
+        ({"objects": "two"}, "must be N or MIN-MAX"),
+        ({"objects": (1, 2, 3)}, "must be N or MIN-MAX"),
+        ({"table_fraction": 0.5}, "table_fraction=0.5 > 0 needs pbrdfs=DIR"),
+        ({"table_fraction": -0.1}, r"table_fraction=-0.1 must be in \[0, 1\]"),
+        ({"shapes": "none"}, "shapes='none' leaves nothing to draw: give assets=DIR"),
+        ({"shapes": "cubes"}, "shapes='cubes' must be one of"),
+        ({"variant": "gpu"}, r"variant='gpu' must be one of \['auto', 'llvm', 'cuda', 'scalar'\]"),
+        ({"scene": ROOT / "pyproject.toml", "objects": (2, 2)}, "cannot be combined with objects"),
     ],
 )
 def test_bad_config_fails_with_one_line(kwargs, message):
@@ -232,6 +232,6 @@ def test_white_pattern_renders_the_same_scene_under_a_white_display(tmp_path):
     s0_rgb = a["maps"][m][:, :6].reshape(-1, 2, 3).sum(1)
     s0_white = b["maps"][m][:, :6].reshape(-1, 2, 3).sum(1)
     assert np.all(s0_white.sum(0) > 1.2 * s0_rgb.sum(0))
-    with pytest.raises(ValueError, match=r"--pattern must be one of \['rgb_halves', 'white'\] or an image file"):
+    with pytest.raises(ValueError, match=r"pattern='checkers' must be one of \['rgb_halves', 'white'\] or an image"):
         generate(GenerateConfig(out=tmp_path / "bad", count=1, resolution=32, spp=4, pattern="checkers"))
     assert not (tmp_path / "bad").exists()

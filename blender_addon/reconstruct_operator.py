@@ -2,7 +2,7 @@
 
 ``pdir.reconstruct_capture`` runs ``headless/infer.py`` on a capture folder in the project's
 Python (a subprocess: torch never loads into Blender; which Python and where the script comes
-from is :mod:`.core.reconstruction`'s rule, the same as the polarized render's), then imports
+from is :mod:`.core.reconstruct_job`'s rule, the same as the polarized render's), then imports
 the predicted maps with :func:`.pbr_import.import_pbr_maps`: a relief mesh from
 ``<name>_depth.exr`` (default) or a flat card, with a Principled BSDF reading the maps.
 
@@ -27,8 +27,8 @@ from bpy.props import EnumProperty, PointerProperty, StringProperty
 from pbrdf.io.errors import one_line
 
 from . import prefs
-from .core import reconstruction
-from .pbr_import import PBRImportWarning, import_pbr_maps
+from .core import reconstruct_job
+from .pbr_import import ImportOptions, PBRImportWarning, import_pbr_maps
 from .render_operator import PYTHON_ENV, external_python
 from .ui import SidebarPanel
 
@@ -42,17 +42,17 @@ __all__ = [
     "running_job",
 ]
 
-_REPO_ROOT = reconstruction.repository_root(Path(__file__).resolve().parent)
+_REPO_ROOT = reconstruct_job.repository_root(Path(__file__).resolve().parent)
 _MESH_ITEMS = (
     ("RELIEF", "Relief", "A mesh displaced by the depth integrated from the predicted normals"),
     ("CARD", "Card", "A flat card facing the camera (no depth map; faster)"),
 )
 # The one job in flight (modal), and whether its cancellation was asked for from the panel.
-_job: reconstruction.ReconstructJob | None = None
+_job: reconstruct_job.ReconstructJob | None = None
 _cancel_requested = False
 
 
-def running_job() -> reconstruction.ReconstructJob | None:
+def running_job() -> reconstruct_job.ReconstructJob | None:
     """The reconstruction running in the background (modal), if any."""
     return _job
 
@@ -66,9 +66,9 @@ def reconstruction_python(context: bpy.types.Context | None = None) -> Path:
     python = external_python(context)
     if python is not None:
         return python
-    if prefs.importable(*reconstruction.PACKAGES):
+    if prefs.importable(*reconstruct_job.PACKAGES):
         return Path(sys.executable)
-    missing = [n for n in reconstruction.PACKAGES if not prefs.importable(n)]
+    missing = [n for n in reconstruct_job.PACKAGES if not prefs.importable(n)]
     raise RuntimeError(
         f"Reconstruction runs the network in the project's Python (Blender's lacks {', '.join(missing)}): set its "
         f".venv/bin/python in the add-on preferences or ${PYTHON_ENV}"
@@ -79,14 +79,14 @@ def _abspath(path: str) -> str:
     return bpy.path.abspath(path.strip()) if path.strip() else ""
 
 
-def _new_job(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context) -> reconstruction.ReconstructJob:
+def _new_job(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context) -> reconstruct_job.ReconstructJob:
     """The job for the operator's settings (ValueError / RuntimeError with one line when they cannot work)."""
-    capture = reconstruction.check_capture_folder(_abspath(op.capture_dir))
-    out = _abspath(op.output_dir) or reconstruction.default_output_dir(capture)
+    capture = reconstruct_job.check_capture_folder(_abspath(op.capture_dir))
+    out = _abspath(op.output_dir) or reconstruct_job.default_output_dir(capture)
     checkpoint = _abspath(op.checkpoint) or None
     if checkpoint is not None and not Path(checkpoint).is_file():
         raise ValueError(f"{checkpoint}: no such checkpoint file (leave it empty for the shipped model)")
-    return reconstruction.ReconstructJob(
+    return reconstruct_job.ReconstructJob(
         reconstruction_python(context), capture, out, card=op.mesh == "CARD", checkpoint=checkpoint,
         repo_root=_REPO_ROOT,
     )  # fmt: skip
@@ -120,9 +120,8 @@ def _finish(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context, job) ->
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PBRImportWarning)
         try:
-            obj = import_pbr_maps(
-                context, job.outputs, use_depth=relief, normal_space="OBJECT" if relief else "TANGENT", name=job.name
-            )
+            options = ImportOptions(use_depth=relief, normal_space="OBJECT" if relief else "TANGENT")
+            obj = import_pbr_maps(context, job.outputs, options, name=job.name)
         except (ValueError, OSError) as e:
             op.report({"ERROR"}, one_line(f"Reconstructed {job.name}, but the import failed: {e}"))
             return {"CANCELLED"}

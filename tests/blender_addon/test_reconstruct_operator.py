@@ -1,5 +1,5 @@
-"""Reconstruct Capture: ``pdir.reconstruct_capture`` (blender_addon/reconstruct.py) and its bpy-free job
-(blender_addon/core/reconstruction.py).
+"""Reconstruct Capture: ``pdir.reconstruct_capture`` (blender_addon/reconstruct_operator.py) and its bpy-free job
+(blender_addon/core/reconstruct_job.py).
 
 The bpy-free tests run a stand-in script through the real job (progress lines, staging folder,
 cancel, one-line errors) and need neither bpy nor torch; the ``bpy`` tests run the real
@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from blender_addon.core import reconstruction
+from blender_addon.core import reconstruct_job
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "capture"
@@ -25,12 +25,12 @@ EXAMPLE = ROOT / "examples" / "capture"
 
 
 def test_command_line_runs_the_infer_module_without_blend():
-    cmd = reconstruction.command_line("/py", "/data/mug", "/out")
+    cmd = reconstruct_job.command_line("/py", "/data/mug", "/out")
     expected = ["/py", "-m", "headless.infer", "--input", "/data/mug", "--out", "/out", "--quiet", "--progress-lines"]
     assert cmd == expected
-    cmd = reconstruction.command_line("/py", "/data/mug", "/out", card=True, checkpoint="/m/model.pt")
+    cmd = reconstruct_job.command_line("/py", "/data/mug", "/out", card=True, checkpoint="/m/model.pt")
     assert cmd[-3:] == ["--card", "--checkpoint", "/m/model.pt"] and "--blend" not in cmd
-    assert "--checkpoint" not in reconstruction.command_line("/py", "c", "o", checkpoint="  ")
+    assert "--checkpoint" not in reconstruct_job.command_line("/py", "c", "o", checkpoint="  ")
     # The module exists and takes every flag the add-on passes.
     from headless import infer
 
@@ -39,50 +39,50 @@ def test_command_line_runs_the_infer_module_without_blend():
 
 
 def test_parse_progress_and_the_time_estimate():
-    assert reconstruction.parse_progress("progress: 0.35 predicting the maps") == (0.35, "predicting the maps")
-    assert reconstruction.parse_progress("  progress:1 ") == (1.0, "")
-    assert reconstruction.parse_progress("progress: -2 x") == (0.0, "x")
+    assert reconstruct_job.parse_progress("progress: 0.35 predicting the maps") == (0.35, "predicting the maps")
+    assert reconstruct_job.parse_progress("  progress:1 ") == (1.0, "")
+    assert reconstruct_job.parse_progress("progress: -2 x") == (0.0, "x")
     for line in ("wrote 6 maps", "progress: nan x", "progress: soon", "progressive: 0.5", "warning: progress: 1"):
-        assert reconstruction.parse_progress(line) is None, line
-    f = [reconstruction.estimate_fraction(t) for t in (0, 1, 5, 20, 60, 1e9)]
+        assert reconstruct_job.parse_progress(line) is None, line
+    f = [reconstruct_job.estimate_fraction(t) for t in (0, 1, 5, 20, 60, 1e9)]
     assert f[0] == 0 and all(a < b for a, b in zip(f[:-1], f[1:], strict=True))
-    assert f[-1] <= reconstruction.MAX_ESTIMATE < 1
+    assert f[-1] <= reconstruct_job.MAX_ESTIMATE < 1
 
 
 def test_error_line_is_the_scripts_error_or_its_last_line():
-    assert reconstruction.error_line(["warning: a", "error: cap: no object found", ""], 2) == "cap: no object found"
-    assert reconstruction.error_line(["Traceback (...)", "  File x", "KeyError: 'k'"], 1) == "KeyError: 'k'"
-    line = reconstruction.error_line(["ModuleNotFoundError: No module named 'torch'"], 1)
+    assert reconstruct_job.error_line(["warning: a", "error: cap: no object found", ""], 2) == "cap: no object found"
+    assert reconstruct_job.error_line(["Traceback (...)", "  File x", "KeyError: 'k'"], 1) == "KeyError: 'k'"
+    line = reconstruct_job.error_line(["ModuleNotFoundError: No module named 'torch'"], 1)
     assert line.startswith("ModuleNotFoundError: No module named 'torch' - set a Python") and "\n" not in line
-    assert "exit status -15" in reconstruction.error_line([], -15)
+    assert "exit status -15" in reconstruct_job.error_line([], -15)
 
 
 def test_capture_folder_checks_and_default_output(tmp_path):
     for path, match in [("", "choose a capture folder"), (tmp_path / "nope", "no such capture folder"),
                         (tmp_path, "not a capture folder")]:  # fmt: skip
         with pytest.raises(ValueError, match=match):
-            reconstruction.check_capture_folder(path)
+            reconstruct_job.check_capture_folder(path)
     (tmp_path / "file").write_text("")
     with pytest.raises(ValueError, match="not a folder"):
-        reconstruction.check_capture_folder(tmp_path / "file")
+        reconstruct_job.check_capture_folder(tmp_path / "file")
     (tmp_path / "seq" / "0001").mkdir(parents=True)
     (tmp_path / "seq" / "0001" / "capture.json").write_text("{}")
     with pytest.raises(ValueError, match="seq: a sequence of capture folders; choose one of them"):
-        reconstruction.check_capture_folder(tmp_path / "seq")
-    assert reconstruction.check_capture_folder(EXAMPLE) == EXAMPLE.resolve()
-    assert reconstruction.check_capture_folder(EXAMPLE / "capture.json") == EXAMPLE.resolve()
-    assert reconstruction.default_output_dir(EXAMPLE) == ROOT / "examples" / "capture_reconstruction"
-    assert reconstruction.repository_root(ROOT / "blender_addon") == ROOT
-    assert reconstruction.repository_root(tmp_path / "addon") is None  # an installed zip: no repository
+        reconstruct_job.check_capture_folder(tmp_path / "seq")
+    assert reconstruct_job.check_capture_folder(EXAMPLE) == EXAMPLE.resolve()
+    assert reconstruct_job.check_capture_folder(EXAMPLE / "capture.json") == EXAMPLE.resolve()
+    assert reconstruct_job.default_output_dir(EXAMPLE) == ROOT / "examples" / "capture_reconstruction"
+    assert reconstruct_job.repository_root(ROOT / "blender_addon") == ROOT
+    assert reconstruct_job.repository_root(tmp_path / "addon") is None  # an installed zip: no repository
 
 
 def test_find_outputs_names_the_missing_maps(tmp_path):
     for kind in ("normal", "albedo", "roughness", "metallic", "mask"):
         (tmp_path / f"cap_{kind}.exr").write_bytes(b"")
-    card = reconstruction.find_outputs(tmp_path, "cap", card=True)
+    card = reconstruct_job.find_outputs(tmp_path, "cap", card=True)
     assert list(card) == ["normal", "albedo", "roughness", "metallic", "mask"]
     with pytest.raises(FileNotFoundError, match=r"^the reconstruction wrote no cap_depth.exr in "):
-        reconstruction.find_outputs(tmp_path, "cap")
+        reconstruct_job.find_outputs(tmp_path, "cap")
 
 
 # A stand-in for headless/infer.py: what it does comes from the capture folder's mode.txt.
@@ -129,9 +129,9 @@ def _stand_in(tmp_path, mode: str, name: str = "cap") -> tuple[Path, Path]:
     return cap, repo
 
 
-def _job(tmp_path, mode: str, out: Path, **kw) -> reconstruction.ReconstructJob:
+def _job(tmp_path, mode: str, out: Path, **kw) -> reconstruct_job.ReconstructJob:
     cap, repo = _stand_in(tmp_path, mode)
-    return reconstruction.ReconstructJob(sys.executable, cap, out, repo_root=repo, module="stand_in", **kw)
+    return reconstruct_job.ReconstructJob(sys.executable, cap, out, repo_root=repo, module="stand_in", **kw)
 
 
 def test_job_moves_the_maps_into_place_and_reports_progress(tmp_path):
@@ -148,9 +148,9 @@ def test_job_moves_the_maps_into_place_and_reports_progress(tmp_path):
     took = job.elapsed
     time.sleep(0.02)
     assert job.elapsed == took > 0  # the run's duration, not the time since
-    assert job.outputs == reconstruction.expected_outputs(out, "cap") and job.outputs["depth"].read_text() == "depth"
+    assert job.outputs == reconstruct_job.expected_outputs(out, "cap") and job.outputs["depth"].read_text() == "depth"
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["other_file.txt"] + [f"cap_{k}.{e}" for k in reconstruction.MAP_KINDS for e in ("exr", "png")]
+        ["other_file.txt"] + [f"cap_{k}.{e}" for k in reconstruct_job.MAP_KINDS for e in ("exr", "png")]
     )  # the staging folder is gone
     (tmp_path / "again").mkdir()
     card = _job(tmp_path / "again", "ok", out, card=True)
@@ -178,7 +178,7 @@ def test_job_cancel_stops_the_process_and_removes_its_output(tmp_path):
     (out / "mine.txt").write_text("kept")
     job = _job(tmp_path, "slow", out)
     job.start()
-    staged = [p for p in out.iterdir() if p.name.startswith(reconstruction.STAGING_PREFIX)]
+    staged = [p for p in out.iterdir() if p.name.startswith(reconstruct_job.STAGING_PREFIX)]
     assert len(staged) == 1 and job.command()[job.command().index("--out") + 1] == str(staged[0])
     while not (any(staged[0].iterdir()) and job.stage == "predicting the maps"):
         assert job.poll() == "running" and job.elapsed < 30
@@ -189,7 +189,7 @@ def test_job_cancel_stops_the_process_and_removes_its_output(tmp_path):
     assert job.state == "cancelled" and proc.poll() is not None
     assert [p.name for p in out.iterdir()] == ["mine.txt"]
     with pytest.raises(ValueError, match="not a folder"):
-        reconstruction.ReconstructJob(sys.executable, job.capture, out / "mine.txt")
+        reconstruct_job.ReconstructJob(sys.executable, job.capture, out / "mine.txt")
 
 
 def test_job_without_progress_lines_estimates_from_the_time(tmp_path):
@@ -197,11 +197,11 @@ def test_job_without_progress_lines_estimates_from_the_time(tmp_path):
     job.start()
     time.sleep(0.3)
     assert job.poll() == "running"
-    assert 0 < job.fraction < reconstruction.MAX_ESTIMATE and job.stage.startswith("running the network (")
+    assert 0 < job.fraction < reconstruct_job.MAX_ESTIMATE and job.stage.startswith("running the network (")
     job.cancel()
     assert job.state == "cancelled" and not (tmp_path / "out").exists()
     with pytest.raises(ValueError, match="must not lie inside the capture folder"):
-        reconstruction.ReconstructJob(sys.executable, job.capture, job.capture / "maps")
+        reconstruct_job.ReconstructJob(sys.executable, job.capture, job.capture / "maps")
 
 
 # --------------------------------------------------------------------------- the operator (bpy wheel)
@@ -209,12 +209,13 @@ def test_job_without_progress_lines_estimates_from_the_time(tmp_path):
 
 @pytest.fixture
 def reconstruct(bpy, monkeypatch):
-    """The add-on's ``reconstruct`` module with Blender's own Python (the project venv) running the network."""
-    from blender_addon import reconstruct, render_operator
+    """The add-on's ``reconstruct_operator`` module with Blender's own Python (the project venv) running the network."""
+    from blender_addon import reconstruct_operator, render_operator
 
     monkeypatch.delenv(render_operator.PYTHON_ENV, raising=False)
-    assert reconstruct.reconstruction_python() == Path(sys.executable)  # the venv has torch: no preference needed
-    return reconstruct
+    # The venv has torch: no preference needed.
+    assert reconstruct_operator.reconstruction_python() == Path(sys.executable)
+    return reconstruct_operator
 
 
 def _stub(reconstruct, **props):
@@ -234,7 +235,7 @@ def test_operator_reconstructs_the_example_capture_as_a_relief(bpy, reconstruct,
     print(f"reconstruct_capture(examples/capture): {seconds:.1f} s")
     assert not (ROOT / "examples" / "capture_reconstruction").exists()
     names = {p.name for p in out.iterdir()}  # every map and preview (and capture_camera.json), no staging folder
-    assert {f"capture_{k}.{e}" for k in reconstruction.MAP_KINDS for e in ("exr", "png")} <= names
+    assert {f"capture_{k}.{e}" for k in reconstruct_job.MAP_KINDS for e in ("exr", "png")} <= names
     assert all(n.startswith("capture_") for n in names)
     obj = bpy.data.objects["capture"]
     assert obj.type == "MESH" and obj.parent == bpy.context.scene.camera

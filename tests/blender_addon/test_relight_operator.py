@@ -1,4 +1,4 @@
-"""Relighting of imported assets (blender_addon/relight.py) with the real bpy 5.0 wheel and Cycles."""
+"""Relighting of imported assets (blender_addon/relight_operator.py) with the real bpy 5.0 wheel and Cycles."""
 
 import math
 import warnings
@@ -10,7 +10,7 @@ import pytest
 pytestmark = [pytest.mark.bpy, pytest.mark.usefixtures("clean_file")]
 bpy = pytest.importorskip("bpy")
 
-from blender_addon import pbr_import, relight  # noqa: E402
+from blender_addon import pbr_import, relight_operator  # noqa: E402
 from blender_addon.core.frustum import blender_frustum  # noqa: E402
 from blender_addon.core.map_io import dilate as map_io_dilate  # noqa: E402
 from pbrdf.io.exr import read_exr, write_exr  # noqa: E402
@@ -27,7 +27,7 @@ def _flat_plane(scene, tmp_path, albedo=0.5, distance=1.0):
     normal = np.zeros((H, W, 3), np.float32)
     normal[..., 2] = 1
     folder = write_pbr_maps(tmp_path / "flat", normal, albedo=np.full((H, W, 3), albedo, np.float32))
-    obj = pbr_import.import_pbr_maps(bpy.context, folder, distance=distance)
+    obj = pbr_import.import_pbr_maps(bpy.context, folder, pbr_import.ImportOptions(distance=distance))
     _principled(obj).inputs["Specular IOR Level"].default_value = 0.0  # pure Lambert
     return obj
 
@@ -46,7 +46,7 @@ def test_orbit_keyframes_on_circle(clean_file, tmp_path):
     bpy.context.view_layer.objects.active = plane
     scene.pdir_relight.radius, scene.pdir_relight.height, scene.pdir_relight.frames = 0.5, 0.3, 12
     assert bpy.ops.pdir.add_light_orbit() == {"FINISHED"}
-    light = bpy.data.objects[relight.ORBIT_LIGHT_NAME]
+    light = bpy.data.objects[relight_operator.ORBIT_LIGHT_NAME]
     assert _keyframe_counts(light) == {("location", i): 12 for i in range(3)}
     assert (scene.frame_start, scene.frame_end) == (1, 12)
     mw = plane.matrix_world
@@ -68,10 +68,10 @@ def test_orbit_keyframes_on_circle(clean_file, tmp_path):
     ]
     np.testing.assert_allclose(steps, 30.0, atol=1e-4)
     # re-running replaces the light
-    relight.add_point_light_orbit(scene, plane, radius=1.0, height=0.0, frames=3, energy=5.0)
+    relight_operator.add_point_light_orbit(scene, plane, radius=1.0, height=0.0, frames=3, energy=5.0)
     assert sum(o.type == "LIGHT" for o in scene.objects) == 1 and scene.frame_end == 3
     with pytest.raises(ValueError, match="frames must be an integer >= 1"):
-        relight.add_point_light_orbit(scene, plane, radius=1.0, height=0.0, frames=0, energy=5.0)
+        relight_operator.add_point_light_orbit(scene, plane, radius=1.0, height=0.0, frames=0, energy=5.0)
 
 
 def test_point_light_relight_matches_lambert(clean_file, tmp_path):
@@ -79,8 +79,8 @@ def test_point_light_relight_matches_lambert(clean_file, tmp_path):
     albedo, power = 0.5, 20.0
     _flat_plane(scene, tmp_path, albedo=albedo, distance=1.0)  # a new camera at the origin, plane at z = -1
     plane = next(o for o in scene.objects if o.type == "MESH")
-    light = relight.add_point_light_orbit(scene, plane, radius=0.3, height=0.4, frames=4, energy=power)
-    (out,) = relight.render_relit(scene, tmp_path / "relit", samples=8, frames=[2], file_format="OPEN_EXR")
+    light = relight_operator.add_point_light_orbit(scene, plane, radius=0.3, height=0.4, frames=4, energy=power)
+    (out,) = relight_operator.render_relit(scene, tmp_path / "relit", samples=8, frames=[2], file_format="OPEN_EXR")
     assert out.name == "relit_0002.exr"
     img = read_exr(out)
     rgb = np.stack([img[c] for c in "RGB"], -1)
@@ -105,9 +105,9 @@ def test_constant_environment_is_a_white_furnace(clean_file, tmp_path):
     _flat_plane(scene, tmp_path, albedo=albedo)
     hdr = tmp_path / "const.exr"
     write_exr(hdr, {c: np.full((8, 16), env, np.float32) for c in "RGB"})
-    world = relight.add_environment(scene, hdr_path=hdr, strength=strength)
+    world = relight_operator.add_environment(scene, hdr_path=hdr, strength=strength)
     assert scene.world == world and any(n.bl_idname == "ShaderNodeTexEnvironment" for n in world.node_tree.nodes)
-    (out,) = relight.render_relit(scene, tmp_path / "env", samples=64, frames=[1], file_format="OPEN_EXR")
+    (out,) = relight_operator.render_relit(scene, tmp_path / "env", samples=64, frames=[1], file_format="OPEN_EXR")
     rgb = np.stack([read_exr(out)[c] for c in "RGB"], -1)
     # a Lambertian plane seeing a constant sky: radiance = albedo * L_env * strength
     expected = albedo * env * strength
@@ -115,7 +115,7 @@ def test_constant_environment_is_a_white_furnace(clean_file, tmp_path):
     assert np.median(rgb) == pytest.approx(expected, rel=0.01)
     assert np.abs(rgb / expected - 1).max() < 0.05
     with pytest.raises(FileNotFoundError, match="environment file not found"):
-        relight.add_environment(scene, hdr_path=tmp_path / "missing.hdr")
+        relight_operator.add_environment(scene, hdr_path=tmp_path / "missing.hdr")
 
 
 def test_sky_environment_and_render_operator(clean_file, tmp_path):
@@ -133,7 +133,7 @@ def test_sky_environment_and_render_operator(clean_file, tmp_path):
     files = sorted(p.name for p in (tmp_path / "frames").iterdir())
     assert files == ["relit_0001.png", "relit_0002.png"]  # no temporary leftovers
     # the sky lights the plane: linear EXR values finite and positive
-    (out,) = relight.render_relit(scene, tmp_path / "sky", samples=1, frames=[1], file_format="OPEN_EXR")
+    (out,) = relight_operator.render_relit(scene, tmp_path / "sky", samples=1, frames=[1], file_format="OPEN_EXR")
     rgb = np.stack([read_exr(out)[c] for c in "RGB"], -1)
     assert np.isfinite(rgb).all() and rgb.mean() > 0
 
@@ -143,17 +143,17 @@ def test_gpu_request_falls_back_or_uses_gpu(clean_file, tmp_path):
     _flat_plane(scene, tmp_path)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        files = relight.render_relit(scene, tmp_path / "gpu", device="GPU", samples=1, frames=[1])
+        files = relight_operator.render_relit(scene, tmp_path / "gpu", device="GPU", samples=1, frames=[1])
     used = scene.cycles.device
-    fallback = [w for w in caught if issubclass(w.category, relight.RelightWarning)]
+    fallback = [w for w in caught if issubclass(w.category, relight_operator.RelightWarning)]
     assert (used == "CPU") == bool(fallback)
     assert not fallback or "rendering on the CPU" in str(fallback[0].message)
     assert files[0].is_file()
     scene.camera = None
     with pytest.raises(ValueError, match="has no camera"):
-        relight.render_relit(scene, tmp_path / "x")
+        relight_operator.render_relit(scene, tmp_path / "x")
     with pytest.raises(ValueError, match="device must be"):
-        relight.select_device(scene, "TPU")
+        relight_operator.select_device(scene, "TPU")
 
 
 def test_log_names_no_temporary_file(clean_file, tmp_path, capfd):
@@ -161,7 +161,7 @@ def test_log_names_no_temporary_file(clean_file, tmp_path, capfd):
     scene = clean_file
     _flat_plane(scene, tmp_path)
     capfd.readouterr()
-    files = relight.render_relit(scene, tmp_path / "frames", samples=1, frames=[1, 2], prefix="point_")
+    files = relight_operator.render_relit(scene, tmp_path / "frames", samples=1, frames=[1, 2], prefix="point_")
     out, err = capfd.readouterr()
     assert ".tmp-" not in out + err
     assert [f.name for f in files] == ["point_0001.png", "point_0002.png"]
@@ -214,7 +214,7 @@ def _point_light(scene, location, power):
 def _lambert_ratio(scene, tmp_path, mask, n, p, albedo=0.5, power=300.0, lpos=(0.9, 0.7, -0.9)):
     """Rendered / analytic Lambert radiance at every pixel centre, and ``n . l``."""
     _point_light(scene, lpos, power)
-    (out,) = relight.render_relit(scene, tmp_path / "relit", samples=16, frames=[1], file_format="OPEN_EXR")
+    (out,) = relight_operator.render_relit(scene, tmp_path / "relit", samples=16, frames=[1], file_format="OPEN_EXR")
     img = read_exr(out)
     rgb = np.stack([img[c] for c in "RGB"], -1).mean(-1)
     to_light = np.asarray(lpos) - p
@@ -267,13 +267,13 @@ def test_sky_frame_has_no_sun_band(clean_file, tmp_path):
     """The default sky lights a relief without a clipped, sunlit half behind a hard terminator."""
     scene = clean_file
     _, mask, _, _ = _relief_sphere(tmp_path)
-    world = relight.add_environment(scene, strength=0.3)
-    (out,) = relight.render_relit(scene, tmp_path / "sky", samples=16, frames=[1], file_format="OPEN_EXR")
+    world = relight_operator.add_environment(scene, strength=0.3)
+    (out,) = relight_operator.render_relit(scene, tmp_path / "sky", samples=16, frames=[1], file_format="OPEN_EXR")
     y = np.stack([read_exr(out)[c] for c in "RGB"], -1).mean(-1)[_erode(mask, 1)]
     # measured (16 spp): brightest 0.79, p95 / p5 1.7; with the sun disc 60 % of the pixels above 1 (clipped
     # in a PNG), brightest 4.9, p95 / p5 10.5
     assert y.max() < 1.0
     assert np.percentile(y, 95) / np.percentile(y, 5) < 3.0
     assert not next(x for x in world.node_tree.nodes if x.bl_idname == "ShaderNodeTexSky").sun_disc
-    world = relight.add_environment(scene, strength=0.3, sun=True)  # rebuilt: a new Sky Texture node
+    world = relight_operator.add_environment(scene, strength=0.3, sun=True)  # rebuilt: a new Sky Texture node
     assert next(x for x in world.node_tree.nodes if x.bl_idname == "ShaderNodeTexSky").sun_disc

@@ -1,6 +1,6 @@
 """The "Reconstruct Capture" job without bpy: ``headless/infer.py`` in a subprocess, its progress and outputs.
 
-The add-on's ``pdir.reconstruct_capture`` (:mod:`blender_addon.reconstruct`) turns a capture
+The add-on's ``pdir.reconstruct_capture`` (:mod:`blender_addon.reconstruct_operator`) turns a capture
 folder into predicted maps by running ``python -m headless.infer --input CAPTURE --out DIR``
 (never ``--blend``: the add-on imports the maps into the open Blender session itself). torch
 never runs inside Blender: the network always runs in its own process, like the polarized render
