@@ -13,7 +13,7 @@ Stages, each timed and shown with a progress bar:
 4. ``infer``: the shipped model predicts normal, albedo, roughness and metallic
    (:func:`network.infer.predict`).
 5. ``evaluate``: metrics against the ground truth and against the classical RGB
-   photometric-stereo baseline (:mod:`network.evaluate`).
+   photometric-stereo baseline (:mod:`network.evaluation`).
 6. ``blender``: the predictions are imported into Blender (bpy wheel) as Principled BSDF assets
    and relit under a rotating point light and an environment map with Cycles. bpy never shares a
    process with torch: each asset runs ``headless/relight.py`` (over
@@ -147,8 +147,8 @@ def run_demo(cfg: DemoConfig, render_dataset: Callable[..., Any]) -> dict:
     """
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.constant import load_statistics  # noqa: PLC0415
+    from network.evaluation import predict_scene, score_scene  # noqa: PLC0415
     from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
-    from network.split_eval import predict_scene, score_scene  # noqa: PLC0415
     from pbrdf.expansion.run import ExpansionConfig, run_expansion  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
 
@@ -324,16 +324,17 @@ def _stats_path(cfg: DemoConfig, ckpt_path: Path) -> Path:
 def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, variant, blender_note) -> dict:
     """Write metrics.json, metrics.md, the charts and report.html; returns the summary."""
     relit, relight_rows = relit
-    from network.split_eval import split_markdown, split_table, summarize_rows  # noqa: PLC0415
+    from network.evaluation import model_label, results_markdown, summarize_rows, summary_table  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
     from pbrdf.io.strict_json import dumps_strict  # noqa: PLC0415
 
     fig_dir = out / "figures"
     result = {"split": "demo scenes", "data": str(out / "data"), "scenes": len(rows), "lpips": True,
+              "model": model_label(ckpt_path),
               "description": "the demo's scenes through the real-capture path (raw brackets, decode, automatic "
                              "mask), scored on the object coverage",
               **summarize_rows(rows)}  # fmt: skip
-    header, table = split_table(result)
+    header, table = summary_table(result)
     means = {m: {k: v["mean"] for k, v in result["methods"][m].items()} for m in ("baseline", "constant", "ours")}
     per_scene_header = ["scene", "material", "mask IoU", "normal MAE ours", "normal MAE baseline",
                         "normal MAE constant", "albedo si-PSNR ours", "roughness RMSE ours",
@@ -361,7 +362,7 @@ def _write_outputs(out, cfg, rows, figures, relit, timer, exp, ckpt_path, varian
         "relight": relight_rows,
     }
     atomic_write_text(out / "metrics.json", dumps_strict(summary) + "\n")
-    md = "# Demo metrics\n\n" + split_markdown(result) + "\n## Per scene\n\n"
+    md = "# Demo metrics\n\n" + results_markdown(result) + "\n## Per scene\n\n"
     md += report.markdown_table(per_scene_header, per_scene)
     relight_header = ["scene", "relit PSNR (dB)", "relit LPIPS"]
     relight_table = [[r["scene"], r["psnr"], r["lpips"]] for r in relight_rows]
