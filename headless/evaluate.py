@@ -6,12 +6,12 @@
 
 Both evaluations make one report (network/evaluation.py): on every scene the model (default: the
 shipped one), calibrated photometric stereo and the constant predictor (normal facing the camera,
-training means from --train-stats, default train_stats.json beside the checkpoint) are scored on
-the object coverage of the ground truth (normal MAE, albedo PSNR / si-PSNR / LPIPS, roughness and
-metallic RMSE, depth from the integrated normals), with per-scene and pixel-weighted means and
-95 % bootstrap intervals over scenes. Samples that keep their raw brackets go through the
-real-capture path (raw brackets -> decode -> automatic foreground mask -> model); others give
-their stored maps and mask.
+training means from --train-stats, default train_stats.json beside the checkpoint, else the
+shipped model's) are scored on the object coverage of the ground truth (normal MAE, albedo PSNR /
+si-PSNR / LPIPS, roughness and metallic RMSE, depth from the integrated normals), with per-scene
+and pixel-weighted means and 95 % bootstrap intervals over scenes. Samples that keep their raw
+brackets go through the real-capture path (raw brackets -> decode -> automatic foreground mask ->
+model); others give their stored maps and mask.
 
 --split test scores every test split found under --input (default out/splits; render them with
 `make test-sets`), --split NAME one of them (only test splits are accepted), into test_splits.md
@@ -128,7 +128,10 @@ def _evaluate(args: argparse.Namespace) -> int:
         folders = [root]
     ckpt_path = args.checkpoint or Path(DEFAULT_CHECKPOINT)
     model, ckpt = load_checkpoint(ckpt_path)
-    stats = load_statistics(args.train_stats or ckpt_path.parent / STATS_FILE)
+    beside = ckpt_path.parent / STATS_FILE  # else the shipped model's, as the demo does
+    stats = load_statistics(
+        args.train_stats or (beside if beside.is_file() else DEFAULT_CHECKPOINT.parent / STATS_FILE)
+    )
     model.to(device)
     results = [
         evaluate_dataset(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=args.jobs,
