@@ -160,13 +160,13 @@ def score(
 
 @dataclass
 class ScenePredictions:
-    """One scene processed through the real-capture path, with every method's prediction.
+    """One scene given to every method as a user's input (:func:`predict_scene`), with their predictions.
 
     Attributes:
         index: sample index in its dataset.
         meta: the sample's sidecar.
-        maps: ``(H, W, 9)`` decoded nine maps.
-        auto_mask: ``(H, W)`` the automatic foreground mask the methods saw.
+        maps: ``(H, W, 9)`` nine maps (decoded from the raw brackets, else the stored ones).
+        auto_mask: ``(H, W)`` the mask the methods saw (automatic foreground mask, else the stored one).
         region: ``(H, W)`` object coverage of the ground truth (where scores are taken).
         gt: ground-truth ``normal``, ``albedo``, ``roughness``, ``metallic``.
         preds: method -> maps extended over ``region`` (what is scored).
