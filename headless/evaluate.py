@@ -1,30 +1,26 @@
-"""Evaluate trained models against ground truth, the photometric-stereo baseline and constant answers.
+"""Evaluate a model against ground truth, the photometric-stereo baseline and constant answers.
 
     python headless/evaluate.py --split test [--input out/splits] [--checkpoint models/small/model.pt] [--out DIR]
+    python headless/evaluate.py --input DIR [--checkpoint M] [--out DIR] [--real CAPTURES] [--limit N] [--quiet]
     python headless/evaluate.py --write-train-stats FILE --input TRAIN_DIR
-    python headless/evaluate.py --checkpoint runs/full/model.pt --input DIR [--out DIR] [--limit N] [--quiet]
-    python headless/evaluate.py --checkpoint white=runs/w/model.pt --checkpoint spectral=runs/s/model.pt \\
-        --checkpoint polar=runs/p/model.pt --checkpoint full=runs/f/model.pt --input DIR --white-data WDIR
 
---input is a rendered dataset with ground truth (headless/render.py). Prints and writes (to
---out, default INPUT/eval) the paper's Table 1 (photometric stereo vs ours:
-normal MAE, albedo PSNR / LPIPS / si-PSNR / si-LPIPS, roughness and metallic RMSE, and the
-difference to the baseline) in table1.md, the Table 3 input ablation in table3.md (one
-checkpoint per variant as VARIANT=PATH; variants: white, spectral, polar, full; a bare PATH takes
-its variant from the checkpoint's "inputs"), and everything per sample in metrics.json.
-The 'white' variant needs the same scenes rendered with the white display pattern
-(`headless/render.py --rig white.json`, white.json = {"display": {"pattern": "white"}}): --white-data.
---real DIR adds the re-rendering error on real captures (real.md). --data still works for one
-release (use --input).
+Both evaluations make one report (network/evaluation.py): on every scene the model (default: the
+shipped one), calibrated photometric stereo and the constant predictor (normal facing the camera,
+training means from --train-stats, default train_stats.json beside the checkpoint, else the
+shipped model's) are scored on the object coverage of the ground truth (normal MAE, albedo PSNR /
+si-PSNR / LPIPS, roughness and metallic RMSE, depth from the integrated normals), with per-scene
+and pixel-weighted means and 95 % bootstrap intervals over scenes. Samples that keep their raw
+brackets go through the real-capture path (raw brackets -> decode -> automatic foreground mask ->
+model); others give their stored maps and mask.
 
 --split test scores every test split found under --input (default out/splits; render them with
-`make test-sets`), --split NAME one of them, through the real-capture path (raw brackets ->
-decode -> automatic foreground mask -> model), against the calibrated photometric-stereo
-baseline and the constant predictor (normal facing the camera, training means from
---train-stats, default train_stats.json beside the checkpoint), on the object coverage, with
-per-scene and pixel-weighted means and 95 % bootstrap intervals. Writes test_splits.md and
-test_splits.json (strict JSON) to --out (default INPUT/eval). Only test splits are accepted.
---write-train-stats FILE computes those training means from the train split at --input.
+`make test-sets`), --split NAME one of them (only test splits are accepted), into test_splits.md
+and test_splits.json (strict JSON) in --out (default INPUT/eval).
+--input DIR alone scores any rendered dataset with ground truth (headless/render.py), e.g. a
+user's own, into evaluation.md and evaluation.json in --out (default DIR/eval).
+--real DIR adds the model's re-rendering error on real captures (real.md).
+--write-train-stats FILE computes the training means from the train split at --input.
+The input ablation (one model per input variant) is headless/ablation.py.
 """
 
 from __future__ import annotations
@@ -38,30 +34,7 @@ from pathlib import Path
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from headless._cli import require  # noqa: E402
-
-
-def _checkpoints(values: list[str]) -> dict[str, Path] | Path:
-    """The --checkpoint values: ``["PATH"]`` -> PATH; ``["VARIANT=PATH", ...]`` -> {VARIANT: PATH}.
-
-    Raises:
-        ValueError: several checkpoints without ``VARIANT=``, or a variant given twice.
-    """
-    from network.inputs import INPUT_VARIANTS  # noqa: PLC0415
-
-    if len(values) == 1 and "=" not in values[0]:
-        return Path(values[0])
-    out: dict[str, Path] = {}
-    for v in values:
-        variant, sep, path = v.partition("=")
-        if not sep or not path:
-            raise ValueError(
-                f"--checkpoint {v!r}: with several checkpoints use VARIANT=PATH ({', '.join(INPUT_VARIANTS)})"
-            )
-        if variant in out:
-            raise ValueError(f"--checkpoint: variant {variant!r} given twice")
-        out[variant] = Path(path)
-    return out
+from headless._cli import held_warnings, require  # noqa: E402
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -69,18 +42,16 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="evaluate.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--checkpoint", action="append", metavar="[VARIANT=]PATH",
-                        help="model.pt/checkpoint.pt; repeat as VARIANT=PATH for the input ablation "
-                             "(default with --split: the shipped model)")  # fmt: skip
+    parser.add_argument("--checkpoint", type=Path, help="model.pt/checkpoint.pt (default: the shipped model)")
     parser.add_argument("--split", metavar="NAME", help="'test' (every test split under --input) or one split name")
-    parser.add_argument("--train-stats", type=Path, help="training means for the constant row (--split)")
+    parser.add_argument("--train-stats", type=Path, help="training means for the constant row")
     parser.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
-                        help="--split: worker processes (default: 2, or 1 on a one-core machine)")  # fmt: skip
+                        help="worker processes (default: 2, or 1 on a one-core machine)")  # fmt: skip
     parser.add_argument("--device", choices=["cpu", "cuda", "auto"], default="cpu",
-                        help="--split: the model's device (default cpu; every --jobs worker uses it)")  # fmt: skip
+                        help="the model's device (default cpu; every --jobs worker uses it)")  # fmt: skip
     parser.add_argument("--write-train-stats", type=Path, metavar="FILE", help="compute training means from --input")
-    parser.add_argument("--input", type=Path, metavar="DIR", help="rendered dataset with ground truth (required)")
-    parser.add_argument("--white-data", type=Path, help="the same scenes rendered with the white pattern")
+    parser.add_argument("--input", type=Path, metavar="DIR",
+                        help="rendered dataset with ground truth (with --split: the folder of the splits)")  # fmt: skip
     parser.add_argument("--real", type=Path, help="folder of real captures: re-rendering error")
     parser.add_argument("--out", type=Path, help="output folder (default INPUT/eval)")
     parser.add_argument("--limit", type=int, help="evaluate only the first N samples")
@@ -89,92 +60,103 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the script; returns the exit status (0, or 2 on an error)."""
+    """Run the script; returns the exit status (0, or 2 on an error, printed as one ``error:`` line)."""
     parser = build_parser()
     args = parser.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(message)s")
     if args.write_train_stats is not None:
         require(parser, args, "--input")
-        return _write_train_stats(args)
-    if args.split is not None:
-        return _evaluate_splits(args)
-    require(parser, args, "--input")
-    if not args.checkpoint:
-        parser.error("the following arguments are required: --checkpoint")
-    from network.evaluate import evaluate, real_markdown, table1_markdown, table3_markdown, write_results  # noqa: PLC0415
-
-    try:
-        result = evaluate(_checkpoints(args.checkpoint), args.input, limit=args.limit, white_data=args.white_data,
-                          real=args.real, progress=not args.quiet)  # fmt: skip
-        files = write_results(result, args.out or args.input / "eval")
-    except (ValueError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    print(table1_markdown(result))
-    if len(result["methods"]) > 2:
-        print(table3_markdown(result))
-    if result.get("real"):
-        print(real_markdown(result))
-    print("wrote " + ", ".join(str(f) for f in files))
-    return 0
+        return held_warnings(lambda: _write_train_stats(args))
+    if args.split is None:
+        require(parser, args, "--input")
+    return held_warnings(lambda: _evaluate(args))
 
 
 def _write_train_stats(args: argparse.Namespace) -> int:
     from network.constant import save_statistics, train_statistics  # noqa: PLC0415
 
-    try:
-        stats = train_statistics(args.input, limit=args.limit)
-        path = save_statistics(stats, args.write_train_stats)
-    except (ValueError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    stats = train_statistics(args.input, limit=args.limit)
+    path = save_statistics(stats, args.write_train_stats)
     print(f"{stats['samples']} samples, {stats['pixels']} pixels: albedo {stats['albedo']}, "
           f"roughness {stats['roughness']:.3f}, metallic {stats['metallic']:.3f}\nwrote {path}")  # fmt: skip
     return 0
 
 
-def _evaluate_splits(args: argparse.Namespace) -> int:
+def _split_folders(root: Path, split: str) -> tuple[list[Path], list[str]]:
+    """The rendered test-split folders under ``root`` for ``--split`` and the names not rendered.
+
+    Raises:
+        FileNotFoundError: none of them is rendered.
+        ValueError: an unknown split name, or a folder that is not a test split.
+    """
+    from pbrdf.data.splits import get_split, require_role, test_splits  # noqa: PLC0415
+
+    names = [s.name for s in test_splits()] if split == "test" else [get_split(split).name]
+    folders = [root / n for n in names if (root / n).is_dir()]
+    if not folders:
+        raise FileNotFoundError(
+            f"{root}: no test split folders ({', '.join(names)}); render them with `make test-sets`"
+        )
+    for f in folders:
+        require_role(f, ("test",), "the final evaluation")
+    return folders, [n for n in names if not (root / n).is_dir()]
+
+
+def _evaluate(args: argparse.Namespace) -> int:
+    """``--split`` or ``--input DIR``: one report per dataset, the model's row named by its checkpoint."""
     import time  # noqa: PLC0415
 
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.constant import STATS_FILE, load_statistics  # noqa: PLC0415
     from network.distributed import resolve_device  # noqa: PLC0415
+    from network.evaluation import evaluate_dataset, results_markdown, write_results  # noqa: PLC0415
     from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
-    from network.split_eval import evaluate_split, split_markdown, write_split_results  # noqa: PLC0415
-    from pbrdf.data.splits import get_split, test_splits  # noqa: PLC0415
 
     t0 = time.perf_counter()
-    root = args.input or Path("out/splits")
-    try:
-        device = resolve_device(args.device)  # first: a missing GPU is the one error worth reporting
-        if args.checkpoint and len(args.checkpoint) > 1:
-            raise ValueError("--split scores one checkpoint")
-        ckpt_path = Path(args.checkpoint[0]) if args.checkpoint else Path(DEFAULT_CHECKPOINT)
-        names = [s.name for s in test_splits()] if args.split == "test" else [get_split(args.split).name]
-        folders = [root / n for n in names if (root / n).is_dir()] if args.split == "test" else [root / names[0]]
-        if not folders or not all(f.is_dir() for f in folders):
-            raise FileNotFoundError(
-                f"{root}: no test split folders ({', '.join(names)}); render them with `make test-sets`"
-            )
-        stats = load_statistics(args.train_stats or ckpt_path.parent / STATS_FILE)
-        model, ckpt = load_checkpoint(ckpt_path)
-        model.to(device)
-        results = [
-            evaluate_split(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=args.jobs,
-                           checkpoint_path=ckpt_path)
-            for f in folders
-        ]  # fmt: skip
-        files = write_split_results(results, args.out or root / "eval")
-    except (ValueError, OSError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
+    device = resolve_device(args.device)  # first: a missing GPU is the one error worth reporting
+    for flag, value in (("--limit", args.limit), ("--jobs", args.jobs)):
+        if value is not None and value < 1:
+            raise ValueError(f"{flag} must be >= 1, got {value}")
+    if args.split is not None:
+        root = args.input or Path("out/splits")
+        folders, missing = _split_folders(root, args.split)
+    else:
+        root, missing = args.input, []
+        if not root.is_dir():
+            raise FileNotFoundError(f"{root}: dataset folder not found")
+        folders = [root]
+    ckpt_path = args.checkpoint or Path(DEFAULT_CHECKPOINT)
+    model, ckpt = load_checkpoint(ckpt_path)
+    beside = ckpt_path.parent / STATS_FILE  # else the shipped model's, as the demo does
+    stats = load_statistics(
+        args.train_stats or (beside if beside.is_file() else DEFAULT_CHECKPOINT.parent / STATS_FILE)
+    )
+    model.to(device)
+    results = [
+        evaluate_dataset(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=args.jobs,
+                         checkpoint_path=ckpt_path)
+        for f in folders
+    ]  # fmt: skip
+    out = args.out or root / "eval"
+    files = write_results(results, out, "test_splits" if args.split is not None else "evaluation")
     for r in results:
-        print(split_markdown(r))
-    missing = [n for n in names if not (root / n).is_dir()]
+        print(results_markdown(r))
+    if args.real is not None:
+        files.append(_real(model, ckpt, args, out, results[0]["model"]))
     if missing:
         print(f"not rendered (skipped): {', '.join(missing)}")
     print(f"checkpoint {ckpt_path}; {time.perf_counter() - t0:.0f} s; wrote " + ", ".join(str(f) for f in files))
     return 0
+
+
+def _real(model, ckpt: dict, args: argparse.Namespace, out: Path, label: str) -> Path:
+    """``--real``: print the model's re-rendering error on the real captures and write ``OUT/real.md``."""
+    from network.rerender_error import rerender_error, rerender_markdown  # noqa: PLC0415
+    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
+
+    text = rerender_markdown(rerender_error(model.cpu(), ckpt["inputs"], args.real, limit=args.limit), label)
+    print(text)
+    return atomic_write_text(out / "real.md", text)
 
 
 if __name__ == "__main__":

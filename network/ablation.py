@@ -17,7 +17,7 @@ run           training data          inputs      scenes (``scenes`` of them)
 
 Every run is scored on the ``test-scenes`` split (``white`` on its twin ``test-scenes-white``:
 the same scenes under a white display) through the real-capture path
-(:func:`network.split_eval.evaluate_split`: raw brackets, decode, automatic mask), with 95 %
+(:func:`network.evaluation.evaluate_dataset`: raw brackets, decode, automatic mask), with 95 %
 bootstrap intervals over scenes, next to the constant predictor and the photometric-stereo
 baseline. No run reads validation or test data while training (the last step is scored), so the
 runs differ in nothing but the ablated factor.
@@ -183,16 +183,20 @@ def train_runs(cfg: AblationConfig, *, progress: bool = True, log: Callable[[str
 
 def evaluate_runs(cfg: AblationConfig, stats: Mapping[str, Any], *, progress: bool = True) -> dict[str, Any]:
     """Score every trained run on its test split; returns the JSON-ready results."""
+    from pbrdf.data.splits import require_role  # noqa: PLC0415
+
     from .checkpoint import load_checkpoint  # noqa: PLC0415
-    from .split_eval import evaluate_split  # noqa: PLC0415
+    from .evaluation import evaluate_dataset  # noqa: PLC0415
 
     results: dict[str, Any] = {}
     for name in cfg.runs:
         path = Path(cfg.out) / name / "model.pt"
         model, ckpt = load_checkpoint(path)
         split = WHITE_TEST_SPLIT if _RUN[name].inputs == "white" else TEST_SPLIT
-        r = evaluate_split(
-            model, ckpt, Path(cfg.splits) / split, stats, limit=cfg.limit, lpips=False, progress=progress,
+        root = Path(cfg.splits) / split
+        require_role(root, ("test",), "the ablation's scores")
+        r = evaluate_dataset(
+            model, ckpt, root, stats, limit=cfg.limit, lpips=False, progress=progress,
             jobs=cfg.jobs, checkpoint_path=path,
         )  # fmt: skip
         results[name] = {"split": split, "step": int(ckpt.get("step", 0)), **r}
@@ -242,7 +246,7 @@ def paired_gain(
     the means is returned with no interval.
 
     Args:
-        results: ablation results (``run -> evaluate_split`` dict).
+        results: ablation results (``run -> evaluate_dataset`` dict).
         before: the run without the factor.
         after: the run with it.
         key: metric key of ``methods.ours`` (lower is better).

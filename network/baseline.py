@@ -35,9 +35,10 @@ Solve (:func:`predict`):
        horizon-clipped model ``I_c = k_c / pi * E_c(n)`` over unit normals facing the camera,
        from the linear solution. Three equations for two unknowns, so a channel whose region is
        partly or wholly below the horizon still constrains the normal.
-    4. Depth (:func:`integrate_depth`): the normals integrated to a depth map, its silhouette
-       pulled to the rim depth of a sphere of the region's apparent size around the object's
-       centre; steps 1-3 are repeated at those points.
+    4. Depth (:func:`lit_point_depth`): the normals integrated to a depth map
+       (:mod:`pbrdf.geometry.normal_integration`), its silhouette placed at the rim depth of a
+       sphere of the region's apparent size around the object's centre; steps 1-3 are repeated
+       at those points.
 
     With the LP maps given, a connected mask region whose light is mostly polarized (a metal: no
     diffuse signal for the Lambertian model) gets one constant normal, toward the camera.
@@ -73,15 +74,13 @@ __all__ = [
     "sample_geometry",
     "albedo_chromaticity",
     "photometric_stereo",
-    "integrate_depth",
+    "lit_point_depth",
     "predict",
     "predict_sample",
 ]
 
-#: Weight of the outline pixels' pull toward the anchor depth, relative to one slope equation.
-ANCHOR_WEIGHT = 0.05
-#: Largest surface slope (tangent of the tilt from the viewing ray) used when integrating depth.
-MAX_SLOPE = 10.0
+#: Smallest cosine between a normal and the view used when integrating depth (slopes up to about 10).
+MIN_COS = 0.1
 
 
 # --------------------------------------------------------------------------- calibration
@@ -442,85 +441,53 @@ def photometric_stereo(unpol: ArrayLike, mask: ArrayLike, calib: Calibration, *,
 # --------------------------------------------------------------------------- depth
 
 
-def integrate_depth(normal: ArrayLike, mask: ArrayLike, intrinsics: ArrayLike, anchor: float | ArrayLike, *,
-                    max_slope: float = MAX_SLOPE) -> NDArray:  # fmt: skip
-    """Depth map ``(H, W)`` (m along the viewing axis) of the surface with these normals.
+def lit_point_depth(normal: ArrayLike, mask: ArrayLike, intrinsics: ArrayLike, anchor: float | ArrayLike, *,
+                    min_cos: float = MIN_COS, iterations: int = 1) -> NDArray:  # fmt: skip
+    """Depth map ``(H, W)`` (m along the viewing axis) of the lit points of the surface with these normals.
 
-    Perspective: a point on pixel ``(u, v)`` is ``D r(u, v)`` with ``r`` the pixel ray at
-    ``z = -1``; a surface with normal ``n`` has ``d ln D / du = -n_x / (f n . r)`` and
-    ``d ln D / dv = n_y / (f n . r)``. The slopes are clipped to ``max_slope`` (near the
-    silhouette they diverge) and ``ln D`` is solved by least squares over the mask's neighbour
-    pairs, with a weak pull (:data:`ANCHOR_WEIGHT`) of each connected region's outline toward
-    the rim of a sphere centred at ``anchor`` with the region's apparent area (depth ``z - R^2 /
-    z``, ``R`` the apparent radius in m): a convex object's silhouette lies near that rim. The
-    result is kept within the region's largest apparent radius of the anchor.
+    Each connected region of the mask is integrated on its own
+    (:func:`pbrdf.geometry.normal_integration.integrate_normals`, which fixes shape, not scale) and
+    scaled so that its outline's geometric-mean depth lies on the rim of a sphere centred at
+    ``anchor`` with the region's apparent area (depth ``z - R^2 / z``, ``R`` the apparent radius
+    in m): a convex object's silhouette lies near that rim. The result is kept within the
+    region's largest apparent radius of the anchor.
 
     Args:
         normal: ``(H, W, 3)`` unit normals, camera frame.
         mask: ``(H, W)`` pixels with a surface.
         intrinsics: ``K (3, 3)``.
         anchor: depth of the object's centre, a number or ``(H, W)``.
-        max_slope: largest ``|n_x / n . r|`` used, the tangent of the tilt from the ray.
+        min_cos: smallest cosine between a normal and the direction to the camera used in the
+            integration (0.1: slopes up to about 10, beyond which the silhouette's normals diverge).
+        iterations: least-squares solves of the integration (1: plain least squares, as a smooth
+            object needs; more re-weight across depth jumps).
 
     Returns:
         ``(H, W)``: the integrated depth on the mask, ``anchor`` elsewhere.
     """
-    from scipy import ndimage, sparse  # noqa: PLC0415
-    from scipy.sparse.linalg import spsolve  # noqa: PLC0415
+    from scipy import ndimage  # noqa: PLC0415
 
-    from pbrdf.sensor import projection  # noqa: PLC0415
+    from pbrdf.geometry.normal_integration import integrate_normals  # noqa: PLC0415
 
     m = np.asarray(mask, dtype=bool)
-    h, w = m.shape
     k = np.asarray(intrinsics, dtype=np.float64)
-    anc = np.broadcast_to(np.asarray(anchor, dtype=np.float64), (h, w))
+    anc = np.broadcast_to(np.asarray(anchor, dtype=np.float64), m.shape)
     out = np.array(anc, dtype=np.float64)
-    if not m.any():
-        return out
-    nrm = np.asarray(normal, dtype=np.float64)
-    rays = projection.pixel_rays(k, h, w)
-    nr = np.minimum(np.sum(nrm * rays, axis=-1), -1e-6)  # n . r < 0 for a normal facing the camera
-    gu = np.clip(-nrm[..., 0] / nr, -max_slope, max_slope) / k[0, 0]
-    gv = np.clip(nrm[..., 1] / nr, -max_slope, max_slope) / k[1, 1]
-    idx = np.full((h, w), -1)
-    idx[m] = np.arange(m.sum())
-    rows, cols, vals, rhs = [], [], [], []
-    count = 0
-    for g, a, b in ((gu, np.s_[:, :-1], np.s_[:, 1:]), (gv, np.s_[:-1, :], np.s_[1:, :])):
-        ok = m[a] & m[b]
-        i0, i1 = idx[a][ok], idx[b][ok]
-        r = np.arange(count, count + len(i0))
-        rows += [r, r]
-        cols += [i1, i0]
-        vals += [np.ones(len(r)), -np.ones(len(r))]
-        rhs.append(0.5 * (g[a][ok] + g[b][ok]))
-        count += len(r)
-    labels, nlab = ndimage.label(m)
+    labels, count = ndimage.label(m)
     outline = m & ~ndimage.binary_erosion(m)
-    rim = np.array(anc, dtype=np.float64)
-    for lab in range(1, nlab + 1):  # the silhouette of a sphere of the region's apparent area
+    vv, uu = np.mgrid[0 : m.shape[0], 0 : m.shape[1]]
+    for lab in range(1, count + 1):
         sel = labels == lab
-        z = np.median(anc[sel])
-        radius = np.sqrt(sel.sum() / np.pi) * z / k[0, 0]
-        rim[sel] = anc[sel] - min(radius**2 / z, 0.5 * radius)
-    r = np.arange(count, count + outline.sum())
-    rows.append(r)
-    cols.append(idx[outline])
-    vals.append(np.full(len(r), ANCHOR_WEIGHT))
-    rhs.append(ANCHOR_WEIGHT * np.log(rim[outline]))
-    count += len(r)
-    a = sparse.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(count, m.sum()))
-    b = np.concatenate([np.asarray(x, dtype=np.float64) for x in rhs])
-    log_d = spsolve((a.T @ a).tocsc(), a.T @ b)
-    depth = np.exp(log_d)
-    vv, uu = np.nonzero(m)
-    lab_px = labels[m]
-    for lab in range(1, nlab + 1):
-        sel = lab_px == lab
-        z = anc[m][sel]
-        radius = np.max(np.hypot(uu[sel] - uu[sel].mean(), vv[sel] - vv[sel].mean()) + 1.0) * np.median(z) / k[0, 0]
-        depth[sel] = np.clip(depth[sel], np.maximum(z - radius, 1e-3), z + radius)
-    out[m] = depth
+        z = anc[sel]
+        shape = integrate_normals(normal, sel, k, 1.0, iterations=iterations, min_cos=min_cos).astype(np.float64)
+        # The silhouette of a sphere of the region's apparent area, per outline pixel.
+        radius = np.sqrt(sel.sum() / np.pi) * np.median(z) / k[0, 0]
+        edge = sel & outline
+        rim = anc[edge] - min(radius**2 / np.median(z), 0.5 * radius)
+        depth = shape[sel] * np.exp(np.mean(np.log(rim)) - np.mean(np.log(shape[edge])))
+        u, v = uu[sel], vv[sel]
+        reach = np.max(np.hypot(u - u.mean(), v - v.mean()) + 1.0) * np.median(z) / k[0, 0]
+        out[sel] = np.clip(depth, np.maximum(z - reach, 1e-3), z + reach)
     return out
 
 
@@ -555,7 +522,7 @@ def predict(unpol: ArrayLike, mask: ArrayLike, rig, intrinsics: ArrayLike, depth
     )
     points_depth = d
     for _ in range(depth_passes):
-        points_depth = integrate_depth(out["normal"], mask, intrinsics, d)
+        points_depth = lit_point_depth(out["normal"], mask, intrinsics, d)
         calib = calibrate(rig, intrinsics, shape, points_depth)
         out = photometric_stereo(unpol, mask, calib, lp=lp, albedo=albedo, iterations=iterations)
     out["depth"] = np.asarray(points_depth, dtype=np.float32)

@@ -1,6 +1,6 @@
 """Shared by the diagnostic tools: a checkpoint's predictions on rendered splits, through the capture path.
 
-Each scene goes through :func:`network.split_eval.predict_scene`, the evaluation's own path (raw
+Each scene goes through :func:`network.evaluation.predict_scene`, the evaluation's own path (raw
 brackets, decode, automatic mask), without the photometric-stereo baseline.
 """
 
@@ -35,10 +35,10 @@ def load(checkpoint: Path | None) -> tuple[Any, dict, dict]:
 
 
 def capture_scenes(model: Any, ckpt: Mapping, stats: Mapping, root: Path, limit: int) -> Iterator[Any]:
-    """:class:`network.split_eval.ScenePredictions` of the first ``limit`` completed scenes of ``root``."""
+    """:class:`network.evaluation.ScenePredictions` of the first ``limit`` completed scenes of ``root``."""
     from network.data import checkpoint_input_scale
+    from network.evaluation import predict_scene
     from network.inputs import checkpoint_inputs
-    from network.split_eval import predict_scene
     from pbrdf.data import dataset as pdataset
 
     variant, scale = checkpoint_inputs(ckpt), checkpoint_input_scale(ckpt)

@@ -42,7 +42,7 @@ def object_rows(scenes: Iterable[Any]) -> list[dict]:
     """One row per object with at least 100 pixels in the automatic mask: scene, object, kind, means.
 
     Args:
-        scenes: :class:`network.split_eval.ScenePredictions` (``tools/_capture_scenes.py``).
+        scenes: :class:`network.evaluation.ScenePredictions` (``tools/_capture_scenes.py``).
 
     Returns:
         dicts with ``scene`` (index), ``object`` (id in the sidecar's object list), ``kind``

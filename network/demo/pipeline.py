@@ -13,7 +13,7 @@ Stages, each timed and shown with a progress bar:
 4. ``infer``: the shipped model predicts normal, albedo, roughness and metallic
    (:func:`network.infer.predict`).
 5. ``evaluate``: metrics against the ground truth and against the classical RGB
-   photometric-stereo baseline (:mod:`network.evaluate`).
+   photometric-stereo baseline (:mod:`network.evaluation`).
 6. ``blender``: the predictions are imported into Blender (bpy wheel) as Principled BSDF assets
    and relit under a rotating point light and an environment map with Cycles. bpy never shares a
    process with torch: each asset runs ``headless/relight.py`` (over
@@ -141,7 +141,7 @@ class _Results:
     """What the scoring stages produce for the report.
 
     Attributes:
-        rows: one row per scene (``network.split_eval.score_scene`` plus ``scene``, ``material``).
+        rows: one row per scene (``network.evaluation.score_scene`` plus ``scene``, ``material``).
         figures: the per-scene figures, ``(path, caption)``.
         relit: the relighting figures, ``(path relative to out, caption)``.
         relight_rows: relit prediction against relit truth per scene (``psnr``, ``lpips``, ``frames``).
@@ -241,14 +241,14 @@ def _predict(cfg: DemoConfig, out: Path, samples: list[Path], model, ckpt: dict,
     """Stages 3-4: every raw capture folder through the user's path, then the model and the baselines.
 
     Decode, automatic foreground mask, the shipped model, the photometric-stereo baseline and the
-    constant predictor (:func:`network.split_eval.predict_scene`); the prediction and the truth are
+    constant predictor (:func:`network.evaluation.predict_scene`); the prediction and the truth are
     written for the Blender import.
 
     Returns:
         ``{name: scene}`` in sample order, ``name`` = ``<dataset>_<index>``.
     """
     from network.constant import load_statistics  # noqa: PLC0415
-    from network.split_eval import predict_scene  # noqa: PLC0415
+    from network.evaluation import predict_scene  # noqa: PLC0415
 
     variant, stats = ckpt.get("inputs", "full"), load_statistics(stats_path)
     scenes = {}
@@ -266,7 +266,7 @@ def _predict(cfg: DemoConfig, out: Path, samples: list[Path], model, ckpt: dict,
 
 def _evaluate(cfg: DemoConfig, out: Path, scenes: dict) -> _Results:
     """Stage 5: metrics against the ground truth on the object coverage, and the per-scene figures."""
-    from network.split_eval import score_scene  # noqa: PLC0415
+    from network.evaluation import score_scene  # noqa: PLC0415
 
     results = _Results()
     bar = _bar(len(scenes), "evaluate", cfg.progress)
@@ -385,10 +385,11 @@ def _write_outputs(out: Path, cfg: DemoConfig, results: _Results, timer: _Timer,
     Returns:
         The summary written to ``metrics.json`` (see :func:`run_demo`).
     """
-    from network.split_eval import summarize_rows  # noqa: PLC0415
+    from network.evaluation import model_label, summarize_rows  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
 
     result = {"split": "demo scenes", "data": str(out / "data"), "scenes": len(results.rows), "lpips": True,
+              "model": model_label(ckpt_path),
               "description": "the demo's scenes through the real-capture path (raw brackets, decode, automatic "
                              "mask), scored on the object coverage",
               **summarize_rows(results.rows)}  # fmt: skip
@@ -421,9 +422,9 @@ def _write_outputs(out: Path, cfg: DemoConfig, results: _Results, timer: _Timer,
 
 def _metrics_markdown(result: dict, results: _Results, timer: _Timer) -> str:
     """metrics.md: the split table, the per-scene table, the relighting scores and the time per stage."""
-    from network.split_eval import split_markdown  # noqa: PLC0415
+    from network.evaluation import results_markdown  # noqa: PLC0415
 
-    md = "# Demo metrics\n\n" + split_markdown(result) + "\n## Per scene\n\n"
+    md = "# Demo metrics\n\n" + results_markdown(result) + "\n## Per scene\n\n"
     md += report.markdown_table(PER_SCENE_HEADER, _per_scene(results.rows))
     if results.relight_rows:
         relight_table = [[r["scene"], r["psnr"], r["lpips"]] for r in results.relight_rows]
@@ -448,9 +449,9 @@ def _summary_text(cfg: DemoConfig, results: _Results, means: dict, ckpt_path: Pa
 
 def _metrics_section(out: Path, result: dict, means: dict) -> dict:
     """The report's metrics table with its chart (``figures/metrics.png``)."""
-    from network.split_eval import split_table  # noqa: PLC0415
+    from network.evaluation import summary_table  # noqa: PLC0415
 
-    header, table = split_table(result)
+    header, table = summary_table(result)
     chart = report.metric_chart(
         out / "figures" / "metrics.png",
         {"baseline (PS)": means["baseline"], "constant": means["constant"], "ours": means["ours"]},

@@ -146,7 +146,6 @@ def test_grey_lambertian_sphere_rendered_by_mitsuba():
     """Real renders through the camera model and decoder: <= 5 deg on pixels lit by all three regions."""
     pytest.importorskip("mitsuba")
     from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec
-    from network.evaluate import baseline_predict
 
     rig = Rig()
     to_world = np.diag([0.3, 0.3, 0.3, 1.0])
@@ -156,7 +155,7 @@ def test_grey_lambertian_sphere_rendered_by_mitsuba():
     sample, meta = _render(spec)
     mask = sample["mask"].astype(bool)
     gt = sample["normal"]
-    pred = baseline_predict(sample["maps"], mask, meta)
+    pred = baseline.predict_sample(sample["maps"], mask, meta)
     k = np.asarray(meta["intrinsics"])
     lit = _all_regions_lit(rig, k, gt, sample["depth"], mask)
     assert lit.sum() > 0.4 * mask.sum()

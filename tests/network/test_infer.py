@@ -182,7 +182,7 @@ class TestLoadInputRequireObject:
     def test_dark_capture(self, tmp_path):
         m = camera.CameraModel()
         folder = capture.save_capture(tmp_path / "dark", np.full((4, 32, 32), 16, np.uint16), m)
-        mask = load_input(folder).mask  # the library call still returns (split_eval scores such scenes)
+        mask = load_input(folder).mask  # the library call still returns (network.evaluation scores such scenes)
         assert not mask.any()
         with pytest.raises(ValueError, match=f"{folder}: nothing usable: every raw value is at or below black_level"):
             load_input(folder, require_object=True)

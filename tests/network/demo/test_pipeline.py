@@ -22,8 +22,8 @@ def test_relight_script_exists_beside_the_package():
 
 
 def test_demo_rows_are_summarised_per_scene_and_pixel_weighted():
-    # The demo's table comes from network.split_eval.summarize_rows, like headless/evaluate.py --split.
-    from network.split_eval import METHODS, METRICS, summarize_rows
+    # The demo's table comes from network.evaluation.summarize_rows, like headless/evaluate.py.
+    from network.evaluation import METHODS, METRICS, summarize_rows
 
     def row(pixels, mae):
         scores = {k: None for k, _, _ in METRICS}

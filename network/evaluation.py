@@ -1,21 +1,28 @@
-"""Scoring on the fixed test splits, through the real-capture path, with every row a reviewer asks for.
+"""The evaluation: a model against the ground truth, photometric stereo and a constant answer, with intervals.
 
-For each scene of a split the raw HDR brackets stored with the sample are processed exactly as a
-user's capture is (:func:`network.infer.load_input` on the capture folder: decode, automatic
-foreground mask), then every method predicts from that input:
+Every scene of a rendered dataset (a test split, or any folder of samples with ground truth) is
+given to each method as a user would give it:
 
-* ``ours`` - the model (:func:`network.infer.predict`);
-* ``baseline`` - calibrated colour photometric stereo (:func:`network.evaluate.baseline_predict`);
-* ``constant`` - normal (0, 0, 1) and the training set's mean albedo, roughness and metallic
-  (:mod:`network.constant`).
+* a sample that stores its raw HDR brackets (every split, the demo's scenes) goes through the
+  real-capture path, :func:`network.infer.load_input` on the capture folder (decode, automatic
+  foreground mask), with the display radiance of its ``capture.json``;
+* any other sample gives its stored nine maps and mask, with the display radiance of its sidecar.
 
-Scores are taken on the object coverage of the ground truth (``object >= 0``: dark pixels the
-decoder could not measure count), never on the automatic mask; where the automatic mask missed
-object pixels a method's prediction is extended from its nearest predicted pixel (what a user
-gets at the border of the asset); an empty automatic mask leaves only the constant answer. The
-mask's IoU against the coverage is reported beside. Depth: each method's normals are integrated over the
-coverage (:mod:`pbrdf.geometry.normal_integration`, what the relief mesh is built from) and
-compared with the true depth up to scale (``depth_si_error``, percent). Per metric: the per-scene mean and the
+Methods (:data:`METHODS`): ``ours``, the model (:func:`network.infer.predict`, which applies the
+checkpoint's input variant), labelled by the checkpoint (:func:`model_label`); ``baseline``,
+calibrated colour photometric stereo (:func:`network.baseline.predict_sample`; n/a under the white
+display); ``constant``, normal (0, 0, 1) and the training set's mean albedo, roughness and metallic
+(:mod:`network.constant`). Only an empty mask (:class:`pbrdf.io.errors.NothingToReconstruct`)
+leaves a scene to the constant answer; any other failure of the model (a broken checkpoint that
+predicts NaN) stops the evaluation.
+
+Scores are taken on the object coverage of the ground truth (``object >= 0``, else the sample's
+mask: dark pixels the decoder could not measure count), never on the automatic mask; where the
+automatic mask missed object pixels a method's prediction is extended from its nearest predicted
+pixel (what a user gets at the border of the asset). The mask's IoU against the coverage is
+reported beside. Depth: each method's normals are integrated over the coverage
+(:mod:`pbrdf.geometry.normal_integration`, what the relief mesh is built from) and compared with
+the true depth up to scale (``depth_si_error``, percent). Per metric: the per-scene mean and the
 pixel-weighted mean, each with a 95 % bootstrap interval over scenes (:mod:`network.statistics`).
 """
 
@@ -32,18 +39,18 @@ import torch
 
 from pbrdf.data import dataset as pdataset
 from pbrdf.data.sample import sample_intrinsics
-from pbrdf.data.splits import SPLITS, dataset_split, require_role
+from pbrdf.data.splits import SPLITS, dataset_split
 from pbrdf.geometry.normal_integration import integrate_normals
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.errors import NothingToReconstruct
 from pbrdf.io.strict_json import dumps_strict
 
+from . import baseline as ps
 from . import metrics
 from .constant import constant_predict
 from .data import checkpoint_input_scale
-from .evaluate import baseline_predict
-from .infer import DEFAULT_DISTANCE, load_input, predict
-from .inputs import apply_inputs, checkpoint_inputs
+from .infer import DEFAULT_CHECKPOINT, DEFAULT_DISTANCE, load_input, predict
+from .inputs import checkpoint_inputs
 from .lpips import lpips_status
 from .statistics import summarize
 
@@ -51,19 +58,20 @@ __all__ = [
     "METHODS",
     "METRICS",
     "ScenePredictions",
+    "model_label",
     "predict_scene",
     "score",
     "score_scene",
     "summarize_rows",
-    "evaluate_split",
-    "split_table",
-    "split_markdown",
-    "write_split_results",
+    "evaluate_dataset",
+    "summary_table",
+    "results_markdown",
+    "write_results",
 ]
 
-#: Rows of every table: key -> label.
+#: Rows of every table: key -> label (``ours`` is labelled by its checkpoint, :func:`model_label`).
 METHODS = {
-    "ours": "Ours (shipped model)",
+    "ours": "Ours",
     "baseline": "Photometric stereo (calibrated)",
     "constant": "Constant (normal to camera, train means)",
 }
@@ -78,6 +86,23 @@ METRICS = (
     ("depth_si_error", "Depth si-error (%)", False),
 )
 _GT_KEYS = ("normal", "albedo", "roughness", "metallic", "mask")
+
+
+def model_label(checkpoint_path: str | Path | None) -> str:
+    """The ``ours`` row's label: which checkpoint was scored (``shipped model`` for the default one).
+
+    Example:
+        >>> model_label("runs/engine-small/best.pt"), model_label(None)
+        ('Ours (engine-small/best.pt)', 'Ours')
+        >>> model_label(DEFAULT_CHECKPOINT)
+        'Ours (shipped model)'
+    """
+    if checkpoint_path is None:
+        return METHODS["ours"]
+    path = Path(checkpoint_path)
+    if path.resolve() == Path(DEFAULT_CHECKPOINT).resolve():
+        return "Ours (shipped model)"
+    return f"Ours ({path.parent.name}/{path.name})" if path.parent.name else f"Ours ({path.name})"
 
 
 def _fill_nearest(pred: Mapping[str, np.ndarray], have: np.ndarray, region: np.ndarray) -> dict[str, np.ndarray]:
@@ -136,13 +161,13 @@ def score(
 
 @dataclass
 class ScenePredictions:
-    """One scene processed through the real-capture path, with every method's prediction.
+    """One scene given to every method as a user's input (:func:`predict_scene`), with their predictions.
 
     Attributes:
         index: sample index in its dataset.
         meta: the sample's sidecar.
-        maps: ``(H, W, 9)`` decoded nine maps.
-        auto_mask: ``(H, W)`` the automatic foreground mask the methods saw.
+        maps: ``(H, W, 9)`` nine maps (decoded from the raw brackets, else the stored ones).
+        auto_mask: ``(H, W)`` the mask the methods saw (automatic foreground mask, else the stored one).
         region: ``(H, W)`` object coverage of the ground truth (where scores are taken).
         gt: ground-truth ``normal``, ``albedo``, ``roughness``, ``metallic``.
         preds: method -> maps extended over ``region`` (what is scored).
@@ -174,46 +199,43 @@ def predict_scene(
     input_scale: str = "exposure-invariant",
     baseline: bool = True,
 ) -> ScenePredictions:
-    """Run every method on one sample's raw brackets exactly as on a user's capture folder.
+    """Run every method on one sample as on a user's input (its capture folder when it has raw brackets).
 
     ``variant`` and ``input_scale`` are the checkpoint's; the display radiance comes from the
-    capture's ``capture.json`` (:func:`network.infer.load_input`), as for a user.
-    ``baseline=False`` leaves out photometric stereo (``preds["baseline"]`` is empty), for
+    capture's ``capture.json`` or the sample's sidecar (:func:`network.infer.load_input`), as for a
+    user. ``baseline=False`` leaves out photometric stereo (``preds["baseline"]`` is empty), for
     diagnostics of the model alone.
 
     Raises:
-        ValueError: the sample has no raw brackets, or its decoded grid differs from the truth.
+        ValueError: the decoded grid differs from the truth, or the model fails on a non-empty
+            mask (e.g. it predicts NaN: a broken checkpoint).
     """
     root = Path(root)
     stored = _stored(root, index)
     keys = _GT_KEYS + tuple(k for k in ("object", "depth") if k in stored)
     sample, meta = pdataset.read_sample(root, index, keys=keys)
-    region = sample["object"] >= 0 if "object" in sample else sample["mask"]
-    raw = pdataset.sample_paths(root, index).raw
-    if not raw.is_dir():
-        raise ValueError(f"{root}: sample {index} has no raw brackets (render splits with headless/render.py --split)")
-    inp = load_input(raw)  # the user's path: decode + automatic foreground mask
+    region = sample["object"] >= 0 if "object" in sample else sample["mask"].astype(bool)
+    paths = pdataset.sample_paths(root, index)
+    source = paths.raw if paths.raw.is_dir() else paths.sidecar  # the raw brackets: the user's capture path
+    inp = load_input(source)
     maps, auto = inp.maps, inp.mask
     if maps.shape[:2] != region.shape:
-        raise ValueError(f"{raw}: decoded grid {maps.shape[:2]} differs from the ground truth {region.shape}")
+        raise ValueError(f"{source}: decoded grid {maps.shape[:2]} differs from the ground truth {region.shape}")
     auto = np.asarray(auto, dtype=bool)
     constant = constant_predict(stats, region)
     preds: dict[str, Mapping[str, np.ndarray]] = {"constant": constant}
     ours = None
     if auto.any():
-        x = apply_inputs(torch.from_numpy(np.ascontiguousarray(maps.transpose(2, 0, 1))), variant)
         try:
-            ours = predict(
-                model, x.permute(1, 2, 0).contiguous().numpy(), auto, inputs=variant, input_scale=input_scale,
-                radiance=inp.radiance,
-            )  # fmt: skip
+            ours = predict(model, maps, auto, inputs=variant, input_scale=input_scale, radiance=inp.radiance)
         except NothingToReconstruct:  # a mask that vanishes at the network's grid: nothing was reconstructed
             ours = None
         preds["ours"] = _fill_nearest(ours, auto, region) if ours is not None else constant
         if not baseline or (meta.get("rig") or {}).get("display", {}).get("pattern", "rgb_halves") == "white":
             preds["baseline"] = {}  # not asked for, or n/a: colour photometric stereo needs the colour regions
         else:
-            preds["baseline"] = _fill_nearest(baseline_predict(maps, auto, meta), auto, region)
+            found = ps.predict_sample(maps, auto, meta)
+            preds["baseline"] = _fill_nearest({k: found[k] for k in ("normal", "albedo")}, auto, region)
     else:
         preds["ours"] = preds["baseline"] = constant
     gt = {k: sample[k] for k in ("normal", "albedo", "roughness", "metallic")}
@@ -269,7 +291,7 @@ def summarize_rows(rows: list[Mapping[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def evaluate_split(
+def evaluate_dataset(
     model: torch.nn.Module,
     checkpoint: Mapping[str, Any],
     root: str | Path,
@@ -277,76 +299,79 @@ def evaluate_split(
     *,
     limit: int | None = None,
     lpips: bool | None = None,
-    require_test: bool = True,
     progress: bool = False,
     jobs: int = 1,
     checkpoint_path: str | Path | None = None,
 ) -> dict[str, Any]:
-    """Score the model, the baseline and the constant predictor on one split through the capture path.
+    """Score the model, the baseline and the constant predictor on every scene of a rendered dataset.
+
+    Any dataset with ground truth is accepted; a caller that must score a test split only checks
+    its role first (:func:`pbrdf.data.splits.require_role`).
 
     Args:
         model: the loaded model (:func:`network.checkpoint.load_checkpoint`).
         checkpoint: its checkpoint dict (for the input variant and scale).
-        root: the split's dataset folder (rendered with ``headless/render.py --split``).
+        root: the dataset folder (``headless/render.py``; a split keeps its raw brackets).
         stats: training statistics (:func:`network.constant.load_statistics`).
-        limit: score only the first ``limit`` scenes.
+        limit: score only the first ``limit`` scenes (>= 1).
         lpips: compute albedo LPIPS (default: when its weights are installed).
-        require_test: refuse anything but a test split.
         progress: show a progress bar.
         jobs: worker processes (each loads ``checkpoint_path`` onto ``model``'s device and runs one
             torch thread); scenes are independent, so the rows are the same for any ``jobs``.
-        checkpoint_path: the checkpoint file (needed with ``jobs > 1``).
+        checkpoint_path: the checkpoint file (needed with ``jobs > 1``; names the model's row).
 
     Returns:
-        JSON-ready dict: ``split``, ``scenes``, ``methods`` -> metric -> :func:`~network.statistics.summarize`
-        output, ``mask_iou`` summary, ``per_scene`` rows and ``seconds``.
+        JSON-ready dict: ``split`` (None for an unlabelled dataset), ``model`` (the ``ours`` row's
+        label), ``checkpoint``, ``scenes``, ``methods`` -> metric ->
+        :func:`~network.statistics.summarize` output, ``mask_iou`` summary, ``per_scene`` rows and
+        ``seconds``.
 
     Raises:
-        ValueError: not a test split (with ``require_test``), no samples, or samples without raw
-            brackets.
+        FileNotFoundError: no dataset folder.
+        ValueError: ``limit`` < 1, no completed samples, ``jobs > 1`` without ``checkpoint_path``,
+            or a model that fails on a scene (:func:`predict_scene`).
     """
     root = Path(root)
-    name = require_role(root, ("test",), "the final evaluation") if require_test else dataset_split(root)
+    if not root.is_dir():
+        raise FileNotFoundError(f"{root}: dataset folder not found")
+    if limit is not None and limit < 1:
+        raise ValueError(f"limit must be >= 1, got {limit}")
+    if jobs > 1 and checkpoint_path is None:
+        raise ValueError("jobs > 1 needs checkpoint_path (every worker loads the model)")
+    name = dataset_split(root)
     variant = checkpoint_inputs(checkpoint)
-    scale = checkpoint_input_scale(checkpoint)
     if lpips is None:
         lpips = lpips_status()[0]
     indices = sorted(pdataset.completed_indices(root, verify_hash=False))[:limit]
     if not indices:
         raise ValueError(f"{root}: no completed samples")
+    t0 = time.perf_counter()
     bar = None
     if progress:
         from tqdm import tqdm  # noqa: PLC0415
 
         bar = tqdm(total=len(indices), desc=f"evaluate {name or root.name}", unit="scene")
-    rows: list[dict[str, Any]] = []
-    t0 = time.perf_counter()
-    if jobs > 1:
-        if checkpoint_path is None:
-            raise ValueError("jobs > 1 needs checkpoint_path (every worker loads the model)")
-        import multiprocessing  # noqa: PLC0415
-        from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
-
-        device = str(next(model.parameters()).device)  # every worker puts its copy where the model is
-        init = (str(checkpoint_path), variant, str(root), dict(stats), bool(lpips), device)
-        ctx = multiprocessing.get_context("spawn")  # never fork a process that has run torch
-        with ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_worker_init, initargs=init) as pool:
-            for row in pool.map(_worker_row, indices):
-                rows.append(row)
+    try:
+        if jobs > 1:
+            device = str(next(model.parameters()).device)  # every worker puts its copy where the model is
+            init = (str(checkpoint_path), variant, str(root), dict(stats), bool(lpips), device)
+            rows = _pool_rows(indices, jobs, init, bar)
+        else:
+            scale = checkpoint_input_scale(checkpoint)
+            rows = []
+            for i in indices:
+                rows.append(score_scene(predict_scene(model, variant, root, i, stats, input_scale=scale), lpips=lpips))
                 if bar is not None:
                     bar.update()
-    else:
-        for i in indices:
-            scene = predict_scene(model, variant, root, i, stats, input_scale=scale)
-            rows.append(score_scene(scene, lpips=lpips))
-            if bar is not None:
-                bar.update()
-    if bar is not None:
-        bar.close()
+    finally:
+        if bar is not None:
+            bar.close()
     return {
         "split": name,
         "description": SPLITS[name].description if name in SPLITS else None,
         "data": str(root),
+        "model": model_label(checkpoint_path),
+        "checkpoint": None if checkpoint_path is None else str(checkpoint_path),
         "scenes": len(rows),
         "input": variant,
         "lpips": bool(lpips),
@@ -354,6 +379,21 @@ def evaluate_split(
         "per_scene": rows,
         "seconds": time.perf_counter() - t0,
     }
+
+
+def _pool_rows(indices: list[int], jobs: int, init: tuple, bar) -> list[dict[str, Any]]:
+    """:func:`score_scene` rows of ``indices`` from ``jobs`` spawned worker processes, in order."""
+    import multiprocessing  # noqa: PLC0415
+    from concurrent.futures import ProcessPoolExecutor  # noqa: PLC0415
+
+    rows = []
+    ctx = multiprocessing.get_context("spawn")  # never fork a process that has run torch
+    with ProcessPoolExecutor(jobs, mp_context=ctx, initializer=_worker_init, initargs=init) as pool:
+        for row in pool.map(_worker_row, indices):
+            rows.append(row)
+            if bar is not None:
+                bar.update()
+    return rows
 
 
 _WORKER: dict[str, Any] = {}
@@ -390,48 +430,47 @@ def _cell(s: Mapping[str, Any], key: str, digits: int) -> str:
     return f"{mean:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
 
 
-def split_table(result: Mapping[str, Any], key: str = "mean") -> tuple[list[str], list[list[str]]]:
+def summary_table(result: Mapping[str, Any], key: str = "mean") -> tuple[list[str], list[list[str]]]:
     """Header and rows (one per method) of a summary; ``key`` ``"mean"`` or ``"weighted_mean"``.
 
-    Each cell is ``mean [low, high]`` (95 % bootstrap interval) or ``n/a``.
+    Each cell is ``mean [low, high]`` (95 % bootstrap interval) or ``n/a``; the model's row is
+    labelled ``result["model"]`` (:func:`model_label`).
     """
     cols = [(k, h) for k, h, _ in METRICS if result.get("lpips") or k != "albedo_lpips"]
     digits = {"normal_mae": 1, "albedo_psnr": 1, "albedo_si_psnr": 1}
+    labels = {**METHODS, "ours": result.get("model") or METHODS["ours"]}
     header = ["method"] + [h for _, h in cols]
-    rows = [[label] + [_cell(result["methods"][m][k], key, digits.get(k, 3)) for k, _ in cols]
-            for m, label in METHODS.items()]  # fmt: skip
+    rows = [[labels[m]] + [_cell(result["methods"][m][k], key, digits.get(k, 3)) for k, _ in cols] for m in METHODS]
     return header, rows
 
 
-def split_markdown(result: Mapping[str, Any]) -> str:
-    """Markdown tables (per-scene means, pixel-weighted means) of one :func:`evaluate_split` result."""
+def _markdown_table(title: str, header: list[str], rows: list[list[str]]) -> list[str]:
+    lines = [f"{title}:", "", "| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1)]
+    return lines + ["| " + " | ".join(r) + " |" for r in rows] + [""]
+
+
+def results_markdown(result: Mapping[str, Any]) -> str:
+    """Markdown tables (per-scene means, pixel-weighted means) of one :func:`evaluate_dataset` result."""
     lines = [f"### {result.get('split') or result['data']} ({result['scenes']} scenes)", ""]
     if result.get("description"):
         lines += [result["description"] + ".", ""]
     for title, key in (("Per-scene mean [95 % CI]", "mean"), ("Pixel-weighted mean [95 % CI]", "weighted_mean")):
-        header, rows = split_table(result, key)
-        lines += [f"{title}:", "", "| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1)]
-        lines += ["| " + " | ".join(r) + " |" for r in rows]
-        lines.append("")
+        lines += _markdown_table(title, *summary_table(result, key))
     if result.get("per_object") and result.get("objects", 0) > result["scenes"]:
-        per = {"methods": result["per_object"], "lpips": False}
-        header, rows = split_table(per, "mean")
-        lines += [f"Per-object mean [95 % CI] ({result['objects']} objects):", ""]
-        lines += ["| " + " | ".join(header) + " |", "|---|" + "---:|" * (len(header) - 1)]
-        lines += ["| " + " | ".join(r) + " |" for r in rows]
-        lines.append("")
+        per = {"methods": result["per_object"], "lpips": False, "model": result.get("model")}
+        lines += _markdown_table(f"Per-object mean [95 % CI] ({result['objects']} objects)", *summary_table(per))
     iou = result["mask_iou"]
     lines.append(f"Automatic foreground mask vs object coverage: IoU {_cell(iou, 'mean', 3)} (per-scene mean).")
     lines.append("")
     return "\n".join(lines)
 
 
-def write_split_results(results: list[Mapping[str, Any]], out_dir: str | Path) -> list[Path]:
-    """Write ``test_splits.json`` (strict JSON) and ``test_splits.md`` atomically."""
+def write_results(results: list[Mapping[str, Any]], out_dir: str | Path, stem: str) -> list[Path]:
+    """Write ``STEM.json`` (strict JSON, ``{"results": [...]}``) and ``STEM.md`` atomically."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    md = "\n".join(split_markdown(r) for r in results)
+    md = "\n".join(results_markdown(r) for r in results)
     return [
-        atomic_write_text(out / "test_splits.json", dumps_strict({"splits": list(results)}) + "\n"),
-        atomic_write_text(out / "test_splits.md", md),
+        atomic_write_text(out / f"{stem}.json", dumps_strict({"results": list(results)}) + "\n"),
+        atomic_write_text(out / f"{stem}.md", md),
     ]
