@@ -10,7 +10,8 @@ import pytest
 class Tolerances:
     """Default tolerances by dtype and quantity, each with the reason for its size.
 
-    Absolute unless the name ends in ``_rel``. A test that claims more keeps its own literal, with the
+    Sized for O(1) values: an ``atol``, or an ``rtol`` where the values are not O(1) (scale-free
+    ratios at 1e30). A test that claims more keeps its own literal, with the
     measured error in a comment; a looser one says what makes it loose (Monte-Carlo render noise, which
     depends on the samples per pixel and the pixels averaged, is always measured per test).
     """
@@ -18,7 +19,7 @@ class Tolerances:
     f64_exact: float = 1e-15
     """float64, a few operations on O(1) values: a handful of ulp (eps = 2.2e-16)."""
     f64: float = 1e-12
-    """float64 closed forms: tens of operations on O(1) values, round-off well under 1e3 ulp."""
+    """float64 closed forms: tens of operations on O(1) values (1e-12 is about 4,500 ulp of 1)."""
     f64_inverse: float = 1e-9
     """float64 through inverse trigonometry, square roots or matrix solves, which amplify round-off."""
     f32: float = 1e-6
