@@ -1,7 +1,37 @@
-"""Shared pytest fixtures."""
+"""Shared pytest fixtures, and the tolerance table :data:`TOL` (``from tests.conftest import TOL``)."""
+
+from dataclasses import dataclass
 
 import numpy as np
 import pytest
+
+
+@dataclass(frozen=True)
+class Tolerances:
+    """Default tolerances by dtype and quantity, each with the reason for its size.
+
+    Sized for O(1) values: an ``atol``, or an ``rtol`` where the values are not O(1) (scale-free
+    ratios at 1e30). A test that claims more keeps its own literal, with the
+    measured error in a comment; a looser one says what makes it loose (Monte-Carlo render noise, which
+    depends on the samples per pixel and the pixels averaged, is always measured per test).
+    """
+
+    f64_exact: float = 1e-15
+    """float64, a few operations on O(1) values: a handful of ulp (eps = 2.2e-16)."""
+    f64: float = 1e-12
+    """float64 closed forms: tens of operations on O(1) values (1e-12 is about 4,500 ulp of 1)."""
+    f64_inverse: float = 1e-9
+    """float64 through inverse trigonometry, square roots or matrix solves, which amplify round-off."""
+    f32: float = 1e-6
+    """float32 round-off of O(1) values after a few operations (eps = 1.2e-7)."""
+    f32_sum: float = 1e-5
+    """float32 after sums or products of tens of terms (errors add up to ~1e2 eps)."""
+    mitsuba_f32: float = 2e-5
+    """Mitsuba's scalar variants compute in float32 (worst case measured 3.7e-6: Fresnel r_p at eta 2.4)."""
+
+
+#: The project's tolerance table.
+TOL = Tolerances()
 
 
 @pytest.fixture

@@ -17,33 +17,31 @@ Convention:
     ``||H||_F^2 = ||M||_F^2 / 4``. ``M`` is a convex sum of Jones-derived (pure) Mueller matrices
     iff ``H`` is positive semidefinite (*Cloude-physical*); a pure matrix has a rank-1 ``H``.
 
-    Two tests of increasing strength are provided:
+    Two tests of increasing strength:
 
     * :func:`is_givens_kostinski` -- the *Stokes criterion*: ``M`` maps every physical Stokes
       vector to a physical Stokes vector (no over-polarization, no negative intensity).
-    * :func:`is_cloude_physical` -- ``H >= 0``: ``M`` is an ensemble of deterministic
-      (Jones) systems. Every Cloude-physical matrix passes Givens-Kostinski, not vice versa
-      (a convex sum of Jones systems maps the Stokes cone into itself). With the tolerances,
-      Cloude at ``rtol`` implies Givens-Kostinski at about ``4 rtol``: ``H + rtol m00 I >= 0``
-      means ``M + 4 rtol m00 diag(1, 0, 0, 0)`` is exactly physical. So
-      :func:`is_mueller_physical` is decided by Cloude alone.
-
-    The Cloude test decides ``H + rtol m00 I >= 0`` from the four pivots of an ``LDL^H``
-    factorisation without pivoting, in closed form and vectorised over 16 real rows (Sylvester's
-    criterion: the pivots are the ratios of consecutive leading principal minors, all positive
-    iff the matrix is positive definite). Cholesky-type factorisation is backward stable, so a
-    computed pivot set is exact for a matrix within a few ulps of ``H``: the verdict is certain
-    unless the first pivot that is not clearly positive lies within ``1e-10 m00`` of zero, which
-    happens only next to the boundary ``lambda_min(H) = -rtol m00``. Only those matrices go to
-    the eigenvalue route (``eigvalsh``), which remains available as ``method="eigh"``. The shift
-    ``rtol m00 I`` keeps pure matrices (rank-1 ``H``) clear of that band. The
-    elementary-symmetric criterion (every ``e_k`` of the eigenvalues ``>= 0``, ``e_k`` the sum of
-    the ``k x k`` principal minors) is equally exact in theory, but from power sums (Newton's
-    identities) the ``e_k`` of near-pure matrices drown in cancellation, and from the 15
-    principal minors it costs more than the factorisation (docs/measurements/pbrdf.md).
+    * :func:`is_cloude_physical` -- ``H + rtol m00 I >= 0``: ``M`` is an ensemble of deterministic
+      (Jones) systems. Cloude at ``rtol`` implies Givens-Kostinski at about ``4 rtol``, so
+      :func:`is_mueller_physical` is decided by Cloude alone. The verdict comes from the four
+      pivots of an ``LDL^H`` factorisation in closed form (Sylvester's criterion); only matrices
+      whose verdict lies within round-off of the boundary go to ``eigvalsh`` (also available as
+      ``method="eigh"``). Why pivots, and their agreement with the eigenvalue routes: the
+      validity-filter section of docs/measurements/pbrdf.md.
 
     The spectral functions reject NaN and Inf entries with a ``ValueError``; mask invalid
     entries (e.g. the invalid geometry of measured pBRDF tables) before calling them.
+
+Example:
+    ``diag(1, 1, 1, -1)`` keeps every Stokes vector physical but is no ensemble of Jones
+    systems (``H`` has the eigenvalue -1/2); the Cloude filter makes it one:
+
+    >>> import numpy as np
+    >>> flip = np.diag([1.0, 1.0, 1.0, -1.0])
+    >>> bool(is_givens_kostinski(flip)), bool(is_cloude_physical(flip))
+    (True, False)
+    >>> float(coherency_eigenvalues(flip).min()), bool(is_cloude_physical(cloude_filter(flip)))
+    (-0.5, True)
 
 References:
     S. R. Cloude, "Group theory and polarisation algebra", Optik 75(1):26-36, 1986; S. R. Cloude,

@@ -9,6 +9,7 @@ trimesh = pytest.importorskip("trimesh")
 from blender_addon.core.generated_shapes import GENERATED_SHAPES, generated_shape  # noqa: E402
 from blender_addon.core.procedural import PROCEDURAL_SHAPES, diameter  # noqa: E402
 from blender_addon.core.unseen_shapes import UNSEEN_SHAPES  # noqa: E402
+from tests.conftest import TOL  # noqa: E402
 
 SEEDS = (0, 1, 5)
 
@@ -22,9 +23,9 @@ def test_closed_outward_unit_diameter(shape, seed):
     assert len(np.unique(mesh.vertices, axis=0)) == len(mesh.vertices)  # vertices merged
     for part in mesh.split(only_watertight=False):
         assert part.volume > 0, f"{shape}: a part faces inward"
-    assert diameter(mesh) == pytest.approx(1.0, abs=1e-12)
+    assert diameter(mesh) == pytest.approx(1.0, abs=TOL.f64)
     v = np.asarray(mesh.vertices)
-    np.testing.assert_allclose((v.min(axis=0) + v.max(axis=0)) / 2, 0.0, atol=1e-12)
+    np.testing.assert_allclose((v.min(axis=0) + v.max(axis=0)) / 2, 0.0, atol=TOL.f64)
     # Outward: face centres nudged along their normals are outside the solid, against them inside.
     rng = np.random.default_rng(0)
     faces = rng.choice(len(mesh.faces), size=min(60, len(mesh.faces)), replace=False)
@@ -144,11 +145,11 @@ def test_heightfield_slab_flat_bottom_vertical_sides(seed):
     n = mesh.face_normals
     # Flat bottom: every downward face lies in the plane z = min z.
     down = n[:, 2] < -0.5
-    np.testing.assert_allclose(n[down], [[0.0, 0.0, -1.0]] * int(down.sum()), atol=1e-12)
-    np.testing.assert_allclose(v[mesh.faces[down]][..., 2], v[:, 2].min(), atol=1e-12)
+    np.testing.assert_allclose(n[down], [[0.0, 0.0, -1.0]] * int(down.sum()), atol=TOL.f64)
+    np.testing.assert_allclose(v[mesh.faces[down]][..., 2], v[:, 2].min(), atol=TOL.f64)
     # Vertical sides: horizontal normals along x or y, with 90-degree edges to the bottom.
     side = np.abs(n[:, 2]) < 1e-12
-    assert side.sum() >= 4 * 48 and np.allclose(np.sort(np.abs(n[side][:, :2]), axis=1)[:, 0], 0.0, atol=1e-12)
+    assert side.sum() >= 4 * 48 and np.allclose(np.sort(np.abs(n[side][:, :2]), axis=1)[:, 0], 0.0, atol=TOL.f64)
     pairs = mesh.face_adjacency
     bottom_edge = (down[pairs[:, 0]] & side[pairs[:, 1]]) | (side[pairs[:, 0]] & down[pairs[:, 1]])
     assert bottom_edge.sum() == 4 * 48

@@ -8,6 +8,7 @@ import pytest
 trimesh = pytest.importorskip("trimesh")
 
 from blender_addon.core import mesh_normals as mn  # noqa: E402
+from tests.conftest import TOL  # noqa: E402
 
 
 def _cube():
@@ -19,7 +20,7 @@ def test_cube_hard_edges_keep_face_normals():
     v, f = _cube()
     corner = mn.crease_corner_normals(v, f, crease_deg=30.0)
     fn, _ = mn.face_normals(v, f)
-    np.testing.assert_allclose(corner, np.repeat(fn[:, None, :], 3, axis=1), atol=1e-12)
+    np.testing.assert_allclose(corner, np.repeat(fn[:, None, :], 3, axis=1), atol=TOL.f64)
     # The six faces are axis-aligned: every corner normal is a signed unit axis.
     assert np.allclose(np.sort(np.abs(corner), axis=-1), [0, 0, 1])
 
@@ -30,7 +31,7 @@ def test_cube_smoothed_is_angle_weighted():
     v, f = _cube()
     corner = mn.crease_corner_normals(v, f, crease_deg=180.0)
     expected = np.sign(v[f]) / np.sqrt(3.0)
-    np.testing.assert_allclose(corner, expected, atol=1e-12)
+    np.testing.assert_allclose(corner, expected, atol=TOL.f64)
 
 
 def test_sphere_normals_are_radial():
@@ -53,7 +54,7 @@ def test_weld_joins_uv_seams():
     weld = np.array([0, 1, 2, 0, 2, 3])
     apart = mn.crease_corner_normals(v, f, crease_deg=30.0)
     joined = mn.crease_corner_normals(v, f, crease_deg=30.0, weld=weld)
-    np.testing.assert_allclose(apart[0, 0], [0, 0, 1], atol=1e-12)  # no neighbour without the weld
+    np.testing.assert_allclose(apart[0, 0], [0, 0, 1], atol=TOL.f64)  # no neighbour without the weld
     assert joined[0, 0, 0] > 0.01 and np.allclose(joined[0, 0], joined[1, 0])  # averaged with the tilted face
 
 
@@ -73,7 +74,7 @@ def test_zero_angle_corner_falls_back_to_the_face():
     f = np.array([[0, 1, 3], [1, 2, 3]])
     corner = mn.crease_corner_normals(v, f)
     assert np.all(np.isfinite(corner))
-    np.testing.assert_allclose(np.linalg.norm(corner, axis=-1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(np.linalg.norm(corner, axis=-1), 1.0, atol=TOL.f64)
 
 
 def test_chunked_pairs_match_one_chunk(monkeypatch):
@@ -81,4 +82,4 @@ def test_chunked_pairs_match_one_chunk(monkeypatch):
     v, f = np.asarray(s.vertices), np.asarray(s.faces)
     whole = mn.crease_corner_normals(v, f, crease_deg=10.0)
     monkeypatch.setattr(mn, "_PAIR_CHUNK", 7)
-    np.testing.assert_allclose(mn.crease_corner_normals(v, f, crease_deg=10.0), whole, atol=1e-12)
+    np.testing.assert_allclose(mn.crease_corner_normals(v, f, crease_deg=10.0), whole, atol=TOL.f64)

@@ -7,6 +7,7 @@ import trimesh
 from blender_addon.core import placement
 from blender_addon.core.procedural import PROCEDURAL_SHAPES, diameter, procedural
 from pbrdf.sensor.rig import CameraSpec, Rig
+from tests.conftest import TOL
 
 SHAPES = PROCEDURAL_SHAPES
 
@@ -30,7 +31,7 @@ class TestPlace:
             centre = m[:3, :3] @ _bbox_centre(v) + m[:3, 3]
             assert 0.5 - 1e-12 <= np.linalg.norm(centre) <= 1.0 + 1e-12
             scale = np.cbrt(np.linalg.det(m[:3, :3]))
-            np.testing.assert_allclose(m[:3, :3].T @ m[:3, :3], scale**2 * np.eye(3), atol=1e-12)  # similarity
+            np.testing.assert_allclose(m[:3, :3].T @ m[:3, :3], scale**2 * np.eye(3), atol=TOL.f64)  # similarity
             assert 0.15 - 1e-12 <= scale * diameter(mesh) <= 0.35 + 1e-12
             np.testing.assert_array_equal(m[3], [0, 0, 0, 1])
 
@@ -62,7 +63,7 @@ class TestPlace:
         rs = np.stack([placement.random_rotation(rng) for _ in range(3000)])
         np.testing.assert_allclose(rs.mean(axis=0), 0.0, atol=0.05)  # 5 sigma = 5 / sqrt(3 * 3000) = 0.053
         np.testing.assert_allclose((rs**2).mean(axis=0), 1 / 3, atol=0.03)
-        np.testing.assert_allclose(np.linalg.det(rs), 1.0, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.det(rs), 1.0, atol=TOL.f64)
 
     def test_impossible(self):
         with pytest.raises(ValueError, match="no pose inside the view after 5 tries"):

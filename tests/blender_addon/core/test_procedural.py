@@ -7,6 +7,7 @@ import pytest
 import trimesh
 
 from blender_addon.core import procedural as pr
+from tests.conftest import TOL
 
 SHAPES = pr.PROCEDURAL_SHAPES
 
@@ -24,9 +25,9 @@ class TestProcedural:
         assert m.is_watertight and m.is_winding_consistent
         assert m.volume > 0  # signed volume > 0: outward normals
         assert len(m.nondegenerate_faces()) == len(m.faces)
-        assert pr.diameter(m) == pytest.approx(1.0, abs=1e-12)
-        np.testing.assert_allclose(_bbox_centre(v), 0.0, atol=1e-12)
-        assert np.max(np.linalg.norm(v, axis=1)) == pytest.approx(0.5, abs=1e-12)  # fits a unit-diameter sphere
+        assert pr.diameter(m) == pytest.approx(1.0, abs=TOL.f64)
+        np.testing.assert_allclose(_bbox_centre(v), 0.0, atol=TOL.f64)
+        assert np.max(np.linalg.norm(v, axis=1)) == pytest.approx(0.5, abs=TOL.f64)  # fits a unit-diameter sphere
         n = np.asarray(m.vertex_normals)
         np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, atol=1e-9)
         if shape != "torus":  # star-shaped about the origin: normals point away from it
@@ -46,7 +47,7 @@ class TestProcedural:
 
     def test_sphere_radius(self):
         v = pr.procedural("sphere").vertices
-        np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.5, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.5, atol=TOL.f64)
 
     def test_torus_volume(self):
         # V = 2 pi^2 R r^2 (Pappus); R + r = 0.5 with r = 0.25 R -> R = 0.4, r = 0.1: V = 0.078957.
@@ -56,7 +57,7 @@ class TestProcedural:
     def test_superquadric_limits(self):
         # e1 = e2 = 1 with equal axes is a sphere (Barr 1981).
         v = pr.procedural("superquadric", e1=1.0, e2=1.0, a=1.0, b=1.0, c=1.0).vertices
-        np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.5, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(v, axis=1), 0.5, atol=TOL.f64)
 
     @pytest.mark.parametrize("e1,e2", [(1.0, 1.0), (0.5, 1.0), (1.0, 0.5), (0.3, 0.3), (0.1, 0.1), (1.5, 1.5)])
     def test_superquadric_volume(self, e1, e2):
@@ -68,12 +69,12 @@ class TestProcedural:
         m = pr.procedural("superquadric", e1=e1, e2=e2, a=1.0, b=0.8, c=0.6)
         expected = e1 * e2 * beta(e1 / 2 + 1, e1) * beta(e2 / 2, e2 / 2) / 4
         assert m.volume / np.prod(m.extents) == pytest.approx(expected, rel=0.005)
-        np.testing.assert_allclose(m.extents / m.extents[0], [1.0, 0.8, 0.6], atol=1e-12)
+        np.testing.assert_allclose(m.extents / m.extents[0], [1.0, 0.8, 0.6], atol=TOL.f64)
 
     def test_bevel_box_volume_and_extents(self):
         m = pr.procedural("bevel_box", x=1.0, y=0.5, z=0.5, bevel=0.2)
         ext = np.asarray(m.extents)
-        np.testing.assert_allclose(ext / ext[0], [1.0, 0.5, 0.5], atol=1e-12)
+        np.testing.assert_allclose(ext / ext[0], [1.0, 0.5, 0.5], atol=TOL.f64)
         # Rounded box = inner box (a, b, c) grown by a ball of radius r (Steiner formula):
         # V = abc + 2r(ab + bc + ca) + pi r^2 (a + b + c) + 4/3 pi r^3, here in units of the x half extent.
         r = 0.2 * 0.5

@@ -24,7 +24,6 @@ from network.model.dense import (
     grid_pixels,
     unreliable_fill,
 )
-from network.model.flops import estimate_flops
 from tests.helpers import make_model
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")  # tests/conftest.py
@@ -115,21 +114,26 @@ class TestExactPath:
         # A machine-independent speed check: FlopCounterMode counts the matmuls of both routes (with gradients on:
         # its module tracking fails under no_grad in torch 2.13).
         model = make_model()
-        maps, mask = smooth_maps(64), disc_mask(64)
-        feats = model.encode(maps, mask).detach()
-        counts = {}
-        for what, fn in (
-            ("reference", lambda: model.decode_dense_reference(feats, maps, mask)),
-            ("fast", lambda: model.decode_dense(feats, maps, mask)),
-            ("stride4", lambda: model.decode_dense(feats, maps, mask, stride=4)),
-        ):
+        maps = smooth_maps(64)
+        feats = model.encode(maps, disc_mask(64)).detach()
+
+        def flops(fn):
             with sdpa_kernel(SDPBackend.MATH), FlopCounterMode(display=False) as counter:
                 fn()
-            counts[what] = counter.get_total_flops()
-        est = estimate_flops(model.config, 64, masked_pixels=int(mask.sum()))
-        assert counts["fast"] == est["decoder_dense"]
-        assert counts["fast"] < 0.9 * counts["reference"]  # 0.88 for toy (0.85 small, 0.94 paper at 384)
-        assert counts["stride4"] < 0.25 * counts["fast"]
+            return counter.get_total_flops()
+
+        masks = [disc_mask(64, f) for f in (0.3, 0.4, 0.5)]
+        pixels = [int(m.sum()) for m in masks]
+        assert min(pixels) > model.config.train_pixels  # a full context: a larger mask only adds query pixels
+        fast = [flops(lambda m=m: model.decode_dense(feats, maps, m)) for m in masks]
+        # Every extra masked pixel costs the same work (one query against the fixed context, nothing quadratic).
+        per_pixel = (fast[1] - fast[0]) / (pixels[1] - pixels[0])
+        assert per_pixel > 0
+        assert fast[2] - fast[1] == pytest.approx(per_pixel * (pixels[2] - pixels[1]), rel=1e-9)
+        reference = flops(lambda: model.decode_dense_reference(feats, maps, masks[2]))
+        stride4 = flops(lambda: model.decode_dense(feats, maps, masks[2], stride=4))
+        assert fast[2] < 0.9 * reference  # 0.88 for toy (0.85 small, 0.94 paper at 384)
+        assert stride4 < 0.25 * fast[2]
 
 
 class TestStride:

@@ -14,9 +14,9 @@ import pytest
 
 from pbrdf.brdf.microfacet import ALPHA_MAX, ALPHA_MIN, conductor_pbrdf, dielectric_pbrdf, ggx_d, smith_g1
 from pbrdf.polar import fresnel, mueller
+from tests.conftest import TOL
 
 PI = np.pi
-ATOL = 1e-12  # closed-form float64 identities
 
 # Mitsuba evaluates in float32. Agreement is measured relative to m00 of the same matrix, for every entry:
 # worst cases over 1000 random pairs with both z >= 0.05: pplastic 2.5e-5, roughconductor 8.2e-6 (3.2e-6 without the
@@ -338,7 +338,7 @@ class TestConductorPbrdf:
             if circular:
                 assert np.all(ellipticity > 0.5)
             else:
-                np.testing.assert_allclose(ellipticity, 0.0, atol=1e-12)
+                np.testing.assert_allclose(ellipticity, 0.0, atol=TOL.f64)
 
     def test_vertical_light_gets_circular_part_only_on_oblique_planes(self):
         """The project's case: display light polarized along the Stokes x-axis (s1 = +-1).
@@ -354,7 +354,7 @@ class TestConductorPbrdf:
             if oblique:
                 assert abs(m[3, 1]) > 0.1 * m[0, 0]
             else:
-                assert abs(m[3, 1]) < ATOL * m[0, 0]
+                assert abs(m[3, 1]) < TOL.f64 * m[0, 0]
                 assert abs(m[3, 2]) > 0.3 * m[0, 0]
 
 
@@ -522,10 +522,10 @@ class TestPolarizationStates:
         n = [0.0, 0.0, 1.0]
         spec = dielectric_pbrdf(n, n, albedo=0.0, eta=1.5, alpha=0.1)
         expected = 0.04 / (PI * 0.1**2) / 4  # R0 = ((1.5 - 1) / (1.5 + 1))^2, D(n) = 1 / (pi alpha^2), G = 1
-        np.testing.assert_allclose(spec, expected * np.diag([1.0, 1.0, -1.0, -1.0]), rtol=1e-13, atol=ATOL)
+        np.testing.assert_allclose(spec, expected * np.diag([1.0, 1.0, -1.0, -1.0]), rtol=1e-13, atol=TOL.f64)
         gold = conductor_pbrdf(n, n, eta=GOLD, alpha=0.1)
         r0 = fresnel.fresnel_reflectance(1.0, GOLD) / (PI * 0.1**2) / 4
-        np.testing.assert_allclose(gold, r0 * np.diag([1.0, 1.0, -1.0, -1.0]), rtol=1e-13, atol=ATOL * r0)
+        np.testing.assert_allclose(gold, r0 * np.diag([1.0, 1.0, -1.0, -1.0]), rtol=1e-13, atol=TOL.f64 * r0)
 
     def test_mirror_signs_in_specular_direction(self, rng):
         """Near-normal specular geometry (10 degrees), any azimuth: m33 < 0 (handedness flips) and the linear block
@@ -554,8 +554,10 @@ class TestPolarizationStates:
         diff = dielectric_pbrdf(wi, wo, albedo=0.8, eta=1.5, alpha=0.3, specular=0.0)[:, :, 0]
         s_spec = unit(np.cross(wo, wi))
         s_diff = unit(np.cross([0.0, 0.0, 1.0], wi))
-        np.testing.assert_allclose(np.abs(np.sum(polarization_direction(spec, wi) * s_spec, -1)), 1.0, atol=1e-9)
-        np.testing.assert_allclose(np.sum(polarization_direction(diff, wi) * s_diff, -1), 0.0, atol=1e-9)
+        np.testing.assert_allclose(
+            np.abs(np.sum(polarization_direction(spec, wi) * s_spec, -1)), 1.0, atol=TOL.f64_inverse
+        )
+        np.testing.assert_allclose(np.sum(polarization_direction(diff, wi) * s_diff, -1), 0.0, atol=TOL.f64_inverse)
 
     def test_diffuse_weaker_than_specular(self, rng):
         """Mirror geometry (theta_d = theta_i): the diffuse DoLP (T_p - T_s) / (T_p + T_s) is below the specular
@@ -576,7 +578,7 @@ class TestPolarizationStates:
         diff = dielectric_pbrdf(wi, wo, albedo=0.8, eta=1.5, alpha=0.3, specular=0.0)[:, :, 0]
         aolp = lambda s: 0.5 * np.arctan2(s[:, 2], s[:, 1])  # noqa: E731
         d = np.mod(aolp(spec) - aolp(diff), PI)
-        np.testing.assert_allclose(d, PI / 2, atol=1e-9)
+        np.testing.assert_allclose(d, PI / 2, atol=TOL.f64_inverse)
 
 
 # --- Shapes and numerical stress ------------------------------------------------------------------------

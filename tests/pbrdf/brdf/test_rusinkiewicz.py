@@ -9,6 +9,7 @@ from hypothesis import strategies as st
 
 from pbrdf.brdf import rusinkiewicz
 from pbrdf.brdf.rusinkiewicz import directions_from_rusinkiewicz, reflection_frame_x, rusinkiewicz_from_directions
+from tests.conftest import TOL
 from tests.helpers import random_hemisphere
 
 PI = np.pi
@@ -53,13 +54,17 @@ class TestRusinkiewicz:
     def test_convention_examples(self):
         s, c = np.sin(PI / 6), np.cos(PI / 6)
         # Mirror configuration: h = n, phi_d = pi (light on -x, b = +y by definition).
-        np.testing.assert_allclose(rusinkiewicz_from_directions([s, 0, c], [-s, 0, c]), [0, PI / 6, PI], atol=1e-15)
+        np.testing.assert_allclose(
+            rusinkiewicz_from_directions([s, 0, c], [-s, 0, c]), [0, PI / 6, PI], atol=TOL.f64_exact
+        )
         # Retro-reflection: theta_d = 0, phi_d = 0.
-        np.testing.assert_allclose(rusinkiewicz_from_directions([s, 0, c], [s, 0, c]), [PI / 6, 0, 0], atol=1e-15)
+        np.testing.assert_allclose(
+            rusinkiewicz_from_directions([s, 0, c], [s, 0, c]), [PI / 6, 0, 0], atol=TOL.f64_exact
+        )
         # Camera at the normal, light at 60 degrees on +x: h at 30 degrees towards +x, b = +y,
         # t = b x h = (cos 30, 0, -sin 30) points away from the normal, and the light lies along +t.
         th, td, pd = rusinkiewicz_from_directions([0, 0, 1.0], [np.sin(PI / 3), 0, 0.5])
-        np.testing.assert_allclose([th, td, pd], [PI / 6, PI / 6, 0], atol=1e-12)
+        np.testing.assert_allclose([th, td, pd], [PI / 6, PI / 6, 0], atol=TOL.f64)
         # Mirroring y -> -y flips the sign of phi_d.
         wi, wo = np.array([0.3, 0.2, 0.93]), np.array([-0.1, -0.5, 0.86])
         wi, wo = wi / np.linalg.norm(wi), wo / np.linalg.norm(wo)
@@ -76,8 +81,8 @@ class TestRusinkiewicz:
         h = wi + wo
         phi_h = np.arctan2(h[1], h[0])
         wi2, wo2 = directions_from_rusinkiewicz(theta_h, theta_d, phi_d, phi_h)
-        np.testing.assert_allclose(wi2, wi, atol=1e-9)
-        np.testing.assert_allclose(wo2, wo, atol=1e-9)
+        np.testing.assert_allclose(wi2, wi, atol=TOL.f64_inverse)
+        np.testing.assert_allclose(wo2, wo, atol=TOL.f64_inverse)
 
     def test_round_trip_angles(self, rng):
         th, td = rng.uniform(0.01, 0.7, 200), rng.uniform(0.01, 0.7, 200)  # both directions above the horizon
@@ -98,17 +103,17 @@ class TestReflectionFrameX:
     def test_perpendicular_to_the_plane_of_reflection(self, rng):
         wi, wo = random_hemisphere(rng, 200), random_hemisphere(rng, 200)
         x = reflection_frame_x(wi, wo)
-        np.testing.assert_allclose(np.linalg.norm(x, axis=-1), 1.0, atol=1e-12)
-        np.testing.assert_allclose(np.einsum("...i,...i->...", x, wi), 0.0, atol=1e-12)
-        np.testing.assert_allclose(np.einsum("...i,...i->...", x, wo), 0.0, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(x, axis=-1), 1.0, atol=TOL.f64)
+        np.testing.assert_allclose(np.einsum("...i,...i->...", x, wi), 0.0, atol=TOL.f64)
+        np.testing.assert_allclose(np.einsum("...i,...i->...", x, wo), 0.0, atol=TOL.f64)
         np.testing.assert_allclose(x, np.cross(wo, wi) / np.linalg.norm(np.cross(wo, wi), axis=-1, keepdims=True))
 
     def test_degenerate_limits(self):
         s, c = np.sin(0.5), np.cos(0.5)
         n = np.array([0.0, 0.0, 1.0])
         # wi == wo: the plane of incidence of wi, x = normalize(n x wi); normal incidence: +y.
-        np.testing.assert_allclose(reflection_frame_x([s, 0, c], [s, 0, c]), [0, 1, 0], atol=1e-15)
-        np.testing.assert_allclose(reflection_frame_x(n, n), [0, 1, 0], atol=1e-15)
+        np.testing.assert_allclose(reflection_frame_x([s, 0, c], [s, 0, c]), [0, 1, 0], atol=TOL.f64_exact)
+        np.testing.assert_allclose(reflection_frame_x(n, n), [0, 1, 0], atol=TOL.f64_exact)
 
 
 def test_module_exports():

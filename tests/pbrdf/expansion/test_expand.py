@@ -6,6 +6,7 @@ import pytest
 
 from pbrdf.expansion import expand
 from pbrdf.polar import fresnel, mueller, validity
+from tests.conftest import TOL
 
 TD = np.linspace(0, np.pi / 2 * 0.98, 7)
 TH = np.linspace(0, np.pi / 2 * 0.98, 7)
@@ -37,7 +38,7 @@ class TestFactorCompress:
     def test_factor_round_trip(self, seed_set):
         t, _ = seed_set
         m00, pol = expand.factor(t)
-        np.testing.assert_allclose(expand.unfactor(m00, pol), t, atol=1e-12)
+        np.testing.assert_allclose(expand.unfactor(m00, pol), t, atol=TOL.f64)
 
     def test_m00_near_zero_has_no_polarization(self):
         m = np.zeros((3, 4, 4))
@@ -59,7 +60,7 @@ class TestPCA:
         a = expand.fit_pca(t, chunk_bins=10_000)
         b = expand.fit_pca(t, chunk_bins=37)
         np.testing.assert_allclose(np.abs(a.basis_i), np.abs(b.basis_i), atol=1e-9)  # sign is arbitrary
-        np.testing.assert_allclose(a.explained_p, b.explained_p, atol=1e-12)
+        np.testing.assert_allclose(a.explained_p, b.explained_p, atol=TOL.f64)
 
     def test_bases_orthonormal_and_variance_sorted(self, seed_set):
         m = expand.fit_pca(seed_set[0])
@@ -88,7 +89,7 @@ class TestPCA:
 
         m = expand.fit_pca(load, n_bins=t.shape[1], chunk_bins=100)
         ref = expand.fit_pca(t)
-        np.testing.assert_allclose(m.explained_i, ref.explained_i, atol=1e-12)
+        np.testing.assert_allclose(m.explained_i, ref.explained_i, atol=TOL.f64)
         assert max(s.stop - s.start for s in calls) <= 100
 
     def test_extreme_weights_stay_finite(self, seed_set):
@@ -103,7 +104,7 @@ class TestFilter:
         t = seed_set[0][:3]
         out, verdicts = expand.filter_tables(t)
         assert all(v.accepted and v.gk_fraction == 1.0 and v.cloude_fraction == 1.0 for v in verdicts)
-        np.testing.assert_allclose(out, t, atol=1e-12)
+        np.testing.assert_allclose(out, t, atol=TOL.f64)
 
     def test_few_invalid_matrices_are_projected(self, seed_set, rng):
         t = seed_set[0][:1].copy()
@@ -198,8 +199,8 @@ def spectralon():
 class TestFitTableDisney:
     def test_sample_directions_include_exact_mirror_pairs(self):
         wi, wo = expand.sample_directions(600, np.random.default_rng(0))
-        np.testing.assert_allclose(np.linalg.norm(wi, axis=-1), 1.0, atol=1e-12)
-        np.testing.assert_allclose(np.linalg.norm(wo, axis=-1), 1.0, atol=1e-12)
+        np.testing.assert_allclose(np.linalg.norm(wi, axis=-1), 1.0, atol=TOL.f64)
+        np.testing.assert_allclose(np.linalg.norm(wo, axis=-1), 1.0, atol=TOL.f64)
         assert np.all(wi[:, 2] > 0) and np.all(wo[:, 2] > 0)
         # The last n // 10 = 60 pairs are exact mirror images (theta_h = 0), the others are not.
         np.testing.assert_array_equal(wo[-60:], wi[-60:] * [-1.0, -1.0, 1.0])

@@ -13,6 +13,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pbrdf.polar import fresnel, mueller, stokes
+from tests.conftest import TOL
 from tests.helpers import (
     HORIZONTAL,
     PLUS_45,
@@ -24,11 +25,6 @@ from tests.helpers import (
 )
 
 PI = np.pi
-
-# Tolerances. Closed-form float64 optics agree to round-off: 1e-12.
-# Mitsuba's scalar variants compute in float32: 2e-5 (measured worst case 3.7e-6, Fresnel r_p at eta 2.4).
-ATOL = 1e-12
-MI_ATOL = 2e-5
 
 # Real relative IORs, seen from both sides of the interface (1/1.5 is glass-to-air).
 DIELECTRIC_ETAS = [1.5, 1 / 1.5, 1.33, 2.4]
@@ -79,15 +75,15 @@ class TestFresnelAmplitudes:
         # R0 = |(eta - 1)/(eta + 1)|^2 (= ((n-1)/(n+1))^2 for a dielectric); Verdet signs: r_p = -r_s.
         r_s, r_p, cos_t = fresnel.fresnel_amplitudes(1.0, eta)
         r0 = abs((eta - 1) / (eta + 1)) ** 2
-        assert abs(r_s) ** 2 == pytest.approx(r0, abs=ATOL)
-        assert r_p == pytest.approx(-r_s, abs=ATOL)
-        assert cos_t == pytest.approx(1.0, abs=ATOL)
-        assert fresnel.fresnel_reflectance(1.0, eta) == pytest.approx(r0, abs=ATOL)
+        assert abs(r_s) ** 2 == pytest.approx(r0, abs=TOL.f64)
+        assert r_p == pytest.approx(-r_s, abs=TOL.f64)
+        assert cos_t == pytest.approx(1.0, abs=TOL.f64)
+        assert fresnel.fresnel_reflectance(1.0, eta) == pytest.approx(r0, abs=TOL.f64)
 
     @pytest.mark.parametrize("eta", [1.5, 1.33, 2.4])
     def test_normal_incidence_from_inside(self, eta):
         # The same R0 from both sides: ((1/n - 1)/(1/n + 1))^2 = ((n - 1)/(n + 1))^2.
-        assert fresnel.fresnel_reflectance(-1.0, eta) == pytest.approx(((eta - 1) / (eta + 1)) ** 2, abs=ATOL)
+        assert fresnel.fresnel_reflectance(-1.0, eta) == pytest.approx(((eta - 1) / (eta + 1)) ** 2, abs=TOL.f64)
 
     @pytest.mark.parametrize("eta", DIELECTRIC_ETAS)
     def test_matches_hecht_and_snell(self, eta):
@@ -97,12 +93,12 @@ class TestFresnelAmplitudes:
         for k, c in enumerate(SWEEP_COS):
             h_s, h_p, _, _, tir = hecht_fresnel(c, eta)
             if tir:
-                assert abs(r_s[k]) == pytest.approx(1.0, abs=ATOL)
-                assert abs(r_p[k]) == pytest.approx(1.0, abs=ATOL)
+                assert abs(r_s[k]) == pytest.approx(1.0, abs=TOL.f64)
+                assert abs(r_p[k]) == pytest.approx(1.0, abs=TOL.f64)
                 assert cos_t[k].imag < 0  # decaying evanescent wave, Mitsuba's branch
                 continue
-            assert r_s[k] == pytest.approx(h_s, abs=ATOL)
-            assert r_p[k] == pytest.approx(h_p, abs=ATOL)
+            assert r_s[k] == pytest.approx(h_s, abs=TOL.f64)
+            assert r_p[k] == pytest.approx(h_p, abs=TOL.f64)
             eta_eff = eta if c >= 0 else 1 / eta
             assert np.sqrt(1 - cos_t[k].real ** 2) == pytest.approx(np.sqrt(1 - c * c) / eta_eff, abs=1e-9)
 
@@ -120,10 +116,10 @@ class TestFresnelAmplitudes:
         r_s, r_p, cos_t = fresnel.fresnel_amplitudes(SWEEP_COS, eta)
         for k, c in enumerate(SWEEP_COS):
             a_s, a_p, mi_cos_t, _, _ = mi.fresnel_polarized(float(c), mi_complex(mi, eta))
-            assert complex(a_s.real, a_s.imag) == pytest.approx(r_s[k], abs=MI_ATOL)
-            assert complex(a_p.real, a_p.imag) == pytest.approx(r_p[k], abs=MI_ATOL)
+            assert complex(a_s.real, a_s.imag) == pytest.approx(r_s[k], abs=TOL.mitsuba_f32)
+            assert complex(a_p.real, a_p.imag) == pytest.approx(r_p[k], abs=TOL.mitsuba_f32)
             # Mitsuba returns the real cosine of the refracted direction (sign opposite to cos_i, 0 under TIR).
-            assert abs(mi_cos_t) == pytest.approx(cos_t[k].real, abs=MI_ATOL)
+            assert abs(mi_cos_t) == pytest.approx(cos_t[k].real, abs=TOL.mitsuba_f32)
 
     @pytest.mark.parametrize("eta", CONDUCTOR_ETAS)
     def test_against_mitsuba_conductor(self, mitsuba_polarized, eta):
@@ -131,8 +127,8 @@ class TestFresnelAmplitudes:
         r_s, r_p, _ = fresnel.fresnel_amplitudes(OUTSIDE_COS, eta)
         for k, c in enumerate(OUTSIDE_COS):
             a_s, a_p, _, _, _ = mi.fresnel_polarized(float(c), mi_complex(mi, eta))
-            assert complex(a_s.real, a_s.imag) == pytest.approx(r_s[k], abs=MI_ATOL)
-            assert complex(a_p.real, a_p.imag) == pytest.approx(r_p[k], abs=MI_ATOL)
+            assert complex(a_s.real, a_s.imag) == pytest.approx(r_s[k], abs=TOL.mitsuba_f32)
+            assert complex(a_p.real, a_p.imag) == pytest.approx(r_p[k], abs=TOL.mitsuba_f32)
 
 
 class TestReflectionMueller:
@@ -140,7 +136,7 @@ class TestReflectionMueller:
     def test_mirror_at_normal_incidence(self, eta):
         # r_p = -r_s at normal incidence: R0 diag(1, 1, -1, -1), the mirror flips S2 and S3.
         r0 = abs((eta - 1) / (eta + 1)) ** 2
-        np.testing.assert_allclose(fresnel.reflection_mueller(1.0, eta), r0 * np.diag([1.0, 1, -1, -1]), atol=ATOL)
+        np.testing.assert_allclose(fresnel.reflection_mueller(1.0, eta), r0 * np.diag([1.0, 1, -1, -1]), atol=TOL.f64)
 
     @pytest.mark.parametrize("n", [1.33, 1.5, 2.4])
     @pytest.mark.parametrize("side", ["outside", "inside"])
@@ -151,10 +147,10 @@ class TestReflectionMueller:
         cos_b = np.cos(np.arctan(eta_eff)) * (1 if side == "outside" else -1)
         m = fresnel.reflection_mueller(cos_b, n)
         r_s = ((eta_eff**2 - 1) / (eta_eff**2 + 1)) ** 2
-        assert m[0, 0] == pytest.approx(m[0, 1], abs=ATOL)  # m00 - m01 = R_p = 0
-        assert m[0, 0] == pytest.approx(r_s / 2, abs=ATOL)
+        assert m[0, 0] == pytest.approx(m[0, 1], abs=TOL.f64)  # m00 - m01 = R_p = 0
+        assert m[0, 0] == pytest.approx(r_s / 2, abs=TOL.f64)
         out = mueller.apply(m, UNPOLARIZED)
-        assert stokes.dolp(out) == pytest.approx(1.0, abs=1e-9)
+        assert stokes.dolp(out) == pytest.approx(1.0, abs=TOL.f64_inverse)
         assert out[1] > 0  # s-polarized: the Stokes x-axis is perpendicular to the plane of incidence
 
     def test_gold_makes_circular_polarization(self):
@@ -173,15 +169,15 @@ class TestReflectionMueller:
         m = fresnel.reflection_mueller(np.cos(np.radians(60)), 0.27 - 2.78j)
         for s_in in (HORIZONTAL, VERTICAL):
             out = mueller.apply(m, s_in)
-            np.testing.assert_allclose(out[2:], 0.0, atol=ATOL)
-            assert stokes.dolp(out) == pytest.approx(1.0, abs=1e-9)
+            np.testing.assert_allclose(out[2:], 0.0, atol=TOL.f64)
+            assert stokes.dolp(out) == pytest.approx(1.0, abs=TOL.f64_inverse)
 
     @pytest.mark.parametrize("eta", DIELECTRIC_ETAS)
     def test_dielectric_makes_no_circular_polarization(self, eta):
         # Real eta without TIR: r_s and r_p are real, Im(r_s r_p*) = 0, so linear light stays linear.
         c = SWEEP_COS[[not hecht_fresnel(c, eta)[4] for c in SWEEP_COS]]
         out = mueller.apply(fresnel.reflection_mueller(c, eta), PLUS_45)
-        np.testing.assert_allclose(out[:, 3], 0.0, atol=ATOL)
+        np.testing.assert_allclose(out[:, 3], 0.0, atol=TOL.f64)
 
     @pytest.mark.parametrize("eta", DIELECTRIC_ETAS)
     def test_total_internal_reflection_is_a_retarder(self, eta):
@@ -189,23 +185,23 @@ class TestReflectionMueller:
         tir = np.array([hecht_fresnel(c, eta)[4] for c in SWEEP_COS])
         assert tir.any()  # every eta != 1 has a dense side
         m = fresnel.reflection_mueller(SWEEP_COS[tir], eta)
-        np.testing.assert_allclose(m[:, 0, 0], 1.0, atol=ATOL)
-        np.testing.assert_allclose(m[:, 0, 1], 0.0, atol=ATOL)
-        assert_pure_mueller(m, atol=1e-12)
+        np.testing.assert_allclose(m[:, 0, 0], 1.0, atol=TOL.f64)
+        np.testing.assert_allclose(m[:, 0, 1], 0.0, atol=TOL.f64)
+        assert_pure_mueller(m, atol=TOL.f64)
 
     @pytest.mark.parametrize("eta", DIELECTRIC_ETAS + CONDUCTOR_ETAS)
     def test_unpolarized_reflectance(self, eta):
         # Unpolarized light reflects the scalar Fresnel reflectance (R_s + R_p)/2.
         c = SWEEP_COS if np.isreal(eta) else OUTSIDE_COS
         out = mueller.apply(fresnel.reflection_mueller(c, eta), UNPOLARIZED)
-        np.testing.assert_allclose(out[:, 0], fresnel.fresnel_reflectance(c, eta), atol=ATOL)
+        np.testing.assert_allclose(out[:, 0], fresnel.fresnel_reflectance(c, eta), atol=TOL.f64)
 
     def test_physical(self, rng):
         ms = [fresnel.reflection_mueller(SWEEP_COS, eta) for eta in DIELECTRIC_ETAS]
         ms += [fresnel.reflection_mueller(OUTSIDE_COS, eta) for eta in CONDUCTOR_ETAS]
         m = np.concatenate(ms)
         assert np.all(m[:, 0, 0] > 0)
-        assert_pure_mueller(m, atol=1e-12)
+        assert_pure_mueller(m, atol=TOL.f64)
         assert_mueller_physical(m, rng)
 
     @pytest.mark.parametrize("eta", DIELECTRIC_ETAS)
@@ -214,7 +210,7 @@ class TestReflectionMueller:
         ours = fresnel.reflection_mueller(SWEEP_COS, eta)
         for k, c in enumerate(SWEEP_COS):
             expected = mi_matrix(mi.mueller.specular_reflection(float(c), mi_complex(mi, eta)))
-            np.testing.assert_allclose(ours[k], expected, atol=MI_ATOL)
+            np.testing.assert_allclose(ours[k], expected, atol=TOL.mitsuba_f32)
 
     @pytest.mark.parametrize("eta", CONDUCTOR_ETAS)
     def test_against_mitsuba_conductor(self, mitsuba_polarized, eta):
@@ -222,7 +218,7 @@ class TestReflectionMueller:
         ours = fresnel.reflection_mueller(OUTSIDE_COS, eta)
         for k, c in enumerate(OUTSIDE_COS):
             expected = mi_matrix(mi.mueller.specular_reflection(float(c), mi_complex(mi, eta)))
-            np.testing.assert_allclose(ours[k], expected, atol=MI_ATOL)
+            np.testing.assert_allclose(ours[k], expected, atol=TOL.mitsuba_f32)
 
 
 class TestTransmissionMueller:
@@ -238,22 +234,24 @@ class TestTransmissionMueller:
             h_s, h_p, t_s, t_p, tir = hecht_fresnel(ck, eta)
             if tir:
                 np.testing.assert_allclose(trans[k], 0.0, atol=0)
-                assert refl[k, 0, 0] == pytest.approx(1.0, abs=ATOL)
+                assert refl[k, 0, 0] == pytest.approx(1.0, abs=TOL.f64)
                 continue
-            assert h_s**2 + t_s == pytest.approx(1.0, abs=ATOL)  # the derivation itself
-            assert h_p**2 + t_p == pytest.approx(1.0, abs=ATOL)
-            assert trans[k, 0, 0] == pytest.approx(0.5 * (t_s + t_p), abs=ATOL)
-            assert trans[k, 0, 1] == pytest.approx(0.5 * (t_s - t_p), abs=ATOL)
-            assert trans[k, 2, 2] == pytest.approx(np.sqrt(t_s * t_p), abs=ATOL)
+            assert h_s**2 + t_s == pytest.approx(1.0, abs=TOL.f64)  # the derivation itself
+            assert h_p**2 + t_p == pytest.approx(1.0, abs=TOL.f64)
+            assert trans[k, 0, 0] == pytest.approx(0.5 * (t_s + t_p), abs=TOL.f64)
+            assert trans[k, 0, 1] == pytest.approx(0.5 * (t_s - t_p), abs=TOL.f64)
+            assert trans[k, 2, 2] == pytest.approx(np.sqrt(t_s * t_p), abs=TOL.f64)
         # Any input state: the reflected plus the transmitted intensity is the incident intensity.
-        np.testing.assert_allclose(refl[:, 0, :] + trans[:, 0, :], np.broadcast_to(UNPOLARIZED, (len(c), 4)), atol=ATOL)
+        np.testing.assert_allclose(
+            refl[:, 0, :] + trans[:, 0, :], np.broadcast_to(UNPOLARIZED, (len(c), 4)), atol=TOL.f64
+        )
 
     @pytest.mark.parametrize("eta", DIELECTRIC_ETAS)
     def test_is_a_pure_diattenuator(self, eta, rng):
         m = fresnel.transmission_mueller(SWEEP_COS, eta)
         np.testing.assert_allclose(m[:, 2:, :2], 0.0, atol=0)  # no retardance
         np.testing.assert_allclose(m[:, :2, 2:], 0.0, atol=0)
-        assert_pure_mueller(m, atol=1e-12)
+        assert_pure_mueller(m, atol=TOL.f64)
         m = m[m[:, 0, 0] > 1e-6]  # drop TIR and grazing (zero matrices are not Cloude-physical)
         assert_mueller_physical(m, rng)
 
@@ -263,7 +261,7 @@ class TestTransmissionMueller:
         ours = fresnel.transmission_mueller(SWEEP_COS, eta)
         for k, c in enumerate(SWEEP_COS):
             expected = mi_matrix(mi.mueller.specular_transmission(float(c), float(eta)))
-            np.testing.assert_allclose(ours[k], expected, atol=MI_ATOL)
+            np.testing.assert_allclose(ours[k], expected, atol=TOL.mitsuba_f32)
 
     @pytest.mark.parametrize("eta", [0.27 - 2.78j, 1.5 + 0.01j, 1.5 - 1e-9j])
     def test_complex_eta_raises(self, eta):

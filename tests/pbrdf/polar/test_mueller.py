@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from pbrdf.polar import mueller, stokes
+from tests.conftest import TOL
 from tests.helpers import (
     HORIZONTAL,
     LEFT_CIRCULAR,
@@ -27,11 +28,6 @@ from tests.helpers import (
 )
 
 PI = np.pi
-
-# Tolerances. Closed-form float64 optics agree to round-off: 1e-12.
-# Mitsuba's scalar variants compute in float32: 2e-5 (measured worst case 3.7e-6, Fresnel r_p at eta 2.4).
-ATOL = 1e-12
-MI_ATOL = 2e-5
 
 
 # --- helpers (shared ones, and the named Stokes states, are in tests/helpers.py) ---------------------
@@ -97,13 +93,13 @@ class TestRetarder:
         ],
     )
     def test_qwp_state_table(self, s_in, s_out):
-        np.testing.assert_allclose(mueller.apply(mueller.qwp(0.0), s_in), s_out, atol=ATOL)
+        np.testing.assert_allclose(mueller.apply(mueller.qwp(0.0), s_in), s_out, atol=TOL.f64)
 
     def test_qwp_general_mapping(self, rng):
         # Convention (pbrdf.polar.mueller docstring): [s0,s1,s2,s3] -> [s0,s1,s3,-s2].
         s = random_stokes(rng, 50)
         expected = np.stack([s[:, 0], s[:, 1], s[:, 3], -s[:, 2]], axis=-1)
-        np.testing.assert_allclose(mueller.apply(mueller.qwp(0.0), s), expected, atol=ATOL)
+        np.testing.assert_allclose(mueller.apply(mueller.qwp(0.0), s), expected, atol=TOL.f64)
 
     @pytest.mark.parametrize(
         ("s_in", "s_out"),
@@ -115,25 +111,25 @@ class TestRetarder:
     )
     def test_hwp_state_table(self, s_in, s_out):
         # Half-wave plate, fast axis horizontal: diag(1, 1, -1, -1) (Goldstein 3rd ed., ch. 6).
-        np.testing.assert_allclose(mueller.apply(mueller.hwp(0.0), s_in), s_out, atol=ATOL)
+        np.testing.assert_allclose(mueller.apply(mueller.hwp(0.0), s_in), s_out, atol=TOL.f64)
 
     def test_hwp_mirrors_linear_polarization_about_fast_axis(self, rng):
         # A HWP with fast axis theta maps linear light at psi to 2 theta - psi (and flips handedness).
         theta, psi, chi = rng.uniform(0, PI, 20), rng.uniform(0, PI, 20), rng.uniform(-PI / 4, PI / 4, 20)
         out = mueller.apply(mueller.hwp(theta), stokes.stokes(1.0, 1.0, psi, chi))
-        assert_angles_close_mod_pi(stokes.aolp(out), 2 * theta - psi, atol=1e-9)
-        np.testing.assert_allclose(stokes.ellipticity_angle(out), -chi, atol=1e-9)
+        assert_angles_close_mod_pi(stokes.aolp(out), 2 * theta - psi, atol=TOL.f64_inverse)
+        np.testing.assert_allclose(stokes.ellipticity_angle(out), -chi, atol=TOL.f64_inverse)
 
     def test_plates_compose(self):
         # Two QWPs make a HWP; four make the identity.
         q = mueller.qwp(0.4)
-        np.testing.assert_allclose(q @ q, mueller.hwp(0.4), atol=ATOL)
-        np.testing.assert_allclose(np.linalg.matrix_power(q, 4), np.eye(4), atol=ATOL)
+        np.testing.assert_allclose(q @ q, mueller.hwp(0.4), atol=TOL.f64)
+        np.testing.assert_allclose(np.linalg.matrix_power(q, 4), np.eye(4), atol=TOL.f64)
 
     def test_retarder_is_orthogonal(self, rng):
         # A retarder rotates the Poincare sphere: M^T M = I and the DoP is preserved.
         m = mueller.retarder(rng.uniform(0, 2 * PI, 20), rng.uniform(0, PI, 20))
-        np.testing.assert_allclose(np.swapaxes(m, -1, -2) @ m, np.broadcast_to(np.eye(4), m.shape), atol=ATOL)
+        np.testing.assert_allclose(np.swapaxes(m, -1, -2) @ m, np.broadcast_to(np.eye(4), m.shape), atol=TOL.f64)
 
 
 class TestLinearPolarizer:
@@ -144,7 +140,7 @@ class TestLinearPolarizer:
         # Malus' law: a unit fully linearly polarized beam at angle a transmits cos^2(a - theta).
         a = self.ANALYZER_ANGLES
         out = mueller.apply(mueller.linear_polarizer(theta), stokes.stokes(1.0, 1.0, a, 0.0))
-        np.testing.assert_allclose(out[:, 0], np.cos(a - theta) ** 2, atol=ATOL)
+        np.testing.assert_allclose(out[:, 0], np.cos(a - theta) ** 2, atol=TOL.f64)
 
     @pytest.mark.parametrize("extinction_ratio", [1.0, 2.0, 10.0, 300.0])
     @pytest.mark.parametrize("theta", [0.0, 0.7])
@@ -156,7 +152,7 @@ class TestLinearPolarizer:
         r = q / extinction_ratio
         m = mueller.linear_polarizer(theta, extinction_ratio=extinction_ratio, transmittance=q)
         out = mueller.apply(m, stokes.stokes(1.0, 1.0, a, 0.0))
-        np.testing.assert_allclose(out[:, 0], 0.5 * (q + r) + 0.5 * (q - r) * np.cos(2 * (a - theta)), atol=ATOL)
+        np.testing.assert_allclose(out[:, 0], 0.5 * (q + r) + 0.5 * (q - r) * np.cos(2 * (a - theta)), atol=TOL.f64)
 
     def test_rotated_closed_form(self):
         # Ideal polarizer at theta: 1/2 [[1,c,s,0],[c,c^2,cs,0],[s,cs,s^2,0],[0,0,0,0]], c = cos 2theta,
@@ -167,25 +163,25 @@ class TestLinearPolarizer:
             [np.stack(row, axis=-1) for row in ([1 + z, c, s, z], [c, c * c, c * s, z], [s, c * s, s * s, z], [z] * 4)],
             axis=-2,
         )
-        np.testing.assert_allclose(mueller.linear_polarizer(theta), expected, atol=ATOL)
+        np.testing.assert_allclose(mueller.linear_polarizer(theta), expected, atol=TOL.f64)
 
     def test_equals_rotated_element(self):
         theta = np.linspace(-PI, PI, 25)
         np.testing.assert_allclose(
-            mueller.linear_polarizer(theta), mueller.rotate_element(mueller.linear_polarizer(0.0), theta), atol=ATOL
+            mueller.linear_polarizer(theta), mueller.rotate_element(mueller.linear_polarizer(0.0), theta), atol=TOL.f64
         )
 
     def test_output_is_linear_along_axis(self, rng):
         theta = rng.uniform(0, PI, 50)
         out = mueller.apply(mueller.linear_polarizer(theta), random_stokes(rng, 50))
-        np.testing.assert_allclose(stokes.dolp(out), 1.0, atol=1e-9)
-        assert_angles_close_mod_pi(stokes.aolp(out), theta, atol=1e-9)
+        np.testing.assert_allclose(stokes.dolp(out), 1.0, atol=TOL.f64_inverse)
+        assert_angles_close_mod_pi(stokes.aolp(out), theta, atol=TOL.f64_inverse)
 
     def test_unpolarized_input(self):
         # Unpolarized light: transmitted intensity (q + r)/2, DoLP = diattenuation (q - r)/(q + r).
         out = mueller.apply(mueller.linear_polarizer(0.3, extinction_ratio=9.0), UNPOLARIZED)
-        assert out[0] == pytest.approx(0.5 * (1 + 1 / 9), abs=ATOL)
-        assert stokes.dolp(out) == pytest.approx(0.8, abs=ATOL)
+        assert out[0] == pytest.approx(0.5 * (1 + 1 / 9), abs=TOL.f64)
+        assert stokes.dolp(out) == pytest.approx(0.8, abs=TOL.f64)
 
     def test_extinction_ratio_below_one_raises(self):
         with pytest.raises(ValueError, match="extinction_ratio"):
@@ -195,14 +191,16 @@ class TestLinearPolarizer:
 class TestLinearDiattenuator:
     @pytest.mark.parametrize("q", [0.0, 0.3, 1.0])
     def test_equal_transmittances_is_neutral_density(self, q):
-        np.testing.assert_allclose(mueller.linear_diattenuator(q, q, 0.7), q * np.eye(4), atol=ATOL)
+        np.testing.assert_allclose(mueller.linear_diattenuator(q, q, 0.7), q * np.eye(4), atol=TOL.f64)
 
     def test_ideal_polarizer_limit(self):
-        np.testing.assert_allclose(mueller.linear_diattenuator(1.0, 0.0, 0.4), mueller.linear_polarizer(0.4), atol=ATOL)
+        np.testing.assert_allclose(
+            mueller.linear_diattenuator(1.0, 0.0, 0.4), mueller.linear_polarizer(0.4), atol=TOL.f64
+        )
 
     def test_is_pure(self, rng):
         m = mueller.linear_diattenuator(rng.uniform(0, 1, 20), rng.uniform(0, 1, 20), rng.uniform(0, PI, 20))
-        assert_pure_mueller(m, atol=ATOL)
+        assert_pure_mueller(m, atol=TOL.f64)
 
     def test_negative_transmittance_raises(self):
         with pytest.raises(ValueError, match="q and r"):
@@ -212,29 +210,29 @@ class TestLinearDiattenuator:
 class TestRotator:
     def test_composition(self, rng):
         a, b = rng.uniform(-PI, PI, (2, 30))
-        np.testing.assert_allclose(mueller.rotator(a) @ mueller.rotator(b), mueller.rotator(a + b), atol=ATOL)
+        np.testing.assert_allclose(mueller.rotator(a) @ mueller.rotator(b), mueller.rotator(a + b), atol=TOL.f64)
 
     def test_half_turn_is_identity(self):
         # Stokes parameters depend on 2 theta: a frame turned by pi is the same frame.
-        np.testing.assert_allclose(mueller.rotator(PI), np.eye(4), atol=ATOL)
-        np.testing.assert_allclose(mueller.rotator(-PI), np.eye(4), atol=ATOL)
+        np.testing.assert_allclose(mueller.rotator(PI), np.eye(4), atol=TOL.f64)
+        np.testing.assert_allclose(mueller.rotator(-PI), np.eye(4), atol=TOL.f64)
 
     def test_frame_rotation_example(self):
         # Mitsuba's rotator docstring: horizontal light read in a frame rotated by +45 deg is -45 deg light.
-        np.testing.assert_allclose(mueller.apply(mueller.rotator(PI / 4), HORIZONTAL), MINUS_45, atol=ATOL)
+        np.testing.assert_allclose(mueller.apply(mueller.rotator(PI / 4), HORIZONTAL), MINUS_45, atol=TOL.f64)
 
     def test_shifts_aolp_keeps_ellipticity(self, rng):
         # A frame turned by t sees AoLP psi - t; intensity, DoP and ellipticity are frame invariant.
         t, psi, chi = rng.uniform(-PI, PI, 30), rng.uniform(0, PI, 30), rng.uniform(-PI / 4, PI / 4, 30)
         s = stokes.stokes(1.0, 0.8, psi, chi)
         out = mueller.apply(mueller.rotator(t), s)
-        assert_angles_close_mod_pi(stokes.aolp(out), psi - t, atol=1e-9)
-        np.testing.assert_allclose(stokes.ellipticity_angle(out), chi, atol=1e-9)
-        np.testing.assert_allclose(stokes.dop(out), 0.8, atol=1e-9)
+        assert_angles_close_mod_pi(stokes.aolp(out), psi - t, atol=TOL.f64_inverse)
+        np.testing.assert_allclose(stokes.ellipticity_angle(out), chi, atol=TOL.f64_inverse)
+        np.testing.assert_allclose(stokes.dop(out), 0.8, atol=TOL.f64_inverse)
 
     def test_rotate_element_by_half_turn_is_unchanged(self, rng):
         m = rng.normal(size=(4, 4))
-        np.testing.assert_allclose(mueller.rotate_element(m, PI), m, atol=ATOL)
+        np.testing.assert_allclose(mueller.rotate_element(m, PI), m, atol=TOL.f64)
 
 
 class TestBatchedShapes:
@@ -259,7 +257,7 @@ class TestBatchedShapes:
         m32 = build(self.THETA.astype(np.float32))
         assert m32.shape == (5, 3, 4, 4)
         assert np.all(np.isfinite(m32))
-        np.testing.assert_allclose(m32, m64, atol=1e-6)  # float32 round-off
+        np.testing.assert_allclose(m32, m64, atol=TOL.f32)
 
 
 class TestDepolarizer:
@@ -272,7 +270,7 @@ class TestDepolarizer:
     def test_partial_scales_dop(self, rng):
         s = random_stokes(rng, 50)
         out = mueller.apply(mueller.depolarizer(0.3), s)
-        np.testing.assert_allclose(stokes.dop(out), 0.3 * stokes.dop(s), atol=ATOL)
+        np.testing.assert_allclose(stokes.dop(out), 0.3 * stokes.dop(s), atol=TOL.f64)
 
     def test_per_component_factors(self):
         np.testing.assert_allclose(mueller.diagonal_depolarizer(0.1, 0.2, 0.3), np.diag([1.0, 0.1, 0.2, 0.3]), atol=0)
@@ -285,7 +283,7 @@ class TestDepolarizer:
         assert mueller.depolarizer(np.full((5, 3), 0.5)).shape == (5, 3, 4, 4)
         m32 = mueller.depolarizer(a.astype(np.float32))
         assert np.all(np.isfinite(m32))
-        np.testing.assert_allclose(m32, m, atol=1e-6)
+        np.testing.assert_allclose(m32, m, atol=TOL.f32)
 
     def test_out_of_range_raises(self):
         with pytest.raises(ValueError, match="depolarizer"):
@@ -297,7 +295,7 @@ class TestJonesToMueller:
 
     @pytest.mark.parametrize("theta", [0.0, 0.4, PI / 4, 2.5, -1.0])
     def test_rotation(self, theta):
-        np.testing.assert_allclose(mueller.jones_to_mueller(jones_rotator(theta)), mueller.rotator(theta), atol=ATOL)
+        np.testing.assert_allclose(mueller.jones_to_mueller(jones_rotator(theta)), mueller.rotator(theta), atol=TOL.f64)
 
     @pytest.mark.parametrize("delta", [0.0, PI / 2, PI, 1.1, 4.0])
     @pytest.mark.parametrize("theta", [0.0, 0.4, PI / 4, 2.5])
@@ -305,15 +303,15 @@ class TestJonesToMueller:
         # Jones retarder, fast axis horizontal: diag(1, exp(-i delta)) with the module's Jones convention
         # (E = (1, i)/sqrt 2 is right circular).
         j = jones_rotated(np.diag([1.0, np.exp(-1j * delta)]), theta)
-        np.testing.assert_allclose(mueller.jones_to_mueller(j), mueller.retarder(delta, theta), atol=ATOL)
+        np.testing.assert_allclose(mueller.jones_to_mueller(j), mueller.retarder(delta, theta), atol=TOL.f64)
 
     @pytest.mark.parametrize("theta", [0.0, 0.4, 2.5])
     def test_diattenuator_and_polarizer(self, theta):
         q, r = 0.81, 0.09  # amplitudes 0.9 and 0.3
         j = jones_rotated(np.diag([np.sqrt(q), np.sqrt(r)]).astype(complex), theta)
-        np.testing.assert_allclose(mueller.jones_to_mueller(j), mueller.linear_diattenuator(q, r, theta), atol=ATOL)
+        np.testing.assert_allclose(mueller.jones_to_mueller(j), mueller.linear_diattenuator(q, r, theta), atol=TOL.f64)
         j = jones_rotated(np.diag([1.0, 0.0]).astype(complex), theta)
-        np.testing.assert_allclose(mueller.jones_to_mueller(j), mueller.linear_polarizer(theta), atol=ATOL)
+        np.testing.assert_allclose(mueller.jones_to_mueller(j), mueller.linear_polarizer(theta), atol=TOL.f64)
 
     def test_right_circular_polarizer_convention(self):
         # Projector onto E = (1, i)/sqrt 2: the right circular polarizer 1/2 [[1,0,0,1],0,0,[1,0,0,1]]
@@ -322,7 +320,7 @@ class TestJonesToMueller:
         e = np.array([1.0, 1j]) / np.sqrt(2)
         m = mueller.jones_to_mueller(np.outer(e, e.conj()))
         expected = 0.5 * np.array([[1, 0, 0, 1], [0, 0, 0, 0], [0, 0, 0, 0], [1, 0, 0, 1]], dtype=float)
-        np.testing.assert_allclose(m, expected, atol=ATOL)
+        np.testing.assert_allclose(m, expected, atol=TOL.f64)
 
     def test_multiplicative(self, rng):
         j1, j2 = rng.normal(size=(2, 10, 2, 2)) + 1j * rng.normal(size=(2, 10, 2, 2))
@@ -345,14 +343,14 @@ class TestStokesBasisGeometry:
     def test_basis_is_unit_and_perpendicular(self, rng):
         w = np.concatenate([random_unit(rng, 200), np.eye(3), -np.eye(3)])
         x = mueller.stokes_basis(w)
-        np.testing.assert_allclose(np.linalg.norm(x, axis=-1), 1.0, atol=ATOL)
-        np.testing.assert_allclose(np.sum(x * w, axis=-1), 0.0, atol=ATOL)
+        np.testing.assert_allclose(np.linalg.norm(x, axis=-1), 1.0, atol=TOL.f64)
+        np.testing.assert_allclose(np.sum(x * w, axis=-1), 0.0, atol=TOL.f64)
 
     def test_rotate_stokes_basis_docstring_example(self):
         # Mitsuba's rotate_stokes_basis docstring: horizontal light [1,1,0,0] in basis x = (1,0,0)
         # (travelling along +z) is +45 deg light in the target basis (0.707, -0.707, 0).
         m = mueller.rotate_stokes_basis([0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [np.sqrt(0.5), -np.sqrt(0.5), 0.0])
-        np.testing.assert_allclose(mueller.apply(m, HORIZONTAL), PLUS_45, atol=ATOL)
+        np.testing.assert_allclose(mueller.apply(m, HORIZONTAL), PLUS_45, atol=TOL.f64)
 
     def test_rotate_stokes_basis_matches_field_geometry(self, rng):
         # Independent route: a linearly polarized field along p (perpendicular to the direction f) has, in a
@@ -374,7 +372,9 @@ class TestStokesBasisGeometry:
         f_in, f_out = random_unit(rng, 2)
         b_in, b_out = random_perpendicular(rng, f_in), random_perpendicular(rng, f_out)
         m = rng.normal(size=(4, 4))
-        np.testing.assert_allclose(mueller.rotate_mueller_basis(m, f_in, b_in, b_in, f_out, b_out, b_out), m, atol=ATOL)
+        np.testing.assert_allclose(
+            mueller.rotate_mueller_basis(m, f_in, b_in, b_in, f_out, b_out, b_out), m, atol=TOL.f64
+        )
 
 
 class TestMuellerAgainstMitsuba:
@@ -386,36 +386,36 @@ class TestMuellerAgainstMitsuba:
         mi = mitsuba_polarized
         for theta in np.linspace(-PI, PI, 37):
             np.testing.assert_allclose(
-                mueller.rotator(theta), mi_matrix(mi.mueller.rotator(float(theta))), atol=MI_ATOL
+                mueller.rotator(theta), mi_matrix(mi.mueller.rotator(float(theta))), atol=TOL.mitsuba_f32
             )
 
     @pytest.mark.parametrize("value", [1.0, 0.8, 0.3])
     def test_linear_polarizer(self, mitsuba_polarized, value):
         mi = mitsuba_polarized
         expected = mi_matrix(mi.mueller.linear_polarizer(value))
-        np.testing.assert_allclose(mueller.linear_polarizer(0.0, transmittance=value), expected, atol=MI_ATOL)
+        np.testing.assert_allclose(mueller.linear_polarizer(0.0, transmittance=value), expected, atol=TOL.mitsuba_f32)
 
     def test_linear_retarder(self, mitsuba_polarized):
         mi = mitsuba_polarized
         for delta in np.linspace(0.0, 2 * PI, 25):
             expected = mi_matrix(mi.mueller.linear_retarder(float(delta)))
-            np.testing.assert_allclose(mueller.retarder(delta), expected, atol=MI_ATOL)
+            np.testing.assert_allclose(mueller.retarder(delta), expected, atol=TOL.mitsuba_f32)
             for theta in (0.3, PI / 4, 2.0):
                 expected = mi_matrix(mi.mueller.rotated_element(float(theta), mi.mueller.linear_retarder(float(delta))))
-                np.testing.assert_allclose(mueller.retarder(delta, theta), expected, atol=MI_ATOL)
+                np.testing.assert_allclose(mueller.retarder(delta, theta), expected, atol=TOL.mitsuba_f32)
 
     def test_rotated_element(self, mitsuba_polarized, rng):
         mi = mitsuba_polarized
         for theta in rng.uniform(-PI, PI, 10):
             m = rng.uniform(-1, 1, (4, 4))
             expected = mi_matrix(mi.mueller.rotated_element(float(theta), mi.Matrix4f(m)))
-            np.testing.assert_allclose(mueller.rotate_element(m, theta), expected, atol=MI_ATOL)
+            np.testing.assert_allclose(mueller.rotate_element(m, theta), expected, atol=TOL.mitsuba_f32)
 
     def test_right_circular_polarizer(self, mitsuba_polarized):
         mi = mitsuba_polarized
         e = np.array([1.0, 1j]) / np.sqrt(2)
         expected = mi_matrix(mi.mueller.right_circular_polarizer())
-        np.testing.assert_allclose(mueller.jones_to_mueller(np.outer(e, e.conj())), expected, atol=MI_ATOL)
+        np.testing.assert_allclose(mueller.jones_to_mueller(np.outer(e, e.conj())), expected, atol=TOL.mitsuba_f32)
 
     def test_stokes_basis(self, mitsuba_polarized, rng):
         mi = mitsuba_polarized
@@ -427,7 +427,7 @@ class TestMuellerAgainstMitsuba:
         assert np.signbit(w[-1, 2])
         ours = mueller.stokes_basis(w)
         for wi, xi in zip(w, ours, strict=True):
-            np.testing.assert_allclose(xi, np.array(mi.mueller.stokes_basis(mi_vector(mi, wi))), atol=MI_ATOL)
+            np.testing.assert_allclose(xi, np.array(mi.mueller.stokes_basis(mi_vector(mi, wi))), atol=TOL.mitsuba_f32)
 
     def test_rotate_stokes_basis(self, mitsuba_polarized, rng):
         mi = mitsuba_polarized
@@ -437,7 +437,7 @@ class TestMuellerAgainstMitsuba:
         ours = mueller.rotate_stokes_basis(f, cur, tgt)
         for k in range(len(f)):
             expected = mi.mueller.rotate_stokes_basis(mi_vector(mi, f[k]), mi_vector(mi, cur[k]), mi_vector(mi, tgt[k]))
-            np.testing.assert_allclose(ours[k], mi_matrix(expected), atol=MI_ATOL)
+            np.testing.assert_allclose(ours[k], mi_matrix(expected), atol=TOL.mitsuba_f32)
 
     def test_rotate_mueller_basis(self, mitsuba_polarized, rng):
         mi = mitsuba_polarized
@@ -449,4 +449,4 @@ class TestMuellerAgainstMitsuba:
         ours = mueller.rotate_mueller_basis(m, *args)
         for k in range(n):
             expected = mi.mueller.rotate_mueller_basis(mi.Matrix4f(m[k]), *(mi_vector(mi, a[k]) for a in args))
-            np.testing.assert_allclose(ours[k], mi_matrix(expected), atol=MI_ATOL)
+            np.testing.assert_allclose(ours[k], mi_matrix(expected), atol=TOL.mitsuba_f32)

@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from pbrdf.polar import stokes
+from tests.conftest import TOL
 from tests.helpers import (
     HORIZONTAL,
     LEFT_CIRCULAR,
@@ -23,9 +24,6 @@ from tests.helpers import (
 )
 
 PI = np.pi
-
-# Tolerance: closed-form float64 optics agree to round-off, 1e-12.
-ATOL = 1e-12
 
 
 # --- Stokes vectors ----------------------------------------------------------------------------------
@@ -48,16 +46,16 @@ class TestStokesConstructor:
         ],
     )
     def test_closed_forms(self, args, expected):
-        np.testing.assert_allclose(stokes.stokes(*args), expected, atol=ATOL)
+        np.testing.assert_allclose(stokes.stokes(*args), expected, atol=TOL.f64)
 
     def test_display_light_convention(self):
         # Convention pin (pbrdf.polar.stokes docstring): the LCD emits vertical linear light, S1 = -S0;
         # the polarized part LP = -S1 is all of it and unpol = S0 + S1 is zero (the paper's printed
         # unpol = S0 - S1 would give 2 S0).
         s = stokes.stokes(1.0, 1.0, PI / 2, 0.0)
-        np.testing.assert_allclose(s, [1.0, -1.0, 0.0, 0.0], atol=ATOL)
-        assert -s[1] == pytest.approx(s[0], abs=ATOL)
-        assert s[0] + s[1] == pytest.approx(0.0, abs=ATOL)
+        np.testing.assert_allclose(s, [1.0, -1.0, 0.0, 0.0], atol=TOL.f64)
+        assert -s[1] == pytest.approx(s[0], abs=TOL.f64)
+        assert s[0] + s[1] == pytest.approx(0.0, abs=TOL.f64)
 
     def test_broadcasts(self):
         s = stokes.stokes(np.ones((5, 1)), np.linspace(0, 1, 3), 0.2, 0.1)
@@ -84,27 +82,27 @@ class TestStokesDerivedQuantities:
         s = stokes.stokes(s0, p, psi, chi)
         # Definitions: dop = |(s1,s2,s3)|/s0, dolp = |(s1,s2)|/s0 = p cos2chi, docp = |s3|/s0 = p |sin2chi|.
         assert stokes.intensity(s) == s0
-        assert stokes.dop(s) == pytest.approx(p, abs=ATOL)
-        assert stokes.dolp(s) == pytest.approx(p * np.cos(2 * chi), abs=ATOL)
-        assert stokes.docp(s) == pytest.approx(p * abs(np.sin(2 * chi)), abs=ATOL)
+        assert stokes.dop(s) == pytest.approx(p, abs=TOL.f64)
+        assert stokes.dolp(s) == pytest.approx(p * np.cos(2 * chi), abs=TOL.f64)
+        assert stokes.docp(s) == pytest.approx(p * abs(np.sin(2 * chi)), abs=TOL.f64)
         psi_out, chi_out = stokes.aolp(s), stokes.ellipticity_angle(s)
         assert 0.0 <= psi_out < PI
         assert -PI / 4 <= chi_out <= PI / 4
         # The angles are undefined without a (linear) polarized part; away from that the AoLP error is
         # about eps / (p cos2chi) <= 1e-10 for p cos2chi > 1e-6.
         if p * np.cos(2 * chi) > 1e-6:
-            assert_angles_close_mod_pi(psi_out, psi, atol=1e-9)
+            assert_angles_close_mod_pi(psi_out, psi, atol=TOL.f64_inverse)
         if p > 1e-6:
-            assert chi_out == pytest.approx(chi, abs=1e-9)
+            assert chi_out == pytest.approx(chi, abs=TOL.f64_inverse)
 
     def test_partially_polarized_values(self):
         # s = [2, 1, 0, 1]: |(s1,s2,s3)| = sqrt 2, |(s1,s2)| = 1, |s3| = 1; AoLP 0; chi = atan2(1, 1)/2 = pi/8.
         s = np.array([2.0, 1.0, 0.0, 1.0])
-        assert stokes.dop(s) == pytest.approx(np.sqrt(2) / 2, abs=ATOL)
-        assert stokes.dolp(s) == pytest.approx(0.5, abs=ATOL)
-        assert stokes.docp(s) == pytest.approx(0.5, abs=ATOL)
-        assert stokes.aolp(s) == pytest.approx(0.0, abs=ATOL)
-        assert stokes.ellipticity_angle(s) == pytest.approx(PI / 8, abs=ATOL)
+        assert stokes.dop(s) == pytest.approx(np.sqrt(2) / 2, abs=TOL.f64)
+        assert stokes.dolp(s) == pytest.approx(0.5, abs=TOL.f64)
+        assert stokes.docp(s) == pytest.approx(0.5, abs=TOL.f64)
+        assert stokes.aolp(s) == pytest.approx(0.0, abs=TOL.f64)
+        assert stokes.ellipticity_angle(s) == pytest.approx(PI / 8, abs=TOL.f64)
 
     @pytest.mark.filterwarnings("error")
     def test_zero_intensity_gives_zero_without_warnings(self):
@@ -133,7 +131,7 @@ class TestStokesDerivedQuantities:
         expected = [0.0, 0.0, 0.0, 0.0, PI / 2, PI / 2, PI / 4, 3 * PI / 4]
         out = stokes.aolp(s)
         assert np.all((out >= 0) & (out < PI))
-        np.testing.assert_allclose(out, expected, atol=ATOL)
+        np.testing.assert_allclose(out, expected, atol=TOL.f64)
 
     @pytest.mark.parametrize(
         "fn",
@@ -190,9 +188,9 @@ class TestExtremeMagnitudes:
         # DoP sqrt(2)/2 and DoLP = DoCP = 1/2 (test_partially_polarized_values).
         s = (np.array([[1.0, -1.0, 0.0, 0.0], [2.0, 1.0, 0.0, 1.0]]) * scale).astype(dtype)
         with np.errstate(all="raise"):
-            np.testing.assert_allclose(stokes.dop(s), [1.0, np.sqrt(2) / 2], rtol=1e-6)
-            np.testing.assert_allclose(stokes.dolp(s), [1.0, 0.5], rtol=1e-6)
-            np.testing.assert_allclose(stokes.docp(s), [0.0, 0.5], rtol=1e-6)
+            np.testing.assert_allclose(stokes.dop(s), [1.0, np.sqrt(2) / 2], rtol=TOL.f32)
+            np.testing.assert_allclose(stokes.dolp(s), [1.0, 0.5], rtol=TOL.f32)
+            np.testing.assert_allclose(stokes.docp(s), [0.0, 0.5], rtol=TOL.f32)
             assert np.all(stokes.is_physical_stokes(s))
         assert stokes.dop(s).dtype == dtype
 

@@ -27,6 +27,7 @@ from pbrdf.polar.validity import (
     is_mueller_physical,
     mueller_from_coherency,
 )
+from tests.conftest import TOL
 
 pytestmark = pytest.mark.filterwarnings("error::RuntimeWarning")
 
@@ -93,29 +94,29 @@ def test_coherency_matches_explicit_table(rng):
         (3, 3): m[0, 0] - m[0, 1] - m[1, 0] + m[1, 1],
     }
     for (i, j), value in expected.items():
-        assert h4[i, j] == pytest.approx(value, abs=1e-12), (i, j)
+        assert h4[i, j] == pytest.approx(value, abs=TOL.f64), (i, j)
 
 
 def test_coherency_round_trip_trace_and_hermitian(rng):
     m = rng.normal(size=(500, 4, 4))
     h = coherency_matrix(m)
     assert h.dtype == np.complex128
-    np.testing.assert_allclose(mueller_from_coherency(h), m, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(np.trace(h, axis1=-2, axis2=-1), m[:, 0, 0], rtol=0, atol=1e-12)
-    np.testing.assert_allclose(h, np.conj(np.swapaxes(h, -1, -2)), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(mueller_from_coherency(h), m, rtol=0, atol=TOL.f64)
+    np.testing.assert_allclose(np.trace(h, axis1=-2, axis2=-1), m[:, 0, 0], rtol=0, atol=TOL.f64)
+    np.testing.assert_allclose(h, np.conj(np.swapaxes(h, -1, -2)), rtol=0, atol=TOL.f64_exact)
     # Isometry up to scale: ||H||_F^2 = ||M||_F^2 / 4.
     np.testing.assert_allclose(np.sum(np.abs(h) ** 2, axis=(1, 2)), np.sum(m**2, axis=(1, 2)) / 4, rtol=1e-12)
     # Every Hermitian matrix comes from a real Mueller matrix.
     a = rng.normal(size=(100, 4, 4)) + 1j * rng.normal(size=(100, 4, 4))
     herm = a + np.conj(np.swapaxes(a, -1, -2))
-    np.testing.assert_allclose(coherency_matrix(mueller_from_coherency(herm)), herm, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(coherency_matrix(mueller_from_coherency(herm)), herm, rtol=0, atol=TOL.f64)
 
 
 def test_coherency_of_jones_matrix_is_its_projector(jones, pure):
     # For M = A (J kron J*) A^-1 the coherency matrix is vec(J) vec(J)^H / 2: rank 1, trace m00.
     k = jones.reshape(-1, 4)
     expected = 0.5 * k[:, :, None] * np.conj(k[:, None, :])
-    np.testing.assert_allclose(coherency_matrix(pure), expected, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(coherency_matrix(pure), expected, rtol=0, atol=TOL.f64)
     lam = coherency_eigenvalues(pure)
     np.testing.assert_allclose(lam[:, 0], pure[:, 0, 0], rtol=1e-12)
     np.testing.assert_allclose(lam[:, 1:], 0, atol=1e-12 * pure[:, :1, 0].max())
@@ -124,7 +125,7 @@ def test_coherency_of_jones_matrix_is_its_projector(jones, pure):
 def test_ossikovski_coherency_eigenvalues():
     lam = coherency_eigenvalues(OSSIKOVSKI)
     np.testing.assert_allclose(lam, OSSIKOVSKI_EIGENVALUES, atol=1e-4)
-    assert lam.sum() == pytest.approx(1.0, abs=1e-12)
+    assert lam.sum() == pytest.approx(1.0, abs=TOL.f64)
     assert is_cloude_physical(OSSIKOVSKI)
     assert is_givens_kostinski(OSSIKOVSKI)
     # Nearest pure (rank-1) matrix keeps the dominant eigenvector; pyCloude's first row.
@@ -139,14 +140,14 @@ def test_eigenvalues_descending_and_sum_to_m00(rng):
     lam = coherency_eigenvalues(m)
     assert lam.shape == (300, 4)
     assert np.all(np.diff(lam, axis=-1) <= 0)
-    np.testing.assert_allclose(lam.sum(axis=-1), m[:, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(lam.sum(axis=-1), m[:, 0, 0], atol=TOL.f64)
 
 
 def test_pauli_weight_depolarizers():
     # diag(1, a1, a2, a3) built from Pauli weights w has coherency eigenvalues w (m00 = 1).
     w = np.array([0.4, 0.3, 0.2, 0.1])
     m = np.diag(w @ PAULI_DIAGONALS)
-    np.testing.assert_allclose(coherency_eigenvalues(m), w, atol=1e-12)
+    np.testing.assert_allclose(coherency_eigenvalues(m), w, atol=TOL.f64)
 
 
 # --------------------------------------------------------------------------- pure matrices
@@ -250,7 +251,7 @@ def test_filter_is_the_frobenius_projection(noisy, pure, rng):
     f = cloude_filter(noisy, renormalize=False)
     # Projection onto the convex cone of physical matrices: idempotent, and for every physical
     # P the angle at F between X and P is obtuse, <X - F, P - F> <= 0, so |X - F| <= |X - P|.
-    np.testing.assert_allclose(cloude_filter(f, renormalize=False), f, atol=1e-12)
+    np.testing.assert_allclose(cloude_filter(f, renormalize=False), f, atol=TOL.f64)
     w = rng.dirichlet(np.ones(4), size=200)
     candidates = np.concatenate(
         [
@@ -283,14 +284,14 @@ def test_filter_of_impossible_intensity_is_zero():
     f = cloude_filter(np.stack([-np.eye(4), np.zeros((4, 4))]))
     assert np.array_equal(f, np.zeros((2, 4, 4)))
     # Without renormalization -I has no positive coherency eigenvalue: its projection is 0 too.
-    assert np.allclose(cloude_filter(-np.eye(4), renormalize=False), 0, atol=1e-15)
+    assert np.allclose(cloude_filter(-np.eye(4), renormalize=False), 0, atol=TOL.f64_exact)
 
 
 def test_filter_known_example():
     # diag(1,1,1,-1) = (I + HWP0 + HWP45 - circular HWP) / 2: Pauli weights (.5,.5,.5,-.5).
     # Clipping the negative weight and renormalizing gives weights (1/3, 1/3, 1/3, 0).
     f = cloude_filter(np.diag([1.0, 1.0, 1.0, -1.0]))
-    np.testing.assert_allclose(f, np.diag(np.array([1, 1, 1, 0]) @ PAULI_DIAGONALS / 3), atol=1e-12)
+    np.testing.assert_allclose(f, np.diag(np.array([1, 1, 1, 0]) @ PAULI_DIAGONALS / 3), atol=TOL.f64)
 
 
 # --------------------------------------------------------------------------- vectorisation
@@ -433,7 +434,7 @@ def test_extreme_scales(pure, dtype):
         assert is_cloude_physical(m).all(), scale
         f = cloude_filter(m)
         assert np.all(np.isfinite(f))
-        np.testing.assert_allclose(f / scale, m / scale, atol=1e-5 if dtype == np.float32 else 1e-10)
+        np.testing.assert_allclose(f / scale, m / scale, atol=TOL.f32_sum if dtype == np.float32 else 1e-10)
         lam = coherency_eigenvalues(m)
         assert np.all(np.isfinite(lam))
 
