@@ -29,14 +29,13 @@ from mathutils import Vector
 from mathutils.bvhtree import BVHTree
 
 from .core import map_io, map_names
+from .images import image_from_array, read_channels
 from .pbr_import import (
     NORMAL_SPACES,
     UV_NAME,
     build_material,
     camera_frustum,
     ensure_camera,
-    image_from_array,
-    read_channels,
 )
 from .ui import SidebarPanel
 

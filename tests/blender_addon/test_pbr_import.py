@@ -13,7 +13,7 @@ bpy = pytest.importorskip("bpy")
 
 from bpy_extras.object_utils import world_to_camera_view  # noqa: E402
 
-from blender_addon import pbr_import  # noqa: E402
+from blender_addon import images, pbr_import  # noqa: E402
 from blender_addon.core import map_io  # noqa: E402
 from blender_addon.core.frustum import blender_frustum, camera_from_intrinsics  # noqa: E402
 from pbrdf.io.exr import read_exr  # noqa: E402
@@ -187,7 +187,7 @@ def test_blender_png_reader_equals_pillow(clean_file, tmp_path):
 
     rgb = np.random.default_rng(3).integers(0, 256, (5, 7, 3), dtype=np.uint8)
     Image.fromarray(rgb).save(tmp_path / "a.png")
-    got, is_float = pbr_import.read_channels_blender(tmp_path / "a.png")
+    got, is_float = images.read_channels_blender(tmp_path / "a.png")
     ref, _ = map_io.read_channels(tmp_path / "a.png")
     assert not is_float and set(ref) <= set(got)
     for c in "RGB":
