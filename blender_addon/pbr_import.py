@@ -55,6 +55,8 @@ from bpy.props import BoolProperty, CollectionProperty, EnumProperty, FloatPrope
 from bpy_extras.io_utils import ImportHelper
 from mathutils import Matrix, Vector
 
+from pbrdf.data.predictions import MAP_NAMES
+
 from .core import map_io, map_names
 from .core.frustum import BlenderCamera, Frustum, blender_frustum, depth_mesh, read_camera_json
 from .images import image_from_array, read_channels, sequence_image
@@ -464,7 +466,7 @@ def _tag(context, obj, maps: map_io.PBRMaps, source: str, normal_space: str, cam
     """Record what was imported as the object's custom properties (see :func:`import_pbr_maps`); return it."""
     present = maps.present()
     obj["pdir_maps"] = ",".join(present)
-    obj["pdir_missing"] = ",".join(k for k in map_names.MAP_KINDS if k not in present)
+    obj["pdir_missing"] = ",".join(k for k in MAP_NAMES if k not in present)
     obj["pdir_source"] = source
     obj["pdir_normal_space"] = normal_space
     obj["pdir_camera"] = str(camera_path) if camera_path is not None else ""

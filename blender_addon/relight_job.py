@@ -15,13 +15,12 @@ from __future__ import annotations
 
 import math
 import os
-import shutil
 from pathlib import Path
 
 import bpy
 from mathutils import Vector
 
-from pbrdf.io.atomic import temporary_path
+from pbrdf.io.atomic import atomic_folder
 
 from . import pbr_import, relight_operator
 
@@ -161,16 +160,10 @@ def _prepare_for_artists(scene, samples: int) -> None:
 def _save_blend(path: Path) -> Path:
     """Save a copy of the session as ``path`` atomically; returns ``path``.
 
-    The copy is saved under its final name into a temporary folder beside ``path`` and renamed
-    into place: Blender logs ``Saved copy as "<file name>"``, which thus names the final file and
-    never a temporary one. A killed save leaves only that folder (``pbrdf.io.atomic``'s
-    ``remove_leftovers`` recognises it).
+    The copy is saved under its final name into a staging folder beside ``path`` and moved into
+    place (:func:`pbrdf.io.atomic.atomic_folder`, merging into the parent folder): Blender logs
+    ``Saved copy as "<file name>"``, which thus names the final file and never a temporary one.
     """
-    staging = temporary_path(path)
-    staging.mkdir()
-    try:
+    with atomic_folder(path.parent, merge=True) as staging:
         bpy.ops.wm.save_as_mainfile(filepath=str(staging / path.name), compress=True, copy=True)
-        os.replace(staging / path.name, path)
-    finally:
-        shutil.rmtree(staging, ignore_errors=True)
     return path

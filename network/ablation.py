@@ -38,6 +38,7 @@ from pathlib import Path
 from typing import Any
 
 from pbrdf.data import dataset as pdataset
+from pbrdf.data import sample as psample
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.strict_json import dumps_strict
 
@@ -151,7 +152,7 @@ def run_indices(root: str | Path, run: str, count: int) -> list[int]:
     else:
         chosen = []
         for i in done:
-            meta = json.loads(pdataset.sample_paths(root, i).sidecar.read_text(encoding="utf-8"))
+            meta = json.loads(psample.sample_paths(root, i).sidecar.read_text(encoding="utf-8"))
             if scene_kind(meta) == spec.scenes:
                 chosen.append(i)
                 if len(chosen) == count:

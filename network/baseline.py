@@ -58,18 +58,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf.sensor.irradiance import (
-    irradiance_vectors,
-    polygon_irradiance_vectors,
-    region_light_directions,
-)
+from pbrdf.sensor.irradiance import irradiance_vectors
 from pbrdf.sensor.patches import constant_patches
 
 __all__ = [
     "Calibration",
-    "polygon_irradiance_vectors",
-    "irradiance_vectors",
-    "region_light_directions",
     "calibrate",
     "sample_geometry",
     "albedo_chromaticity",

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbrdf.data import dataset as pdataset
+from pbrdf.data import sample as psample
 from pbrdf.data.splits import dataset_split
 from pbrdf.io.atomic import atomic_write_text
 
@@ -58,7 +59,7 @@ def train_statistics(root: str | os.PathLike, *, limit: int | None = None) -> di
     sums = np.zeros(5)
     pixels = 0
     for i in indices:
-        s, _ = pdataset.read_sample(root, i, keys=("mask", "albedo", "roughness", "metallic"))
+        s, _ = psample.read_sample(root, i, keys=("mask", "albedo", "roughness", "metallic"))
         m = s["mask"]
         sums[:3] += s["albedo"][m].sum(axis=0, dtype=np.float64)
         sums[3] += s["roughness"][m].sum(dtype=np.float64)
@@ -94,7 +95,7 @@ def load_statistics(path: str | os.PathLike) -> dict[str, Any]:
     if not path.is_file():
         raise FileNotFoundError(
             f"{path}: training statistics not found (make them with "
-            "`headless/evaluate.py --write-train-stats TRAIN_DIR --out FILE`)"
+            "`headless/evaluate.py --write-train-stats FILE --input TRAIN_DIR`)"
         )
     try:
         stats = json.loads(path.read_text())

@@ -39,6 +39,7 @@ from torch.utils.data import Dataset
 
 from pbrdf.data import capture as pcapture
 from pbrdf.data import dataset as pdataset
+from pbrdf.data import sample as psample
 
 __all__ = [
     "CALIBRATED_GAIN",
@@ -216,12 +217,12 @@ def check_item(sample: dict[str, np.ndarray], where: str) -> None:
 
     Checks the keys present among ``mask``, ``normal``, ``albedo``, ``roughness`` and
     ``metallic``: the targets finite; ``albedo``, ``roughness`` and ``metallic`` in [0, 1];
-    ``normal`` of unit length inside the mask (to :data:`pbrdf.data.dataset.NORMAL_TOLERANCE`); a
+    ``normal`` of unit length inside the mask (to :data:`pbrdf.data.sample.NORMAL_TOLERANCE`); a
     mask with at least one pixel. Non-finite ``maps`` are left to the training loop, which skips
     such batches and stops after ``--max-skipped`` of them (:mod:`network.train`).
 
     Args:
-        sample: channel-last arrays as :func:`pbrdf.data.dataset.read_sample` returns them.
+        sample: channel-last arrays as :func:`pbrdf.data.sample.read_sample` returns them.
         where: the sample's file, first in the message.
 
     Raises:
@@ -247,10 +248,10 @@ def check_item(sample: dict[str, np.ndarray], where: str) -> None:
         raise ValueError(f"{where}: mask is empty (no valid pixel to train on)")
     if mask is not None and "normal" in sample:
         length = np.linalg.norm(sample["normal"].astype(np.float64), axis=-1)
-        off = mask.astype(bool) & (np.abs(length - 1) > pdataset.NORMAL_TOLERANCE)
+        off = mask.astype(bool) & (np.abs(length - 1) > psample.NORMAL_TOLERANCE)
         if off.any():
             raise ValueError(
-                f"{where}: normal must be unit vectors inside the mask (|n| = 1 +- {pdataset.NORMAL_TOLERANCE:g}); "
+                f"{where}: normal must be unit vectors inside the mask (|n| = 1 +- {psample.NORMAL_TOLERANCE:g}); "
                 f"{int(off.sum())} are not, e.g. |n| = {float(length[off][0]):.6g} at {_first_pixel(off)}"
             )
 
@@ -342,8 +343,8 @@ class SampleDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         index = self.indices[i]
-        sample, meta = pdataset.read_sample(self.root, index, keys=("maps", "mask", *TARGET_KEYS))
-        where = str(pdataset.sample_paths(self.root, index).exr)
+        sample, meta = psample.read_sample(self.root, index, keys=("maps", "mask", *TARGET_KEYS))
+        where = str(psample.sample_paths(self.root, index).exr)
         check_item(sample, where)
         t = sample_to_tensors(sample)
         if self.size is not None and t["maps"].shape[-1] != self.size:

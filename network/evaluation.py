@@ -38,6 +38,7 @@ import numpy as np
 import torch
 
 from pbrdf.data import dataset as pdataset
+from pbrdf.data import sample as psample
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.data.splits import SPLITS, dataset_split
 from pbrdf.geometry.normal_integration import integrate_normals
@@ -213,9 +214,9 @@ def predict_scene(
     root = Path(root)
     stored = _stored(root, index)
     keys = _GT_KEYS + tuple(k for k in ("object", "depth") if k in stored)
-    sample, meta = pdataset.read_sample(root, index, keys=keys)
+    sample, meta = psample.read_sample(root, index, keys=keys)
     region = sample["object"] >= 0 if "object" in sample else sample["mask"].astype(bool)
-    paths = pdataset.sample_paths(root, index)
+    paths = psample.sample_paths(root, index)
     source = paths.raw if paths.raw.is_dir() else paths.sidecar  # the raw brackets: the user's capture path
     inp = load_input(source)
     maps, auto = inp.maps, inp.mask
@@ -242,7 +243,7 @@ def predict_scene(
     k = None
     if "depth" in sample:
         gt["depth"] = sample["depth"]
-        sidecar = pdataset.sample_paths(root, index).sidecar
+        sidecar = psample.sample_paths(root, index).sidecar
         k = sample_intrinsics(meta, region.shape, sidecar) if "intrinsics" in meta else None
     objects = np.rint(sample["object"]).astype(np.int64) if "object" in sample else None
     return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects, k)
@@ -417,7 +418,7 @@ def _worker_row(index: int) -> dict[str, Any]:
 
 def _stored(root: Path, index: int) -> set[str]:
     """The optional maps a sample stores (``object``: not in datasets rendered before it existed)."""
-    meta = pdataset.check_complete(root, index, verify_hash=False)
+    meta = psample.check_complete(root, index, verify_hash=False)
     return {c.split(".")[0] for c in meta.get("channels", [])}
 
 

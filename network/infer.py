@@ -18,7 +18,7 @@ import torch.nn.functional as F  # noqa: N812
 
 from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
-from pbrdf.data import dataset as pdataset
+from pbrdf.data import sample as psample
 from pbrdf.data.predictions import OUTPUT_CHANNELS
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.io.errors import NothingToReconstruct
@@ -106,7 +106,7 @@ def load_input(path: str | Path, *, require_object: bool = False) -> InferenceIn
         k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
         return InferenceInput(dec.maps, dec.input_mask, cap.meta.radiance, k, cap.meta.distance_m)
     if path.suffix in (".exr", ".json") and path.exists():
-        sample, meta = pdataset.read_sample(path, keys=("maps", "mask"))
+        sample, meta = psample.read_sample(path, keys=("maps", "mask"))
         if require_object and not sample["mask"].any():
             raise NothingToReconstruct(f"{path}: the sample's mask is empty: nothing to reconstruct")
         where = path.with_suffix(".json")

@@ -54,6 +54,7 @@ from torch.utils.data import Dataset
 from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import dataset as pdataset
+from pbrdf.data import sample as psample
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.sensor.projection import crop_intrinsics
 from pbrdf.sensor.rig import Rig
@@ -70,11 +71,11 @@ def _is_capture(path: Path) -> bool:
 
 
 def _is_dataset(path: Path) -> bool:
-    return path.is_dir() and (path / pdataset.SAMPLES_DIR).is_dir()
+    return path.is_dir() and (path / psample.SAMPLES_DIR).is_dir()
 
 
 def _dataset_samples(root: Path) -> list[Path]:
-    return [pdataset.sample_paths(root, i).sidecar for i in sorted(pdataset.completed_indices(root))]
+    return [psample.sample_paths(root, i).sidecar for i in sorted(pdataset.completed_indices(root))]
 
 
 def find_real_inputs(root: str | Path) -> list[Path]:
@@ -123,7 +124,7 @@ def load_real_input(path: Path, *, use_depth: bool = True) -> tuple[
         k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
         return dec.maps, dec.input_mask, k, cap.meta.rig, None, cap.meta.distance_m, cap.meta.radiance
     keys = ("maps", "mask", "depth") if use_depth else ("maps", "mask")
-    sample, meta = pdataset.read_sample(path, keys=keys)
+    sample, meta = psample.read_sample(path, keys=keys)
     try:
         rig = Rig.from_dict(meta["rig"])
         if "intrinsics" not in meta:  # required here: the rendered crop's camera, no default

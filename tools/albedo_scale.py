@@ -33,7 +33,7 @@ def main(argv: list[str] | None = None) -> int:
     from network.data import checkpoint_input_scale
     from network.infer import predict
     from network.inputs import checkpoint_inputs
-    from pbrdf.data import dataset as pdataset
+    from pbrdf.data import sample as psample
     from pbrdf.data.capture import read_capture_meta
 
     net, ckpt, stats = load(args.checkpoint)
@@ -47,7 +47,7 @@ def main(argv: list[str] | None = None) -> int:
             truth = scene.gt["albedo"][region].mean()
             rows.append((scene.ours["albedo"][region].mean(), truth, np.median(scene.gt["depth"][region])))
             if len(probes) < 3:
-                radiance = read_capture_meta(pdataset.sample_paths(root, scene.index).raw).radiance
+                radiance = read_capture_meta(psample.sample_paths(root, scene.index).raw).radiance
                 levels = []
                 for k in (0.25, 0.5, 1.0, 2.0, 4.0):
                     scaled = scene.maps.copy()

@@ -41,14 +41,15 @@ def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status."""
     args = build_parser().parse_args(argv)
     from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
-    from pbrdf.data import capture, dataset  # noqa: PLC0415
+    from pbrdf.data import capture  # noqa: PLC0415
+    from pbrdf.data import sample as psample  # noqa: PLC0415
     from pbrdf.io.atomic import atomic_open  # noqa: PLC0415
 
     with tempfile.TemporaryDirectory() as tmp:
         generate(GenerateConfig(out=Path(tmp), count=1, resolution=args.resolution, spp=args.spp, seed=args.seed,
                                 keep_raw=True), progress=not args.quiet)  # fmt: skip
-        sample, meta = dataset.read_sample(Path(tmp), 0)
-        raw = capture.load_capture(Path(tmp) / "samples" / f"000000{dataset.RAW_SUFFIX}")
+        sample, meta = psample.read_sample(Path(tmp), 0)
+        raw = capture.load_capture(Path(tmp) / "samples" / f"000000{psample.RAW_SUFFIX}")
         k = np.asarray(meta["intrinsics"], dtype=np.float64)
         k[:2] *= 2.0  # the raw grid has twice the decoded resolution
         depth = sample["depth"][sample["mask"].astype(bool)]

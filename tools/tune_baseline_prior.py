@@ -21,7 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network import baseline  # noqa: E402
 from network.infer import load_input  # noqa: E402
-from pbrdf.data import dataset  # noqa: E402
+from pbrdf.data import sample as psample  # noqa: E402
 
 PRIORS = (0.02, 0.2, 1.0, 3.0, 10.0)
 
@@ -33,8 +33,8 @@ def mean_error(root: str, count: int, prior: float) -> float:
     try:
         errs = []
         for idx in range(count):
-            s, meta = dataset.read_sample(root, idx, keys=("normal", "object"))
-            inp = load_input(dataset.sample_paths(root, idx).raw)
+            s, meta = psample.read_sample(root, idx, keys=("normal", "object"))
+            inp = load_input(psample.sample_paths(root, idx).raw)
             maps, auto = inp.maps, inp.mask
             sel = (s["object"] >= 0) & auto
             if not sel.any():

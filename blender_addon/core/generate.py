@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from pbrdf.data import dataset
+from pbrdf.data import sample as psample
 from pbrdf.io.atomic import atomic_write_bytes, remove_leftovers
 from pbrdf.sensor.rig import BUILTIN_PATTERNS, Rig
 
@@ -412,7 +413,7 @@ def _write_one(
         meta["split"] = cfg.split
     meta.update(cfg.scene_args())
     t3 = time.perf_counter()
-    dataset.write_sample(cfg.out, index, sample, meta)
+    psample.write_sample(cfg.out, index, sample, meta)
     if cfg.npz:
         write_arrays(cfg.out, index, sample, meta)
     t4 = time.perf_counter()

@@ -26,7 +26,9 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from .map_names import IMAGE_SUFFIXES, MAP_KINDS, MapFiles, filename_tokens, match_kinds
+from pbrdf.data.predictions import MAP_NAMES
+
+from .map_names import IMAGE_SUFFIXES, MapFiles, filename_tokens, match_kinds
 
 __all__ = [
     "PBRMaps",
@@ -178,7 +180,7 @@ def load_map(
 
     Args:
         path: EXR, PNG or JPEG file.
-        kind: one of :data:`MAP_KINDS`.
+        kind: one of :data:`pbrdf.data.predictions.MAP_NAMES`.
         srgb: decode sRGB (albedo only); None = for 8/16-bit files, not for EXR.
         reader: reads the file's channels; default :func:`read_channels`.
 
@@ -189,8 +191,8 @@ def load_map(
     Raises:
         ValueError: unknown kind, channels that cannot be told apart, NaN/Inf, a non-EXR depth map.
     """
-    if kind not in MAP_KINDS:
-        raise ValueError(f"unknown map kind {kind!r}; valid: {list(MAP_KINDS)}")
+    if kind not in MAP_NAMES:
+        raise ValueError(f"unknown map kind {kind!r}; valid: {list(MAP_NAMES)}")
     path = Path(path)
     ch, is_float = (reader or read_channels)(path)
     if kind == "depth" and not is_float:
@@ -250,7 +252,7 @@ class PBRMaps:
     def present(self) -> tuple[str, ...]:
         """The kinds with data (mask only if it came from a file)."""
         return tuple(
-            k for k in MAP_KINDS if (self.mask_source == "file" if k == "mask" else getattr(self, k) is not None)
+            k for k in MAP_NAMES if (self.mask_source == "file" if k == "mask" else getattr(self, k) is not None)
         )
 
 

@@ -40,16 +40,12 @@ __all__ = [
     "camera_file",
     "find_sequence",
     "match_sequence_files",
-    "MAP_KINDS",
     "SYNONYMS",
     "MapFiles",
     "filename_tokens",
     "match_kinds",
     "match_map_files",
 ]
-
-#: Map kinds in import order: the maps a prediction folder holds.
-MAP_KINDS = MAP_NAMES
 
 #: Filename synonyms per kind; a multi-token synonym (``base color``) must appear as consecutive tokens.
 SYNONYMS: dict[str, tuple[tuple[str, ...], ...]] = {
@@ -99,14 +95,14 @@ def _find(tokens: tuple[str, ...], synonym: tuple[str, ...]) -> int:
 
 
 def match_kinds(tokens: Iterable[str]) -> tuple[str, ...]:
-    """Map kinds whose synonyms appear in ``tokens`` (in :data:`MAP_KINDS` order).
+    """Map kinds whose synonyms appear in ``tokens`` (in :data:`pbrdf.data.predictions.MAP_NAMES` order).
 
     Example:
         >>> match_kinds(("rock", "metalness")), match_kinds(("dialbedo",)), match_kinds(("base", "color"))
         (('metallic',), (), ('albedo',))
     """
     tokens = tuple(tokens)
-    return tuple(k for k in MAP_KINDS if any(_find(tokens, s) >= 0 for s in SYNONYMS[k]))
+    return tuple(k for k in MAP_NAMES if any(_find(tokens, s) >= 0 for s in SYNONYMS[k]))
 
 
 def _strip_common(token_lists: list[tuple[str, ...]]) -> list[tuple[str, ...]]:
@@ -128,7 +124,7 @@ class MapFiles:
     """The result of matching file names to map kinds.
 
     Attributes:
-        files: kind -> chosen file, in :data:`MAP_KINDS` order.
+        files: kind -> chosen file, in :data:`pbrdf.data.predictions.MAP_NAMES` order.
         unmatched: image files whose names match no kind (ignored).
         superseded: files of a chosen map in a less preferred format (``x_normal.png`` beside
             ``x_normal.exr``).
@@ -141,7 +137,7 @@ class MapFiles:
     @property
     def missing(self) -> tuple[str, ...]:
         """Kinds without a file."""
-        return tuple(k for k in MAP_KINDS if k not in self.files)
+        return tuple(k for k in MAP_NAMES if k not in self.files)
 
     def summary(self) -> str:
         """One line: the found maps, the missing ones and the ignored files."""
@@ -201,14 +197,14 @@ def match_map_files(
         ValueError: ambiguous names (all listed in one line), an unknown kind or format.
     """
     required = tuple(required)
-    unknown = [k for k in required if k not in MAP_KINDS]
+    unknown = [k for k in required if k not in MAP_NAMES]
     if unknown:
-        raise ValueError(f"unknown map kinds {unknown}; valid: {list(MAP_KINDS)}")
+        raise ValueError(f"unknown map kinds {unknown}; valid: {list(MAP_NAMES)}")
     if isinstance(source, Mapping):
-        bad = [k for k in source if k not in MAP_KINDS]
+        bad = [k for k in source if k not in MAP_NAMES]
         if bad:
-            raise ValueError(f"unknown map kinds {bad}; valid: {list(MAP_KINDS)}")
-        files = {k: Path(source[k]) for k in MAP_KINDS if k in source}
+            raise ValueError(f"unknown map kinds {bad}; valid: {list(MAP_NAMES)}")
+        files = {k: Path(source[k]) for k in MAP_NAMES if k in source}
         for p in files.values():
             if not p.is_file():
                 raise FileNotFoundError(f"{p}: map file not found")
@@ -241,7 +237,7 @@ def _match(paths: list[Path]) -> MapFiles:
         by_kind.setdefault(kinds[0], {}).setdefault(stem, []).append(p)
     files: dict[str, Path] = {}
     superseded: list[Path] = []
-    for kind in MAP_KINDS:
+    for kind in MAP_NAMES:
         stems = by_kind.get(kind, {})
         if len(stems) > 1:
             names = ", ".join(sorted(q.name for group in stems.values() for q in group))

@@ -36,10 +36,10 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from pbrdf.data.capture import CAPTURE_JSON
+from pbrdf.data.predictions import MAP_NAMES
 
 __all__ = [
     "EXPECTED_SECONDS",
-    "MAP_KINDS",
     "PACKAGES",
     "SCRIPT_MODULE",
     "ReconstructJob",
@@ -58,8 +58,6 @@ __all__ = [
 SCRIPT_MODULE = "headless.infer"
 #: Python packages the reconstruction needs (Blender's own Python is used only when it has them).
 PACKAGES = ("torch", "scipy", "OpenEXR", "PIL")
-#: Map kinds ``headless/infer.py`` writes as ``<name>_<kind>.exr`` (``depth`` only for a relief).
-MAP_KINDS = ("normal", "albedo", "roughness", "metallic", "mask", "depth")
 #: Typical seconds of one reconstruction (torch start, model, decode, prediction, depth) on a laptop CPU.
 EXPECTED_SECONDS = 20.0
 #: The time-based estimate stays below this fraction until the process has finished.
@@ -212,7 +210,7 @@ def error_line(stderr: Sequence[str], returncode: int | None) -> str:
 
 def expected_outputs(folder: str | os.PathLike, name: str, *, card: bool = False) -> dict[str, Path]:
     """``{kind: folder/<name>_<kind>.exr}`` for the maps the script writes (no ``depth`` for a card)."""
-    return {k: Path(folder) / f"{name}_{k}.exr" for k in MAP_KINDS if not (card and k == "depth")}
+    return {k: Path(folder) / f"{name}_{k}.exr" for k in MAP_NAMES if not (card and k == "depth")}
 
 
 def find_outputs(folder: str | os.PathLike, name: str, *, card: bool = False) -> dict[str, Path]:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from pbrdf.io.atomic import atomic_write_text, temporary_path
+from pbrdf.io.atomic import atomic_open, atomic_write_text
 
 __all__ = [
     "image_grid",
@@ -48,11 +48,11 @@ def _plt():
 def _save(fig, path: Path, dpi: int = 100) -> Path:
     """Write ``fig`` atomically to ``path`` (format from the suffix), close it and return the path."""
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = temporary_path(path)
-    fig.savefig(tmp, dpi=dpi, format=path.suffix.lstrip(".") or "png")
-    _plt().close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_open(path) as f:
+            fig.savefig(f, dpi=dpi, format=path.suffix.lstrip(".") or "png")
+    finally:
+        _plt().close(fig)
     return path
 
 

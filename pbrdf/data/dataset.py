@@ -10,13 +10,12 @@ A dataset is a folder::
         000000_raw/            optional: the raw HDR bracket as a capture folder (pbrdf.data.capture)
         ...
 
-One sample's format, validation, writing and reading live in :mod:`pbrdf.data.sample`; its public
-names are re-exported here, so ``dataset.read_sample`` and ``dataset.CHANNELS`` keep working.
+One sample's format, validation, writing and reading live in :mod:`pbrdf.data.sample`.
 
 Writers of one dataset may run as shards ``(K, N)`` (sample ``i`` belongs to shard ``i % N``)
 sharing the folder. A killed run resumes exactly: :func:`plan_work` with ``resume=True`` lists the
 samples of the shard that are not complete (:func:`pbrdf.data.sample.check_complete`);
-:func:`write_sample` overwrites the leftovers of a broken sample, and :func:`cleanup_partial`
+:func:`pbrdf.data.sample.write_sample` overwrites the leftovers of a broken sample, and :func:`cleanup_partial`
 removes them; :func:`remove_manifest_leftovers` removes the temporary manifests of killed writers.
 """
 
@@ -31,9 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from pbrdf.data import sample as _sample
 from pbrdf.data._common import check_index, check_metadata, dumps_json, remove_path
-from pbrdf.data.sample import *  # noqa: F403 (re-exported: the public names of pbrdf.data.sample)
 from pbrdf.data.sample import SAMPLES_DIR, check_complete, parse_sample_name, sample_paths
 from pbrdf.io.atomic import atomic_write_text, remove_leftovers, temporary_target
 from pbrdf.io.strict_json import read_json_object
@@ -49,7 +46,6 @@ __all__ = [
     "shard_indices",
     "parse_shard",
     "plan_work",
-    *_sample.__all__,  # re-exported from pbrdf.data.sample (the star import above)
 ]
 
 logger = logging.getLogger(__name__)
@@ -296,7 +292,7 @@ def plan_work(
 
     Without ``resume`` the folder may not yet hold files of this shard's samples (complete or
     partial); shards of one dataset may share a folder. With ``resume`` the complete samples of
-    the shard are skipped; incomplete ones are listed again (:func:`write_sample` overwrites
+    the shard are skipped; incomplete ones are listed again (:func:`pbrdf.data.sample.write_sample` overwrites
     their leftovers).
 
     Args:

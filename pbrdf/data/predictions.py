@@ -43,7 +43,6 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pbrdf.io.atomic import atomic_folder, atomic_write_text
-from pbrdf.io.exr import write_exr
 from pbrdf.io.strict_json import read_json_object
 
 __all__ = [
@@ -269,6 +268,8 @@ def write_predictions(
         ValueError: a map that is not ``(H, W, C)`` or holds NaN/Inf (nothing written).
         OSError: the folder cannot be written (nothing left behind).
     """
+    from pbrdf.io.exr import write_exr  # noqa: PLC0415 (the add-on reads these names without OpenEXR)
+
     out = Path(out)
     for key, img in pred.items():
         if img.ndim != 3 or not np.all(np.isfinite(img)):

@@ -17,6 +17,7 @@ import numpy as np
 import pytest
 
 from blender_addon.core import reconstruct_job
+from pbrdf.data.predictions import MAP_NAMES
 
 ROOT = Path(__file__).resolve().parents[2]
 EXAMPLE = ROOT / "examples" / "capture"
@@ -150,7 +151,7 @@ def test_job_moves_the_maps_into_place_and_reports_progress(tmp_path):
     assert job.elapsed == took > 0  # the run's duration, not the time since
     assert job.outputs == reconstruct_job.expected_outputs(out, "cap") and job.outputs["depth"].read_text() == "depth"
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        ["other_file.txt"] + [f"cap_{k}.{e}" for k in reconstruct_job.MAP_KINDS for e in ("exr", "png")]
+        ["other_file.txt"] + [f"cap_{k}.{e}" for k in MAP_NAMES for e in ("exr", "png")]
     )  # the staging folder is gone
     (tmp_path / "again").mkdir()
     card = _job(tmp_path / "again", "ok", out, card=True)
@@ -235,7 +236,7 @@ def test_operator_reconstructs_the_example_capture_as_a_relief(bpy, reconstruct,
     print(f"reconstruct_capture(examples/capture): {seconds:.1f} s")
     assert not (ROOT / "examples" / "capture_reconstruction").exists()
     names = {p.name for p in out.iterdir()}  # every map and preview (and capture_camera.json), no staging folder
-    assert {f"capture_{k}.{e}" for k in reconstruct_job.MAP_KINDS for e in ("exr", "png")} <= names
+    assert {f"capture_{k}.{e}" for k in MAP_NAMES for e in ("exr", "png")} <= names
     assert all(n.startswith("capture_") for n in names)
     obj = bpy.data.objects["capture"]
     assert obj.type == "MESH" and obj.parent == bpy.context.scene.camera

@@ -33,11 +33,11 @@ class _Refs(html.parser.HTMLParser):
 
 def _truth_and_prediction(out: Path, name: str):
     """Scored region, ground-truth normals and the written normal prediction of demo scene ``name``."""
-    from pbrdf.data import dataset as pdataset
+    from pbrdf.data import sample as psample
     from pbrdf.io import exr
 
     sub, stem = name.split("_", 1)  # "<analytic|measured>_<index>": the dataset folder and the sample
-    sample, _ = pdataset.read_sample(out / "data" / sub / "samples" / f"{stem}.json")
+    sample, _ = psample.read_sample(out / "data" / sub / "samples" / f"{stem}.json")
     region = sample["object"] >= 0 if "object" in sample else sample["mask"].astype(bool)
     channels = exr.read_exr(out / "predictions" / name / f"{name}_normal.exr")
     pred = np.stack([channels[f"normal.{c}"] for c in "XYZ"], axis=-1).astype(np.float64)

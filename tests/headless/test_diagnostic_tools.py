@@ -29,7 +29,7 @@ def split(tmp_path_factory):
 
 
 def test_roughness_rows_match_the_sidecar_materials(split, capsys):
-    from pbrdf.data import dataset as pdataset
+    from pbrdf.data import sample as psample
     from tools._capture_scenes import capture_scenes, load
 
     tool = _tool("roughness_corr")
@@ -39,7 +39,7 @@ def test_roughness_rows_match_the_sidecar_materials(split, capsys):
     assert rows, "no object with 100 masked pixels"
     kinds = set()
     for row in rows:
-        _, meta = pdataset.read_sample(split, row["scene"])
+        _, meta = psample.read_sample(split, row["scene"])
         material = meta["materials"][meta["objects"][row["object"]]["material"]]
         kinds.add(row["kind"])
         # The truth side is the sidecar's material, independent of the EXR maps the tool reads.

@@ -9,7 +9,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from pbrdf.data import capture, dataset
+from pbrdf.data import capture
+from pbrdf.data import sample as psample
 from pbrdf.sensor import camera
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -68,8 +69,8 @@ def _sample(root: Path, rng: np.random.Generator, maps_value: float | None = Non
         "metallic": np.zeros((h, w), np.float32),
         "depth": np.where(mask, 1.0, 0.0).astype(np.float32),
     }
-    dataset.write_sample(root, 0, sample, {"seed": 0})
-    return dataset.sample_paths(root, 0).exr
+    psample.write_sample(root, 0, sample, {"seed": 0})
+    return psample.sample_paths(root, 0).exr
 
 
 @pytest.mark.parametrize(

@@ -40,11 +40,11 @@ def _sidecar(path: Path) -> dict:
 
 
 def _assert_same_dataset(a: Path, b: Path, indices) -> None:
-    from pbrdf.data import dataset
+    from pbrdf.data import sample as psample
 
     for i in indices:
-        sa, _ = dataset.read_sample(a, i)
-        sb, _ = dataset.read_sample(b, i)
+        sa, _ = psample.read_sample(a, i)
+        sb, _ = psample.read_sample(b, i)
         assert sa.keys() == sb.keys()
         np.testing.assert_allclose(sb["maps"], sa["maps"], atol=1e-5, err_msg=f"sample {i}")
         for key in GROUND_TRUTH:
@@ -98,9 +98,9 @@ def test_scene_file_via_blender_with_file_mesh_and_npz(tmp_path):
                          keep_stokes=True)  # fmt: skip
     assert generate(cfg, progress=False).written == [0]
     _assert_same_dataset(tmp_path / "plain", tmp_path / "blender", [0])
-    from pbrdf.data import dataset
+    from pbrdf.data import sample as psample
 
-    sample, _ = dataset.read_sample(tmp_path / "blender", 0)
+    sample, _ = psample.read_sample(tmp_path / "blender", 0)
     with np.load(tmp_path / "blender" / "arrays" / "000000.npz") as npz:
         np.testing.assert_array_equal(npz["maps"], sample["maps"])
         np.testing.assert_array_equal(npz["stokes"], sample["stokes"])
@@ -198,6 +198,7 @@ def test_split_flag_errors_are_one_line(tmp_path, extra, message):
 @pytest.mark.mitsuba
 def test_split_prefix_is_labelled_and_keeps_raw(tmp_path):
     from pbrdf.data import dataset
+    from pbrdf.data import sample as psample
     from pbrdf.data.splits import dataset_split
 
     out = tmp_path / "tm"
@@ -205,7 +206,7 @@ def test_split_prefix_is_labelled_and_keeps_raw(tmp_path):
     res = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert dataset_split(out) == "test-meshes" and dataset.read_manifest(out)["seed"] == 21000
-    sample, meta = dataset.read_sample(out, 0)
+    sample, meta = psample.read_sample(out, 0)
     assert meta["split"] == "test-meshes" and "raw" in sample
     assert meta["objects"][0]["mesh"].split("?")[0].removeprefix("builtin:") in {
         "torus_knot", "vase", "gear", "l_block", "dumbbell", "thin_plate"}  # fmt: skip
@@ -263,13 +264,13 @@ def test_splits_render_with_llvm_unless_told_and_help_lists_the_new_flags():
 
 @pytest.mark.mitsuba
 def test_objects_flag_renders_several_objects(tmp_path):
-    from pbrdf.data import dataset
+    from pbrdf.data import sample as psample
 
     out = tmp_path / "multi"
     _run("headless/render.py", "--out", str(out), "--count", "2", "--seed", "4", "--objects", "2-3", "--variant",
          "llvm", *SMALL)  # fmt: skip
     for i in range(2):
-        sample, meta = dataset.read_sample(out, i)
+        sample, meta = psample.read_sample(out, i)
         n = len(meta["spec"]["objects"])
         assert 2 <= n <= 3 and meta["objects_range"] == [2, 3] and "table_fraction" not in meta
         assert meta["variant"] == "llvm_ad_mono_polarized"
@@ -283,7 +284,7 @@ def test_objects_flag_renders_several_objects(tmp_path):
 @pytest.mark.mitsuba
 def test_test_scenes_split_draws_corpus_files_and_unseen_meshes(tmp_path):
     from pbrdf.brdf import seeds, table
-    from pbrdf.data import dataset
+    from pbrdf.data import sample as psample
     from pbrdf.data.splits import ASSET_CORPORA
 
     corpus = ASSET_CORPORA["assimp-testmodels"]
@@ -302,7 +303,7 @@ def test_test_scenes_split_draws_corpus_files_and_unseen_meshes(tmp_path):
     assert res.returncode == 0, res.stderr
     meshes, counts = [], []
     for i in range(4):
-        sample, meta = dataset.read_sample(out, i)
+        sample, meta = psample.read_sample(out, i)
         counts.append(len(meta["objects"]))
         meshes += [o["mesh"] for o in meta["objects"]]
         ids = set(np.unique(sample["object"]).astype(int).tolist()) - {-1}

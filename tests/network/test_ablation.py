@@ -85,7 +85,7 @@ def splits(tmp_path_factory, pbrdf_library):
 @pytest.mark.mitsuba
 def test_ablation_trains_six_runs_and_writes_the_table(splits, tmp_path, capsys):
     from headless.ablation import main
-    from pbrdf.data import dataset as pdataset
+    from pbrdf.data import sample as psample
 
     out = tmp_path / "abl"
     args = ["--input", str(splits), "--out", str(out), "--scenes", "2", "--steps", "2", "--batch-size", "1",
@@ -106,7 +106,7 @@ def test_ablation_trains_six_runs_and_writes_the_table(splits, tmp_path, capsys)
         assert train["steps"] == 2 and train["seed"] == 0 and len(train["indices"]) == 2
         data = splits / run.data
         for i in train["indices"]:  # the sources' scenes, checked against the sidecars' material kinds
-            meta = json.loads(pdataset.sample_paths(data, i).sidecar.read_text())
+            meta = json.loads(psample.sample_paths(data, i).sidecar.read_text())
             kinds = {meta["materials"][o["material"]]["kind"] == "measured" for o in meta["objects"]}
             assert {"analytic": kinds == {False}, "expanded": kinds == {True}}.get(run.scenes, True)
     # Run again: training is finished, nothing is retrained (same model files).

@@ -8,6 +8,7 @@ import pytest
 
 from network import baseline, metrics
 from pbrdf.sensor import projection
+from pbrdf.sensor.irradiance import irradiance_vectors
 from pbrdf.sensor.rig import Rig
 
 
@@ -31,7 +32,7 @@ def _sphere(size=48, radius=0.15, centre=(0.03, -0.02, -0.7), focal=100.0):
 def _render_unpol(rig, k, normal, depth, mask, albedo):
     """``unpol`` of a Lambertian surface from the exact (horizon-clipped) model."""
     calib = baseline.calibrate(rig, k, mask.shape, np.where(mask, depth, 1.0))
-    phi = baseline.irradiance_vectors(calib.vertices, calib.radiance, calib.points[mask], normal[mask])
+    phi = irradiance_vectors(calib.vertices, calib.radiance, calib.points[mask], normal[mask])
     unpol = np.zeros(mask.shape + (3,))
     unpol[mask] = np.asarray(albedo) / np.pi * np.einsum("pck,pk->pc", phi, normal[mask])
     return unpol

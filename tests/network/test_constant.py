@@ -7,6 +7,7 @@ import pytest
 
 from network import constant
 from pbrdf.data import dataset as pdataset
+from pbrdf.data import sample as psample
 
 
 def test_train_statistics_are_pixel_weighted_means(tiny_dataset, tmp_path):
@@ -14,7 +15,7 @@ def test_train_statistics_are_pixel_weighted_means(tiny_dataset, tmp_path):
     # Independent: pool every masked pixel of every sample, then average.
     pooled = {"albedo": [], "roughness": [], "metallic": []}
     for i in sorted(pdataset.completed_indices(tiny_dataset)):
-        s, _ = pdataset.read_sample(tiny_dataset, i)
+        s, _ = psample.read_sample(tiny_dataset, i)
         for k in pooled:
             pooled[k].append(s[k][s["mask"]].astype(np.float64))
     np.testing.assert_allclose(stats["albedo"], np.concatenate(pooled["albedo"]).mean(0), rtol=1e-6)

@@ -117,12 +117,12 @@ def _forge(root, index, key, fn):
     import hashlib
     import json
 
-    from pbrdf.data import dataset as pdataset
+    from pbrdf.data import sample as psample
     from pbrdf.io.exr import read_exr, write_exr
 
-    paths = pdataset.sample_paths(root, index)
+    paths = psample.sample_paths(root, index)
     channels = read_exr(paths.exr)
-    names = pdataset.CHANNELS[key]
+    names = psample.CHANNELS[key]
     arr = fn(np.stack([channels[n] for n in names], axis=-1))
     for k, n in enumerate(names):
         channels[n] = np.ascontiguousarray(arr[..., k])
@@ -136,13 +136,13 @@ def _forge(root, index, key, fn):
 
 @pytest.fixture
 def small_dataset(tmp_path):
-    from pbrdf.data import dataset as pdataset
+    from pbrdf.data import sample as psample
     from tests.helpers import make_sample
 
     rng = np.random.default_rng(5)
     for i in range(2):
         sample, meta = make_sample(rng)
-        pdataset.write_sample(tmp_path, i, sample, meta)
+        psample.write_sample(tmp_path, i, sample, meta)
     return tmp_path
 
 
@@ -255,12 +255,12 @@ def test_rendered_training_maps_and_decoded_raws_share_units(tmp_path):
     """The training data and the capture path must put the same number on the same radiance."""
     from blender_addon.core.generate import GenerateConfig, generate
     from network.infer import load_input
-    from pbrdf.data import dataset as pdataset
+    from pbrdf.data import sample as psample
 
     root = tmp_path / "ds"
     generate(GenerateConfig(out=root, count=1, resolution=64, spp=8, seed=3, keep_raw=True), progress=False)
-    sample, meta = pdataset.read_sample(root, 0, keys=("maps", "mask"))
-    raw = pdataset.sample_paths(root, 0).raw
+    sample, meta = psample.read_sample(root, 0, keys=("maps", "mask"))
+    raw = psample.sample_paths(root, 0).raw
     inp = load_input(raw)
     decoded, auto = inp.maps, inp.mask
     assert inp.radiance == meta["rig"]["display"]["radiance"] == 1.0

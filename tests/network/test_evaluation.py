@@ -10,7 +10,7 @@ import pytest
 from network import evaluation
 from network.checkpoint import load_checkpoint
 from network.infer import DEFAULT_CHECKPOINT
-from pbrdf.data import dataset as pdataset
+from pbrdf.data import sample as psample
 from pbrdf.io.strict_json import loads_strict
 
 pytestmark = pytest.mark.mitsuba
@@ -35,7 +35,7 @@ def test_every_row_is_scored_on_the_object_coverage(test_split):
     assert result["split"] == "test-procedural" and result["scenes"] == 3
     assert set(result["methods"]) == {"ours", "baseline", "constant"}
     for row in result["per_scene"]:
-        s, _ = pdataset.read_sample(test_split, row["index"], keys=("normal", "object"))
+        s, _ = psample.read_sample(test_split, row["index"], keys=("normal", "object"))
         region = s["object"] >= 0
         assert row["pixels"] == int(region.sum())
         # The constant normal's error, computed independently: angle to +z on the coverage.
@@ -143,8 +143,8 @@ def test_samples_without_raw_brackets_are_scored_from_their_stored_maps(stored_m
     result = evaluation.evaluate_dataset(model, polar, stored_maps, STATS, lpips=False)
     assert result["split"] is None and result["scenes"] == 2 and result["model"] == "Ours"
     for row in result["per_scene"]:
-        sample, meta = pdataset.read_sample(stored_maps, row["index"])
-        assert not pdataset.sample_paths(stored_maps, row["index"]).raw.exists()
+        sample, meta = psample.read_sample(stored_maps, row["index"])
+        assert not psample.sample_paths(stored_maps, row["index"]).raw.exists()
         mask = sample["mask"].astype(bool)
         region = sample["object"] >= 0 if "object" in sample else mask
         assert row["mask_iou"] == pytest.approx((mask & region).sum() / (mask | region).sum())

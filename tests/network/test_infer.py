@@ -195,14 +195,14 @@ class TestLoadInputRequireObject:
             load_input(folder, require_object=True)
 
     def test_sample_with_empty_mask(self, tmp_path, rng):
-        from pbrdf.data import dataset
+        from pbrdf.data import sample as psample
         from tests.helpers import make_sample
 
         sample, meta = make_sample(rng)
         for key in ("mask", "normal", "depth"):
             sample[key][:] = 0  # the ground truth is 0 outside the (now empty) mask
-        dataset.write_sample(tmp_path, 0, sample, meta)
-        path = dataset.sample_paths(tmp_path, 0).exr
+        psample.write_sample(tmp_path, 0, sample, meta)
+        path = psample.sample_paths(tmp_path, 0).exr
         with pytest.raises(ValueError, match="the sample's mask is empty: nothing to reconstruct"):
             load_input(path, require_object=True)
 

@@ -298,7 +298,8 @@ def rendered(tmp_path_factory):
     pytest.importorskip("mitsuba")
     from blender_addon.core import render
     from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec
-    from pbrdf.data import capture, dataset
+    from pbrdf.data import capture
+    from pbrdf.data import sample as psample
 
     to_world = np.eye(4)
     to_world[:3, :3] *= 0.2
@@ -309,7 +310,7 @@ def rendered(tmp_path_factory):
     res = render.render_stokes(spec, render.RenderSettings(resolution=32, spp=32))
     sample, meta = render.synthesize_sample(spec, res, rng=np.random.default_rng(0), noise=False, keep_raw=True)
     root = tmp_path_factory.mktemp("real")
-    dataset.write_sample(root / "ds", 0, sample, meta)
+    psample.write_sample(root / "ds", 0, sample, meta)
     raw_k = np.asarray(meta["intrinsics"]) * np.array([[2.0], [2.0], [1.0]])  # raw grid = 2x the maps' grid
     extra = {"rig": spec.rig.to_dict(), "intrinsics": raw_k.tolist(), "distance_m": 0.6}
     capture.save_capture(root / "cap", sample["raw"], spec.rig.camera.model, extra=extra)

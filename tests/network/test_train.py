@@ -23,6 +23,7 @@ from network.checkpoint import load_checkpoint
 from network.train import TrainConfig, train
 from network.train_files import LOG_COLUMNS
 from pbrdf.data import dataset as pdataset
+from pbrdf.data import sample as psample
 from pbrdf.io import exr
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -51,7 +52,7 @@ def _copy_with(src, dst, edit):
     """Copy a dataset, rewrite each sample's EXR channels with ``edit(index, channels)``; keep the sidecars valid."""
     shutil.copytree(src, dst)
     for idx in sorted(pdataset.completed_indices(dst)):
-        paths = pdataset.sample_paths(dst, idx)
+        paths = psample.sample_paths(dst, idx)
         channels = exr.read_exr(paths.exr)
         edit(idx, channels)
         exr.write_exr(paths.exr, channels, allow_nonfinite=True)
@@ -177,7 +178,7 @@ def test_input_variant_is_applied_and_stored(tiny_dataset, tmp_path):
     from network.data import SampleDataset
     from network.inputs import apply_inputs
 
-    cp_names = pdataset.CHANNELS["maps"][6:]
+    cp_names = psample.CHANNELS["maps"][6:]
 
     def scramble_cp(idx, ch):
         rng = np.random.default_rng(idx)

@@ -15,6 +15,7 @@ pytest.importorskip("mitsuba")
 
 from blender_addon.core.generate import GenerateConfig, generate  # noqa: E402
 from pbrdf.data import dataset  # noqa: E402
+from pbrdf.data import sample as psample  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[3]
 SMALL = {"resolution": 32, "spp": 4}
@@ -32,7 +33,7 @@ def test_shards_union_equals_full_run_bitwise(tmp_path):
     assert _files(tmp_path / "full") == _files(tmp_path / "sharded")
     manifest = dataset.read_manifest(tmp_path / "sharded")
     assert manifest["completed"] == [0, 1, 2, 3]
-    sample, meta = dataset.read_sample(tmp_path / "full", 2)
+    sample, meta = psample.read_sample(tmp_path / "full", 2)
     assert sample["maps"].shape == (32, 32, 9)
     assert meta["run_seed"] == 7 and "mitsuba" in meta["versions"]
     assert meta["materials"] and meta["objects"][0]["mesh"].startswith("builtin:")
@@ -105,7 +106,7 @@ def test_assets_folder_and_rig_file(tmp_path):
     cfg = GenerateConfig(out=tmp_path / "ds", count=1, assets=assets_dir, rig=rig_file, **SMALL)
     report = generate(cfg, progress=False)
     assert report.written == [0], report.failed
-    _, meta = dataset.read_sample(tmp_path / "ds", 0)
+    _, meta = psample.read_sample(tmp_path / "ds", 0)
     assert meta["objects"][0]["mesh"].endswith("ball.glb")
     assert meta["rig"]["camera"]["focal_length"] == 0.012
     assert np.isfinite(meta["intrinsics"]).all() and os.path.exists(tmp_path / "ds" / "manifest.json")
@@ -144,7 +145,7 @@ def test_multi_object_samples_label_every_object_with_its_own_material(tmp_path,
                          table_fraction=0.5, variant="llvm")  # fmt: skip
     report = generate(cfg, progress=False)
     assert report.written == [0], report.failed
-    sample, meta = dataset.read_sample(out, 0)
+    sample, meta = psample.read_sample(out, 0)
     materials = {m["name"]: m for m in meta["spec"]["materials"]}
     objects = meta["spec"]["objects"]
     assert len(objects) == 3 and {m["kind"] for m in materials.values()} == {"measured", "pplastic", "conductor"}
@@ -175,7 +176,7 @@ def test_generated_shapes_render(tmp_path):
     report = generate(GenerateConfig(out=tmp_path, count=3, seed=1, shapes="generated", **SMALL), progress=False)
     assert report.written == [0, 1, 2], report.failed
     for i in range(3):
-        sample, meta = dataset.read_sample(tmp_path, i)
+        sample, meta = psample.read_sample(tmp_path, i)
         assert meta["objects"][0]["mesh"].split("?")[0].removeprefix("builtin:") in GENERATED_SHAPES
         assert sample["mask"].sum() > 20 and np.isfinite(sample["maps"]).all()
 
@@ -212,7 +213,7 @@ def test_bad_config_fails_with_one_line(kwargs, message):
 def test_variant_reaches_the_renderer(tmp_path):
     report = generate(GenerateConfig(out=tmp_path, count=1, resolution=16, spp=4, variant="scalar"), progress=False)
     assert report.written == [0], report.failed
-    _, meta = dataset.read_sample(tmp_path, 0)
+    _, meta = psample.read_sample(tmp_path, 0)
     assert meta["variant"] == dataset.read_manifest(tmp_path)["variant"] == "scalar_spectral_polarized"
 
 
@@ -221,8 +222,8 @@ def test_white_pattern_renders_the_same_scene_under_a_white_display(tmp_path):
     rgb, white = tmp_path / "rgb", tmp_path / "white"
     for out, pattern in ((rgb, None), (white, "white")):
         generate(GenerateConfig(out=out, count=1, resolution=32, spp=4, seed=7, pattern=pattern), progress=False)
-    a, meta_a = dataset.read_sample(rgb, 0, keys=("maps", "mask", "normal"))
-    b, meta_b = dataset.read_sample(white, 0, keys=("maps", "mask", "normal"))
+    a, meta_a = psample.read_sample(rgb, 0, keys=("maps", "mask", "normal"))
+    b, meta_b = psample.read_sample(white, 0, keys=("maps", "mask", "normal"))
     assert meta_b["rig"]["display"]["pattern"] == "white" and meta_a["rig"]["display"]["pattern"] == "rgb_halves"
     assert meta_a["spec"]["objects"] == meta_b["spec"]["objects"]
     np.testing.assert_array_equal(a["normal"], b["normal"])

@@ -184,7 +184,7 @@ def test_heightfield_slab_renders_finite_stokes(tmp_path, seed):
     pytest.importorskip("mitsuba")
     from blender_addon.core import assets, placement, render, scenegen
     from blender_addon.core.spec import ObjectSpec, SceneSpec
-    from pbrdf.data import dataset
+    from pbrdf.data import sample as psample
     from pbrdf.sensor.rig import Rig
 
     ply = tmp_path / "slab.ply"
@@ -198,4 +198,4 @@ def test_heightfield_slab_renders_finite_stokes(tmp_path, seed):
     result = render.render_stokes(spec, render.RenderSettings(resolution=48, spp=4))
     assert np.isfinite(result.stokes).all() and result.mask.sum() > 100
     sample, meta = render.synthesize_sample(spec, result, rng=np.random.default_rng(0))
-    dataset.validate_sample(sample, meta)
+    psample.validate_sample(sample, meta)

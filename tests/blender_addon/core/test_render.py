@@ -17,7 +17,7 @@ pytest.importorskip("mitsuba")
 
 from blender_addon.core import render, scenegen  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
-from pbrdf.data import dataset  # noqa: E402
+from pbrdf.data import sample as psample  # noqa: E402
 from pbrdf.polar import fresnel  # noqa: E402
 from pbrdf.sensor.rig import DisplaySpec, Rig  # noqa: E402
 
@@ -247,7 +247,7 @@ def test_synthesized_sample_is_valid_and_decodes_to_the_rendered_stokes():
     spec = _spec([ObjectSpec("ball", "builtin:blob?seed=3", _translate(0, 0, -0.7, 0.25), "plastic")], [mat], rig=rig)
     res = render.render_stokes(spec, render.RenderSettings(resolution=48, spp=16))
     sample, meta = render.synthesize_sample(spec, res, rng=np.random.default_rng(0), noise=False, keep_stokes=True)
-    dataset.validate_sample(sample, meta)
+    psample.validate_sample(sample, meta)
     assert sample["maps"].shape == (48, 48, 9)
     # The sidecar says how it was rendered: the blob is one convex object, lit directly by the emitter.
     assert (meta["display_model"], meta["integrator"], meta["max_depth"]) == ("emitter", "direct", 2)

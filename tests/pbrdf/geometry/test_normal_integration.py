@@ -98,10 +98,11 @@ def test_bad_normals_stay_finite_and_bad_input_is_refused():
 def test_mitsuba_normals_integrate_to_mitsuba_depth(tiny_dataset):
     """Independent check: Mitsuba's shading normals of a rendered sample integrate to its depth AOV."""
     from pbrdf.data import dataset as pdataset
+    from pbrdf.data import sample as psample
 
     errors = []
     for i in sorted(pdataset.completed_indices(tiny_dataset)):
-        sample, meta = pdataset.read_sample(tiny_dataset, i, keys=("normal", "depth", "mask"))
+        sample, meta = psample.read_sample(tiny_dataset, i, keys=("normal", "depth", "mask"))
         mask = sample["mask"].astype(bool) & (sample["depth"] > 0)
         truth = sample["depth"]
         got = integrate_normals(sample["normal"], mask, np.asarray(meta["intrinsics"]), float(np.median(truth[mask])))
