@@ -41,6 +41,7 @@ from . import assets
 from .generated_shapes import GENERATED_SHAPES
 from .procedural import PROCEDURAL_SHAPES
 from .spec_lights import EnvironmentSpec, LightSpec, _check_keys, _check_name
+from .textures import MaterialTextures
 from .unseen_shapes import UNSEEN_SHAPES
 
 __all__ = [
@@ -75,6 +76,9 @@ class MaterialSpec:
         eta: ``conductor`` only: real part n of the complex IOR ``n - ik`` per channel (R, G, B).
         k: ``conductor`` only: extinction coefficient k >= 0 per channel (R, G, B).
         table: ``measured`` only: path of a Mitsuba pBRDF tensor file.
+        textures: what varies across the surface (:class:`~.textures.MaterialTextures`), or None
+            for a uniform material. With textures, ``albedo``, ``roughness`` and ``metallic`` are
+            the material's mean values (what a renderer without textures shows).
 
     Fields that do not belong to the kind must be None (``ior`` is filled in for ``pplastic``).
     """
@@ -88,6 +92,7 @@ class MaterialSpec:
     eta: tuple[float, float, float] | None = None
     k: tuple[float, float, float] | None = None
     table: str | None = None
+    textures: MaterialTextures | None = None
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
@@ -126,6 +131,10 @@ class MaterialSpec:
                 raise ValueError(f"{where}: k must be >= 0, got {self.k}")
         elif self.kind == "measured" and (not isinstance(self.table, str) or not self.table):
             raise ValueError(f"{where}: kind 'measured' requires table (path of a pBRDF tensor file)")
+        if self.textures is not None and not isinstance(self.textures, MaterialTextures):
+            raise ValueError(f"{where}: textures must be MaterialTextures or None, got {type(self.textures).__name__}")
+        if self.textures is not None and self.textures.tables and self.kind != "measured":
+            raise ValueError(f"{where}: only kind 'measured' mixes tables (textures.tables)")
 
     @classmethod
     def plastic(cls, name: str, albedo: tuple[float, float, float], roughness: float, ior: float = 1.5) -> MaterialSpec:
@@ -181,12 +190,17 @@ class MaterialSpec:
         for name in _KIND_FIELDS[self.kind]:
             value = getattr(self, name)
             d[name] = list(value) if isinstance(value, tuple) else value
+        if self.textures is not None:
+            d["textures"] = self.textures.to_dict()
         return d
 
     @classmethod
     def from_dict(cls, d: dict) -> MaterialSpec:
         """Inverse of :meth:`to_dict`; unknown or missing keys raise ValueError."""
-        _check_keys(d, "material", ("name", "kind", "albedo", "roughness", "metallic"), ("ior", "eta", "k", "table"))
+        _check_keys(d, "material", ("name", "kind", "albedo", "roughness", "metallic"),
+                    ("ior", "eta", "k", "table", "textures"))  # fmt: skip
+        if "textures" in d:
+            d = {**d, "textures": MaterialTextures.from_dict(d["textures"])}
         return cls(**d)
 
 
