@@ -11,7 +11,7 @@ import torch
 from network.config import get_config
 from network.infer import load_input, predict
 from network.model.polar_model import PolarInverseModel
-from pbrdf.data import capture, predictions
+from pbrdf.data import capture
 from pbrdf.data.predictions import write_predictions
 from pbrdf.io import exr
 from pbrdf.sensor import camera
@@ -162,14 +162,15 @@ class TestWritePredictions:
             out.mkdir()
             (out / "keep.txt").write_text("x")
         calls = []
+        write_exr = exr.write_exr
 
         def failing(path, channels, **kw):
             calls.append(path)
             if len(calls) == 3:
                 raise OSError("disk full (simulated)")
-            return exr.write_exr(path, channels, **kw)
+            return write_exr(path, channels, **kw)
 
-        monkeypatch.setattr(predictions, "write_exr", failing)
+        monkeypatch.setattr(exr, "write_exr", failing)  # write_predictions imports it when it runs
         with pytest.raises(OSError, match="disk full"):
             write_predictions(out, "x", self._pred())
         if existing:
