@@ -109,12 +109,12 @@ def _levels(value: Any, name: str) -> NDArray[np.float64]:
     return a
 
 
-def _colour(mask: NDArray, **levels: Any) -> NDArray[np.float64]:
-    """Blend ``(H, W)`` masks between levels: ``levels`` in order, each mask moving to the next level."""
-    names = list(levels)
-    values = [_levels(levels[n], n) for n in names]
-    out = np.broadcast_to(values[0], mask.shape[:2] + (max(v.size for v in values),)).copy()
-    for m, v in zip(mask if isinstance(mask, list) else [mask], values[1:], strict=True):
+def _colour(masks: NDArray | list[NDArray], **levels: Any) -> NDArray[np.float64]:
+    """``(H, W, 1 or 3)``: the first level, blended toward each next level by its ``(H, W)`` mask in turn."""
+    masks = masks if isinstance(masks, list) else [masks]
+    values = [_levels(v, name) for name, v in levels.items()]
+    out = np.broadcast_to(values[0], masks[0].shape + (max(v.size for v in values),)).copy()
+    for m, v in zip(masks, values[1:], strict=True):
         out += m[..., None] * (v - out)
     return out
 
@@ -189,7 +189,7 @@ def _decals(size: int, seed: int, *, count: int = 3, labels: float = 0.5, discs:
                 w = rng.uniform(0.1, 0.45) * hu
                 if start + w > cu + 0.85 * hu:
                     break
-                bar = _box(u, v, start + w / 2, lv, w / 2, 0.3 * pitch)
+                bar = _box(u, v, start + w / 2, lv, w / 2, 0.2 * pitch)
                 text = np.maximum(text, _soft_step(bar, px))
                 start += w + 0.08 * hu
     text *= shape
