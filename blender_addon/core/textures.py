@@ -21,6 +21,7 @@ Conventions:
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -517,9 +518,14 @@ def _to_linear(values: NDArray, srgb: bool) -> NDArray[np.float32]:
     """Stored values to linear floats: integers scaled by their maximum (a lookup table), sRGB decoded."""
     if values.dtype.kind == "f":
         return srgb_to_linear(np.clip(values, 0.0, 1.0)) if srgb else values.astype(np.float32)
-    top = np.iinfo(values.dtype).max
+    return _lut(np.iinfo(values.dtype).max, srgb)[values]
+
+
+@functools.lru_cache(maxsize=4)
+def _lut(top: int, srgb: bool) -> NDArray[np.float32]:
+    """Linear value of every integer code ``0..top`` (8 or 16 bits)."""
     lut = np.arange(top + 1, dtype=np.float64) / top
-    return (srgb_to_linear(lut) if srgb else lut.astype(np.float32))[values]
+    return srgb_to_linear(lut) if srgb else lut.astype(np.float32)
 
 
 def _box_weights(n_in: int, n_out: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
@@ -544,12 +550,13 @@ def _area_resample(pixels: NDArray, linear, h_out: int, w_out: int) -> NDArray[n
     h, w = pixels.shape[:2]
     ri, rw = _box_weights(h, h_out)
     ci, cw = _box_weights(w, w_out)
+    rw, cw = rw.astype(np.float32), cw.astype(np.float32)  # a few taps per sum: float32 keeps 1e-7
     block = max(1, 2**22 // (ri.shape[1] * w * pixels.shape[-1]))  # output rows per strip: ~4 M input values
     out = []
     for r0 in range(0, h_out, block):
         idx, wts = ri[r0 : r0 + block], rw[r0 : r0 + block]
         lo = int(idx.min())
-        strip = linear(pixels[lo : int(idx.max()) + 1]).astype(np.float64)
+        strip = linear(pixels[lo : int(idx.max()) + 1])
         rows = sum(wts[:, j, None, None] * strip[idx[:, j] - lo] for j in range(idx.shape[1]))
         out.append(sum(cw[None, :, j, None] * rows[:, ci[:, j]] for j in range(ci.shape[1])))
     return np.concatenate(out).astype(np.float32)
