@@ -349,8 +349,8 @@ def _albedo_texture(rng: np.random.Generator, base: NDArray, size: int) -> Textu
                      grain=float(rng.uniform(0.0, 0.3)))  # fmt: skip
     fill = [float(x) for x in rng.uniform(0.05, 0.9, 3)]
     ink = [float(x) for x in rng.uniform(0.0, 0.15, 3)]
-    return _spec("decals", (0, 1, 2), (1.0, 1.0, 1.0), seed=seed, size=size, count=int(rng.integers(1, 5)),
-                 background=[float(x) for x in base], fill=fill, ink=ink,
+    return _spec("decals", (0, 1, 2), (1.0, 1.0, 1.0), seed=seed, size=size, count=int(rng.integers(2, 7)),
+                 labels=0.7, background=[float(x) for x in base], fill=fill, ink=ink,
                  grain=float(rng.uniform(0.0, 0.3)))  # fmt: skip
 
 
