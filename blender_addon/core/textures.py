@@ -38,6 +38,7 @@ from pbrdf.io.errors import one_line
 
 from .map_io import srgb_to_linear
 from .spec_lights import _check_keys
+from .texture_patterns import pattern_array
 
 __all__ = [
     "CACHE_BYTES",
@@ -401,9 +402,10 @@ def _stamp(tex: TextureSpec) -> tuple:
 def _read_source(tex: TextureSpec) -> _Image:
     """The one dispatch on a texture's source: a procedural pattern, an image inside a file, a file."""
     if tex.procedural:
-        from .texture_patterns import pattern_array  # noqa: PLC0415 - it imports this module
-
-        arr = pattern_array(tex.source[len(PROCEDURAL_PREFIX) :], tex.params or {})
+        try:
+            arr = pattern_array(tex.source[len(PROCEDURAL_PREFIX) :], tex.params or {})
+        except ValueError as e:
+            raise ValueError(f"texture {tex.source!r}: {e}") from None
         return _Image(arr, {1: "L", 3: "RGB", 4: "RGBA"}.get(arr.shape[-1], ""), True)
     path, fragment = _split_source(tex.source)
     if fragment is not None:
@@ -428,19 +430,32 @@ def _read_file(path: Path) -> _Image:
     from pbrdf.data.raw_files import open_image  # noqa: PLC0415
 
     try:
-        with open_image(path, "texture") as im:
-            im.load()
-            mode = im.mode
-            if mode in _CONVERT or mode not in ("L", "LA", "RGB", "RGBA", "F") and not mode.startswith("I"):
-                has_alpha = "A" in mode or "transparency" in im.info
-                target = _CONVERT.get(mode, "RGB")
-                target = {"L": "LA", "RGB": "RGBA"}.get(target, target) if has_alpha else target
-                return _Image(np.asarray(im.convert(target)), target, True)
-            arr = np.asarray(im)
+        im = open_image(path, "texture")  # an image bomb: refused from its header, one line naming the file
     except UnidentifiedImageError:
         raise ValueError(f"{path}: not a readable image (unknown format)") from None
-    except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError) as e:
+    except OSError as e:
         raise ValueError(f"{path}: cannot read texture ({one_line(e)})") from None
+    with im:
+        try:
+            im.load()
+        except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError) as e:
+            raise ValueError(f"{path}: cannot read texture ({one_line(e)})") from None  # truncated, corrupt
+        return _pillow_pixels(path, im)
+
+
+def _pillow_pixels(path: Path, im) -> _Image:
+    """A loaded Pillow image as stored values: 8/16-bit integers, or floats; other modes converted."""
+    mode = im.mode
+    if mode in ("F", "L", "LA", "RGB", "RGBA") or mode.startswith("I;16") or mode == "I":
+        if "transparency" in im.info and mode in ("L", "RGB"):  # a tRNS colour key: make it alpha
+            mode = mode + "A" if mode == "L" else "RGBA"
+            return _Image(np.asarray(im.convert(mode)), mode, True)
+        arr = np.asarray(im)
+    else:  # paletted, bilevel, CMYK, ...: converted (a palette keeps its transparency as alpha)
+        has_alpha = "A" in mode or "transparency" in im.info
+        target = _CONVERT.get(mode, "RGB")
+        target = {"L": "LA", "RGB": "RGBA"}.get(target, target) if has_alpha else target
+        return _Image(np.asarray(im.convert(target)), target, True)
     if mode == "F":  # a float image (TIFF): linear values, like EXR
         return _checked_float(path, arr[..., None].astype(np.float32), "L")
     if mode.startswith("I"):  # 16-bit (or 32-bit integer) grey

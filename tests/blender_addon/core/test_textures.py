@@ -102,6 +102,11 @@ class TestDecoding:
         got = texture_array(spec(tmp_path / "p.png", channels=(0, 1, 2, 3)))
         np.testing.assert_array_equal(got[0], [[1, 0, 0, 1], [0, 0, 1, 0]])
 
+    def test_transparent_key_colour_becomes_alpha(self, tmp_path):
+        Image.fromarray(np.array([[0, 255]], np.uint8)).save(tmp_path / "k.png", transparency=0)  # tRNS chunk
+        got = texture_array(spec(tmp_path / "k.png", channels=(0, 3)))
+        np.testing.assert_array_equal(got[0], [[0, 0], [1, 1]])
+
     def test_grey_alpha_png(self, tmp_path):
         la = np.array([[[128, 64]]], np.uint8)
         Image.fromarray(la, mode="LA").save(tmp_path / "la.png")
