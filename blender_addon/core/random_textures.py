@@ -114,7 +114,7 @@ def random_material_textures(
             kw["metallic"] = _spec("wear", (0,), (1.0,), seed=seed, size=size, amount=float(rng.uniform(0.05, 0.3)))
     if rng.random() < 0.3:
         kw["normal"] = _spec("normal", (0, 1, 2), (1.0, 1.0, 1.0), seed=_seed(rng), size=size,
-                             depth=float(rng.uniform(0.001, 0.006)), base=int(rng.integers(4, 17)))  # fmt: skip
+                             depth=float(rng.uniform(0.003, 0.015)), base=int(rng.integers(4, 17)))  # fmt: skip
     if tables:
         n = len(tables)
         kw["tables"] = tuple(tables)
