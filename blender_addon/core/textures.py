@@ -21,18 +21,39 @@ Conventions:
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import Any, NamedTuple
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .spec_lights import _check_keys
+from pbrdf.io.errors import one_line
 
-__all__ = ["COLORSPACES", "MAX_TABLES", "PROCEDURAL_PREFIX", "MaterialTextures", "TextureSpec", "texture_array"]
+from .map_io import srgb_to_linear
+from .spec_lights import _check_keys
+from .texture_patterns import pattern_array
+
+__all__ = [
+    "CACHE_BYTES",
+    "CACHE_ENTRIES",
+    "COLORSPACES",
+    "MAX_TABLES",
+    "PROCEDURAL_PREFIX",
+    "MaterialTextures",
+    "TextureNotFoundError",
+    "TextureSpec",
+    "clear_texture_cache",
+    "texture_array",
+    "texture_mean",
+    "texture_size_for",
+]
 
 #: How an image's values become the quantity's: sRGB-encoded colour, or linear data.
 COLORSPACES = ("srgb", "linear")
@@ -224,32 +245,333 @@ class MaterialTextures:
         return cls(**kw)
 
 
-def texture_array(tex: TextureSpec) -> NDArray[np.float32]:
+class TextureNotFoundError(FileNotFoundError, ValueError):
+    """A texture file that does not exist: a ``FileNotFoundError`` and, as all bad texture input, a ``ValueError``."""
+
+
+class _Image(NamedTuple):
+    """A decoded source before channel selection.
+
+    pixels: ``(H, W, K)`` uint8 / uint16 (integer-coded, scaled to [0, 1] by the type's maximum)
+        or float32 (as stored). bands: ``"L"``, ``"LA"``, ``"RGB"``, ``"RGBA"`` (which image
+        channel is which), or ``""`` for channels picked by index. encoded: whether ``"srgb"``
+        decoding applies (integer files and procedural patterns; EXR floats are linear).
+    """
+
+    pixels: NDArray
+    bands: str
+    encoded: bool
+
+
+#: Decoded textures kept for reuse by a dataset run: entries, and bytes in all.
+CACHE_ENTRIES = 16
+CACHE_BYTES = 512 * 2**20
+_cache: OrderedDict[tuple, NDArray[np.float32]] = OrderedDict()
+_cache_lock = threading.Lock()
+# Pillow modes converted before reading, by the mode they become (paletted, bilevel, other colour models).
+_CONVERT = {"1": "L", "P": "RGB", "PA": "RGBA", "La": "LA", "RGBa": "RGBA", "CMYK": "RGB", "YCbCr": "RGB",
+            "LAB": "RGB", "HSV": "RGB", "RGBX": "RGB"}  # fmt: skip
+
+
+def texture_size_for(resolution: int, coverage: float = 1.0, *, texels_per_pixel: float = 2.0) -> int:
+    """The texture side that a render can show: ``texels_per_pixel`` texels per rendered pixel.
+
+    A pixel averages the texture over its footprint, so detail finer than about two texels per
+    pixel (the Nyquist rate of the pixel grid) is averaged away in the image and in its
+    ground truth alike; a larger texture only costs memory and time. ``coverage`` is the fraction
+    of the image's longer side the texture's UV square spans (1: the whole frame, the safe
+    bound for a single object). A texture atlas whose parts use a fraction ``f`` of the UV square
+    needs ``1 / f`` times more: pass ``coverage / f``; a texture repeated ``s`` times (UV scale)
+    needs ``1 / s``.
+
+    Args:
+        resolution: the render's longer side in pixels.
+        coverage: see above, > 0.
+        texels_per_pixel: texels kept per pixel of the texture's footprint.
+
+    Returns:
+        The largest texture side worth keeping (at least 8): ``max_size`` for :func:`texture_array`.
+
+    Example:
+        >>> texture_size_for(384), texture_size_for(384, 0.5)
+        (768, 384)
+    """
+    if not resolution > 0 or not coverage > 0 or not texels_per_pixel > 0:
+        raise ValueError(f"resolution, coverage and texels_per_pixel must be > 0, got {resolution}, {coverage}, "
+                         f"{texels_per_pixel}")  # fmt: skip
+    return max(8, math.ceil(texels_per_pixel * resolution * coverage))
+
+
+def texture_array(tex: TextureSpec, *, max_size: int | None = None) -> NDArray[np.float32]:
     """The quantity's values over the image: ``factor * image[..., channels]``, linear, row 0 at the top.
 
-    Files are read with :func:`.map_io.read_channels` (PNG/JPEG scaled to [0, 1], EXR as stored);
-    a grey image serves every channel, and a missing alpha channel reads as 1.
+    Sources (one dispatch, :func:`_read_source`): PNG, JPEG and whatever else Pillow reads
+    (8-bit values / 255, 16-bit grey / 65535; paletted, bilevel and CMYK images converted to RGB(A);
+    Pillow reads 16-bit colour PNGs at 8-bit precision), EXR (floats as stored, never sRGB-decoded;
+    NaN or Inf refused), and ``procedural:<pattern>`` (:mod:`.texture_patterns`, treated as an
+    8-bit image's values). Channels: ``0, 1, 2`` are R, G, B (a grey image serves all three);
+    ``3`` is alpha, 1.0 (opaque) where the image has none. ``"srgb"`` decodes the colour channels
+    only, never alpha. An image declaring more pixels than
+    :func:`pbrdf.data.raw_files.max_raw_pixels` is refused before its pixels are decoded.
+
+    Decoded arrays are cached (:data:`CACHE_ENTRIES`, :data:`CACHE_BYTES`, least recently used
+    dropped), keyed by the source, the file's modification time and size, the channels, the
+    colour space and ``max_size``: samples of a dataset run reuse them.
+
+    Args:
+        tex: the texture.
+        max_size: the longest side kept (:func:`texture_size_for`); a larger image is reduced by
+            area averaging (a box filter over the exact texel footprints, on linear values, so the
+            mean is kept), its longer side to ``max_size`` and the other in proportion. None keeps
+            the full size.
 
     Returns:
         ``(H, W, len(channels))`` float32.
 
     Raises:
-        FileNotFoundError: no such file.
-        ValueError: unreadable file, or a procedural source (not built yet).
-    """
-    from . import map_io  # noqa: PLC0415
+        TextureNotFoundError: no such file (a ``FileNotFoundError`` and a ``ValueError``).
+        ValueError: one line naming the source and the reason: unreadable, truncated, too large,
+            non-finite values, a channel a procedural pattern lacks, an unknown pattern.
 
+    Example:
+        >>> p = {"seed": 0, "size": 8, "cells": 4}
+        >>> t = TextureSpec("procedural:checker", channels=(0,), factor=(1.0,), params=p)
+        >>> texture_array(t, max_size=4)[..., 0].tolist()[0]  # a 2x2-texel checker halved exactly
+        [0.0, 1.0, 0.0, 1.0]
+    """
+    if max_size is not None and (isinstance(max_size, bool) or not isinstance(max_size, int) or max_size < 1):
+        raise ValueError(f"max_size must be a positive integer or None, got {max_size!r}")
+    key = (_stamp(tex), tex.channels, tex.colorspace, max_size)
+    with _cache_lock:
+        img = _cache.get(key)
+        if img is not None:
+            _cache.move_to_end(key)
+    if img is None:
+        img = _decode(tex, max_size)
+        img.setflags(write=False)  # shared by every caller of the cache
+        _remember(key, img)
+    return img * np.asarray(tex.factor, np.float32)
+
+
+def texture_mean(tex: TextureSpec) -> tuple[float, ...]:
+    """The texture's mean value per channel (a textured material's constant, e.g. its albedo).
+
+    Example:
+        >>> t = TextureSpec("procedural:checker", channels=(0,), factor=(0.5,), params={"seed": 0, "size": 64})
+        >>> texture_mean(t)
+        (0.25,)
+    """
+    return tuple(float(m) for m in texture_array(tex, max_size=64).mean(axis=(0, 1), dtype=np.float64))
+
+
+def clear_texture_cache() -> None:
+    """Forget every cached texture (a test, or a caller freeing memory)."""
+    with _cache_lock:
+        _cache.clear()
+
+
+def _remember(key: tuple, img: NDArray) -> None:
+    if img.nbytes > CACHE_BYTES:
+        return
+    with _cache_lock:
+        _cache[key] = img
+        while len(_cache) > CACHE_ENTRIES or sum(a.nbytes for a in _cache.values()) > CACHE_BYTES:
+            _cache.popitem(last=False)
+
+
+def _split_source(source: str) -> tuple[str, str | None]:
+    """``(file, fragment)``: ``"model.glb#image=3"`` names an image inside a file."""
+    path, sep, fragment = source.rpartition("#")
+    if not sep or not path or os.path.exists(source):  # a file whose name holds '#' stays a file
+        return source, None
+    return path, fragment
+
+
+def _stamp(tex: TextureSpec) -> tuple:
+    """What identifies the source's content: the pattern and its params, or the file and its mtime/size."""
     if tex.procedural:
-        raise ValueError(f"texture {tex.source!r}: procedural textures are not available yet")
-    chans, is_float = map_io.read_channels(tex.source)
-    names = list(chans)
-    if set("RGB") <= set(names):
-        order = [chans["R"], chans["G"], chans["B"], chans.get("A")]
+        return (tex.source, json.dumps(tex.params, sort_keys=True))
+    path, fragment = _split_source(tex.source)
+    try:
+        st = os.stat(path)
+    except OSError:
+        return (tex.source, None)  # reading it reports why
+    return (tex.source, fragment, st.st_mtime_ns, st.st_size)
+
+
+def _read_source(tex: TextureSpec) -> _Image:
+    """The one dispatch on a texture's source: a procedural pattern, an image inside a file, a file."""
+    if tex.procedural:
+        try:
+            arr = pattern_array(tex.source[len(PROCEDURAL_PREFIX) :], tex.params or {})
+        except ValueError as e:
+            raise ValueError(f"texture {tex.source!r}: {e}") from None
+        return _Image(arr, {1: "L", 3: "RGB", 4: "RGBA"}.get(arr.shape[-1], ""), True)
+    path, fragment = _split_source(tex.source)
+    if fragment is not None:
+        return _read_embedded(Path(path), fragment)
+    return _read_file(Path(path))
+
+
+def _read_embedded(path: Path, fragment: str) -> _Image:
+    """Hook for images inside a file (``model.glb#image=3``): not supported yet."""
+    raise ValueError(f"{path}#{fragment}: images embedded in a file are not supported yet")
+
+
+def _read_file(path: Path) -> _Image:
+    if not path.is_file():
+        if path.exists():
+            raise ValueError(f"{path}: texture is not a file")
+        raise TextureNotFoundError(f"{path}: texture file not found")
+    if path.suffix.lower() == ".exr":
+        return _read_exr(path)
+    from PIL import Image, UnidentifiedImageError  # noqa: PLC0415
+
+    from pbrdf.data.raw_files import open_image  # noqa: PLC0415
+
+    try:
+        im = open_image(path, "texture")  # an image bomb: refused from its header, one line naming the file
+    except UnidentifiedImageError:
+        raise ValueError(f"{path}: not a readable image (unknown format)") from None
+    except OSError as e:
+        raise ValueError(f"{path}: cannot read texture ({one_line(e)})") from None
+    with im:
+        try:
+            im.load()
+        except (OSError, SyntaxError, ValueError, EOFError, Image.DecompressionBombError) as e:
+            raise ValueError(f"{path}: cannot read texture ({one_line(e)})") from None  # truncated, corrupt
+        return _pillow_pixels(path, im)
+
+
+def _pillow_pixels(path: Path, im) -> _Image:
+    """A loaded Pillow image as stored values: 8/16-bit integers, or floats; other modes converted."""
+    mode = im.mode
+    if mode in ("F", "L", "LA", "RGB", "RGBA") or mode.startswith("I;16") or mode == "I":
+        if "transparency" in im.info and mode in ("L", "RGB"):  # a tRNS colour key: make it alpha
+            mode = mode + "A" if mode == "L" else "RGBA"
+            return _Image(np.asarray(im.convert(mode)), mode, True)
+        arr = np.asarray(im)
+    else:  # paletted, bilevel, CMYK, ...: converted (a palette keeps its transparency as alpha)
+        has_alpha = "A" in mode or "transparency" in im.info
+        target = _CONVERT.get(mode, "RGB")
+        target = {"L": "LA", "RGB": "RGBA"}.get(target, target) if has_alpha else target
+        return _Image(np.asarray(im.convert(target)), target, True)
+    if mode == "F":  # a float image (TIFF): linear values, like EXR
+        return _checked_float(path, arr[..., None].astype(np.float32), "L")
+    if mode.startswith("I"):  # 16-bit (or 32-bit integer) grey
+        if arr.size and (arr.min() < 0 or arr.max() > 65535):
+            raise ValueError(f"{path}: integer texture values outside 0..65535 (mode {mode})")
+        return _Image(arr.astype(np.uint16)[..., None], "L", True)
+    return _Image(arr.reshape(*arr.shape[:2], -1), mode, True)
+
+
+def _read_exr(path: Path) -> _Image:
+    from pbrdf.data.raw_files import max_raw_pixels  # noqa: PLC0415
+
+    try:
+        from pbrdf.io.exr import read_exr, read_exr_header  # noqa: PLC0415
+    except ImportError as e:  # Blender's bundled Python lacks OpenEXR
+        raise ValueError(f"{path}: reading EXR textures needs the OpenEXR package ({e})") from None
+    head = read_exr_header(path)
+    if head["width"] * head["height"] > max_raw_pixels():
+        raise ValueError(f"{path}: texture image too large to read ({head['width']}x{head['height']} pixels)")
+    chans = read_exr(path)
+    comps: dict[str, list[str]] = {}
+    for name in chans:
+        comps.setdefault(name.rpartition(".")[2].upper(), []).append(name)
+    pick = {c: names[0] for c, names in comps.items() if len(names) == 1}
+    alpha = ["A"] if "A" in pick else []
+    if all(c in pick for c in "RGB"):
+        bands = ["R", "G", "B", *alpha]
+    elif "Y" in pick or len(chans) == 1:
+        bands = ["Y" if "Y" in pick else next(iter(comps)), *alpha]
     else:
-        grey = chans.get("Y", next(iter(chans.values())))
-        order = [grey, grey, grey, chans.get("A")]
-    planes = [order[c] if order[c] is not None else np.ones_like(order[0]) for c in tex.channels]
-    img = np.stack(planes, axis=-1).astype(np.float32)
-    if tex.colorspace == "srgb" and not is_float:
-        img = map_io.srgb_to_linear(img)
-    return (img * np.asarray(tex.factor, np.float32)).astype(np.float32)
+        raise ValueError(f"{path}: cannot tell which EXR channels are R, G, B or Y; channels: {sorted(chans)}")
+    arr = np.stack([np.asarray(chans[pick[c]], np.float32) for c in bands], axis=-1)
+    return _checked_float(path, arr, {1: "L", 2: "LA", 3: "RGB", 4: "RGBA"}[len(bands)])
+
+
+def _checked_float(path: Path, arr: NDArray, bands: str) -> _Image:
+    bad = int(np.count_nonzero(~np.isfinite(arr)))
+    if bad:
+        raise ValueError(f"{path}: texture holds {bad} NaN/Inf value(s)")
+    return _Image(arr, bands, False)
+
+
+def _plane(image: _Image, c: int, where: str) -> int | None:
+    """The image channel serving texture channel ``c``; None for a missing alpha (reads 1.0)."""
+    bands = image.bands
+    if bands:
+        if c == 3:
+            return bands.index("A") if "A" in bands else None
+        return c if bands.startswith("RGB") else 0
+    if c < image.pixels.shape[-1]:
+        return c
+    raise ValueError(f"{where}: has {image.pixels.shape[-1]} channel(s), no channel {c}")
+
+
+def _decode(tex: TextureSpec, max_size: int | None) -> NDArray[np.float32]:
+    """The selected channels, linear, area-averaged to ``max_size``; uncached, without factor."""
+    image = _read_source(tex)
+    planes = [_plane(image, c, f"texture {tex.source!r}") for c in tex.channels]
+    decode = [tex.colorspace == "srgb" and image.encoded and c != 3 for c in tex.channels]
+
+    def linear(rows: NDArray) -> NDArray[np.float32]:  # (h, W, K) stored values -> (h, W, C) linear
+        out = np.empty(rows.shape[:2] + (len(planes),), np.float32)
+        for i, (p, d) in enumerate(zip(planes, decode, strict=True)):
+            out[..., i] = 1.0 if p is None else _to_linear(rows[..., p], d)
+        return out
+
+    h, w = image.pixels.shape[:2]
+    if max_size is None or max(h, w) <= max_size:
+        return linear(image.pixels)
+    s = max_size / max(h, w)
+    return _area_resample(image.pixels, linear, max(1, round(h * s)), max(1, round(w * s)))
+
+
+def _to_linear(values: NDArray, srgb: bool) -> NDArray[np.float32]:
+    """Stored values to linear floats: integers scaled by their maximum (a lookup table), sRGB decoded."""
+    if values.dtype.kind == "f":
+        return srgb_to_linear(np.clip(values, 0.0, 1.0)) if srgb else values.astype(np.float32)
+    return _lut(np.iinfo(values.dtype).max, srgb)[values]
+
+
+@functools.lru_cache(maxsize=4)
+def _lut(top: int, srgb: bool) -> NDArray[np.float32]:
+    """Linear value of every integer code ``0..top`` (8 or 16 bits)."""
+    lut = np.arange(top + 1, dtype=np.float64) / top
+    return srgb_to_linear(lut) if srgb else lut.astype(np.float32)
+
+
+def _box_weights(n_in: int, n_out: int) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Area-averaging weights: output cell ``i`` covers input ``[i r, (i + 1) r)``, ``r = n_in / n_out``.
+
+    Returns:
+        ``(index, weight)``, each ``(n_out, k)``: output ``i`` is ``sum_j weight[i, j] * in[index[i, j]]``;
+        each row of weights sums to 1 (the overlap of the input cell with the footprint, over ``r``).
+    """
+    r = n_in / n_out
+    start = np.arange(n_out) * r
+    index = np.floor(start).astype(np.int64)[:, None] + np.arange(math.ceil(r) + 1)
+    overlap = np.minimum(start[:, None] + r, index + 1) - np.maximum(start[:, None], index)
+    return np.minimum(index, n_in - 1), np.clip(overlap, 0.0, None) / r
+
+
+def _area_resample(pixels: NDArray, linear, h_out: int, w_out: int) -> NDArray[np.float32]:
+    """Box-filter ``pixels`` (stored values) to ``(h_out, w_out)`` in linear values, a strip of rows at a time.
+
+    Only a strip of rows is converted to float at once: a large 8-bit image never exists as floats.
+    """
+    h, w = pixels.shape[:2]
+    ri, rw = _box_weights(h, h_out)
+    ci, cw = _box_weights(w, w_out)
+    rw, cw = rw.astype(np.float32), cw.astype(np.float32)  # a few taps per sum: float32 keeps 1e-7
+    block = max(1, 2**22 // (ri.shape[1] * w * pixels.shape[-1]))  # output rows per strip: ~4 M input values
+    out = []
+    for r0 in range(0, h_out, block):
+        idx, wts = ri[r0 : r0 + block], rw[r0 : r0 + block]
+        lo = int(idx.min())
+        strip = linear(pixels[lo : int(idx.max()) + 1])
+        rows = sum(wts[:, j, None, None] * strip[idx[:, j] - lo] for j in range(idx.shape[1]))
+        out.append(sum(cw[None, :, j, None] * rows[:, ci[:, j]] for j in range(ci.shape[1])))
+    return np.concatenate(out).astype(np.float32)
