@@ -85,7 +85,7 @@ class TextureSpec:
         channels: the image channels that hold the quantity (``(0, 1, 2)`` for a colour,
             ``(1,)`` for glTF's roughness in G, ``(2,)`` for its metallic in B).
         factor: multiplies the channels (glTF's ``baseColorFactor``, ``roughnessFactor``, ...);
-            one number per channel.
+            one number per channel, or one for all; default 1.
         colorspace: ``"srgb"`` (colour images, decoded to linear) or ``"linear"`` (data).
         offset, rotation, scale: ``KHR_texture_transform`` (rotation in radians).
         params: the procedural pattern's parameters (JSON values); empty for a file.
@@ -93,7 +93,7 @@ class TextureSpec:
 
     source: str
     channels: tuple[int, ...] = (0, 1, 2)
-    factor: tuple[float, ...] = (1.0, 1.0, 1.0)
+    factor: tuple[float, ...] | None = None
     colorspace: str = "linear"
     offset: tuple[float, float] = (0.0, 0.0)
     rotation: float = 0.0
@@ -114,7 +114,7 @@ class TextureSpec:
         if not 1 <= len(channels) <= 4 or not all(0 <= c < 4 for c in channels):
             raise ValueError(f"{where}: channels must be 1 to 4 indices in 0..3, got {self.channels!r}")
         put(self, "channels", channels)
-        put(self, "factor", _floats(self.factor, len(channels), f"{where}: factor"))
+        put(self, "factor", _floats(1.0 if self.factor is None else self.factor, len(channels), f"{where}: factor"))
         if self.colorspace not in COLORSPACES:
             raise ValueError(f"{where}: colorspace must be one of {list(COLORSPACES)}, got {self.colorspace!r}")
         put(self, "offset", _floats(self.offset, 2, f"{where}: offset"))
