@@ -12,7 +12,10 @@ Methods (:data:`METHODS`): ``ours``, the model (:func:`network.infer.predict`, w
 checkpoint's input variant), labelled by the checkpoint (:func:`model_label`); ``baseline``,
 calibrated colour photometric stereo (:func:`network.baseline.predict_sample`; n/a under the white
 display); ``constant``, normal (0, 0, 1) and the training set's mean albedo, roughness and metallic
-(:mod:`network.constant`). Only an empty mask (:class:`pbrdf.io.errors.NothingToReconstruct`)
+(:mod:`network.constant`); ``object_mean``, an oracle that knows each object's mean albedo,
+roughness and metallic but nothing of their variation (:func:`object_mean_predict`; n/a on a
+scene whose objects are uniform, where it would equal the truth), so a table shows whether a
+model recovers the variation within an object. Only an empty mask (:class:`pbrdf.io.errors.NothingToReconstruct`)
 leaves a scene to the constant answer; any other failure of the model (a broken checkpoint that
 predicts NaN) stops the evaluation.
 
@@ -60,6 +63,7 @@ __all__ = [
     "METRICS",
     "ScenePredictions",
     "model_label",
+    "object_mean_predict",
     "predict_scene",
     "score",
     "score_scene",
@@ -75,6 +79,7 @@ METHODS = {
     "ours": "Ours",
     "baseline": "Photometric stereo (calibrated)",
     "constant": "Constant (normal to camera, train means)",
+    "object_mean": "Per-object mean (oracle: each object's mean material, no texture)",
 }
 #: Columns: (key, header, higher is better).
 METRICS = (
@@ -121,6 +126,37 @@ def _fill_nearest(pred: Mapping[str, np.ndarray], have: np.ndarray, region: np.n
         filled[missing] = v[iy[missing], ix[missing]]
         out[k] = filled
     return out
+
+
+def object_mean_predict(
+    gt: Mapping[str, np.ndarray], region: np.ndarray, objects: np.ndarray | None, *, tol: float = 1e-4
+) -> dict[str, np.ndarray]:
+    """Each object's mean true albedo, roughness and metallic over its pixels; ``{}`` if no object varies.
+
+    Args:
+        gt: true ``albedo (H, W, 3)``, ``roughness (H, W)``, ``metallic (H, W)``.
+        region: ``(H, W)`` bool, the object coverage.
+        objects: ``(H, W)`` object id per pixel, or None (the whole region is one object).
+        tol: a quantity whose standard deviation within every object is at most this is uniform.
+
+    Returns:
+        The three maps (0 off the region), or ``{}`` when every object is uniform in all three.
+
+    Example:
+        >>> gt = {"albedo": np.zeros((1, 2, 3)), "roughness": np.array([[0.2, 0.6]]), "metallic": np.zeros((1, 2))}
+        >>> object_mean_predict(gt, np.ones((1, 2), bool), None)["roughness"].tolist()
+        [[0.4, 0.4]]
+    """
+    ids = np.zeros(region.shape, np.int64) if objects is None else np.asarray(objects)
+    out = {k: np.zeros_like(np.asarray(gt[k], dtype=np.float64)) for k in ("albedo", "roughness", "metallic")}
+    varies = False
+    for i in np.unique(ids[region]):
+        sel = region & (ids == i)
+        for k, v in out.items():
+            values = np.asarray(gt[k], dtype=np.float64)[sel]
+            varies |= bool(values.std(axis=0).max() > tol)
+            v[sel] = values.mean(axis=0)
+    return out if varies else {}
 
 
 def score(
@@ -246,6 +282,7 @@ def predict_scene(
         sidecar = psample.sample_paths(root, index).sidecar
         k = sample_intrinsics(meta, region.shape, sidecar) if "intrinsics" in meta else None
     objects = np.rint(sample["object"]).astype(np.int64) if "object" in sample else None
+    preds["object_mean"] = object_mean_predict(gt, region, objects)
     return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects, k)
 
 
@@ -435,13 +472,18 @@ def summary_table(result: Mapping[str, Any], key: str = "mean") -> tuple[list[st
     """Header and rows (one per method) of a summary; ``key`` ``"mean"`` or ``"weighted_mean"``.
 
     Each cell is ``mean [low, high]`` (95 % bootstrap interval) or ``n/a``; the model's row is
-    labelled ``result["model"]`` (:func:`model_label`).
+    labelled ``result["model"]`` (:func:`model_label`). The per-object oracle's row is left out
+    where it scored no scene (every object uniform); elsewhere its label says on how many.
     """
     cols = [(k, h) for k, h, _ in METRICS if result.get("lpips") or k != "albedo_lpips"]
     digits = {"normal_mae": 1, "albedo_psnr": 1, "albedo_si_psnr": 1}
     labels = {**METHODS, "ours": result.get("model") or METHODS["ours"]}
+    scored = result["methods"]["object_mean"]["roughness_rmse"].get("count") or 0
+    if scored and scored < (result["methods"]["constant"]["roughness_rmse"].get("count") or 0):
+        labels["object_mean"] += f" ({scored} textured scenes)"
     header = ["method"] + [h for _, h in cols]
-    rows = [[labels[m]] + [_cell(result["methods"][m][k], key, digits.get(k, 3)) for k, _ in cols] for m in METHODS]
+    shown = [m for m in METHODS if m != "object_mean" or scored]
+    rows = [[labels[m]] + [_cell(result["methods"][m][k], key, digits.get(k, 3)) for k, _ in cols] for m in shown]
     return header, rows
 
 

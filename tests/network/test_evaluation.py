@@ -33,7 +33,8 @@ def test_every_row_is_scored_on_the_object_coverage(test_split):
     model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
     result = evaluation.evaluate_dataset(model, ckpt, test_split, STATS, lpips=False)
     assert result["split"] == "test-procedural" and result["scenes"] == 3
-    assert set(result["methods"]) == {"ours", "baseline", "constant"}
+    assert set(result["methods"]) == {"ours", "baseline", "constant", "object_mean"}
+    assert result["methods"]["object_mean"]["roughness_rmse"]["count"] == 0  # uniform objects: no oracle row
     for row in result["per_scene"]:
         s, _ = psample.read_sample(test_split, row["index"], keys=("normal", "object"))
         region = s["object"] >= 0
@@ -119,7 +120,8 @@ def test_input_dir_gets_the_split_report_with_the_checkpoint_named(test_split, t
     assert {"Ours (mine/model.pt)", "Photometric stereo (calibrated)", "Constant (normal to camera, train means)"} <= (
         set(labels)
     ) and "Ours (shipped model)" not in table
-    for m in evaluation.METHODS:  # per-scene means with their 95 % intervals, the mean inside
+    assert not any(lbl.startswith("Per-object mean") for lbl in labels)  # uniform objects: the oracle is the truth
+    for m in ("ours", "baseline", "constant"):  # per-scene means with their 95 % intervals, the mean inside
         s = result["methods"][m]["normal_mae"]
         assert s["ci"][0] <= s["mean"] <= s["ci"][1], (m, s)
 
@@ -197,6 +199,27 @@ def test_scores_per_object_of_a_multi_object_scene():
     assert summary["objects"] == 2
     assert summary["per_object"]["ours"]["normal_mae"]["mean"] == pytest.approx(45.0, abs=1e-3)
     assert row["ours"]["normal_mae"] == pytest.approx(90.0 * 36 / 44, abs=1e-3)  # the scene weighs pixels
+
+
+def test_per_object_oracle_knows_each_objects_mean_but_no_texture():
+    """Two objects, one striped in roughness and albedo: the oracle predicts each object's mean."""
+    h, w = 8, 12
+    objects = np.full((h, w), -1)
+    objects[:, :6], objects[:, 6:11] = 0, 1
+    region = objects >= 0
+    rough = np.where(np.arange(w) % 2 == 0, 0.2, 0.6) * np.ones((h, 1))
+    rough[:, 6:] = 0.9  # object 1 is uniform
+    albedo = np.repeat(rough[..., None], 3, axis=2) / 2
+    gt = {"albedo": albedo, "roughness": rough, "metallic": np.zeros((h, w)), "normal": np.zeros((h, w, 3))}
+    pred = evaluation.object_mean_predict(gt, region, objects)
+    assert np.allclose(pred["roughness"][:, :6], 0.4) and np.allclose(pred["roughness"][:, 6:11], 0.9)
+    assert np.allclose(pred["albedo"][:, :6], 0.2) and (pred["roughness"][~region] == 0).all()
+    scores = evaluation.score(pred, gt, region, lpips=False)
+    assert scores["roughness_rmse"] == pytest.approx(0.2 * np.sqrt(48 / 88))  # +-0.2 on object 0's 48 of 88 pixels
+    assert scores["normal_mae"] is None  # it knows materials only
+    gt["roughness"][:, :6] = 0.3
+    gt["albedo"][:, :6] = 0.1
+    assert evaluation.object_mean_predict(gt, region, objects) == {}  # every object uniform: n/a
 
 
 def test_depth_is_scored_from_the_integrated_normals():
