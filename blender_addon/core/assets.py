@@ -20,6 +20,7 @@ scene spec in a Python without trimesh.
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -36,6 +37,7 @@ except ModuleNotFoundError:  # Blender's Python: specs and PLY output work witho
 
 from pbrdf.sensor.rig import atomic_write_bytes
 
+from . import gltf_io
 from . import mesh_normals as _mn
 from .generated_shapes import GENERATED_SHAPES, generated_shape
 from .procedural import PROCEDURAL_SHAPES, diameter, normalize, procedural, require_trimesh
@@ -43,6 +45,7 @@ from .unseen_shapes import UNSEEN_SHAPES, unseen_shape
 
 __all__ = [
     "CREASE_DEG",
+    "MATERIAL_NONE",
     "MESH_SUFFIXES",
     "MIN_THICKNESS",
     "MeshPart",
@@ -52,7 +55,9 @@ __all__ = [
     "ensure_uv",
     "list_assets",
     "load_mesh",
+    "mesh_file",
     "parse_builtin",
+    "split_mesh_ref",
     "write_ply",
     "write_ply_arrays",
     # re-exported from .procedural (their home) for existing callers
@@ -70,6 +75,9 @@ CREASE_DEG = 30.0
 MIN_THICKNESS = 0.005
 
 _BUILTIN_PREFIX = "builtin:"
+#: Material key of a selector ``#material=none``: the primitives without a material.
+MATERIAL_NONE = -1
+_SELECTOR = re.compile(r"#material=(\d+|none)$")
 
 
 def parse_builtin(mesh: str) -> tuple[str, dict[str, Any]] | None:
@@ -90,6 +98,29 @@ def parse_builtin(mesh: str) -> tuple[str, dict[str, Any]] | None:
     return shape, params
 
 
+def split_mesh_ref(mesh: str | os.PathLike) -> tuple[str, int | None]:
+    """Split ``"<file>#material=<K>"`` (the triangles of material K of an asset) into ``(file, K)``.
+
+    K is the material's index in the file (glTF ``materials``, MTL ``newmtl`` order) or ``none``
+    (:data:`MATERIAL_NONE`: the primitives without a material); other references give ``(ref, None)``.
+
+    >>> split_mesh_ref("chair.gltf#material=2"), split_mesh_ref("a.glb#material=none"), split_mesh_ref("a.ply")
+    (('chair.gltf', 2), ('a.glb', -1), ('a.ply', None))
+    """
+    ref = os.fspath(mesh)
+    m = _SELECTOR.search(ref) if not ref.startswith(_BUILTIN_PREFIX) else None
+    if m is None:
+        if "#material=" in ref and not ref.startswith(_BUILTIN_PREFIX):
+            raise ValueError(f"{ref}: bad material selector; use <file>#material=<index> or #material=none")
+        return ref, None
+    return ref[: m.start()], MATERIAL_NONE if m.group(1) == "none" else int(m.group(1))
+
+
+def mesh_file(mesh: str | os.PathLike) -> str:
+    """The file a mesh reference reads (its material selector left out); the reference itself for a ``builtin:``."""
+    return split_mesh_ref(mesh)[0]
+
+
 # --------------------------------------------------------------------------- loading and cleaning
 
 
@@ -102,12 +133,14 @@ class MeshPart:
         faces: ``(F, 3)`` vertex indices.
         normals: ``(N, 3)`` authored vertex normals, or None when the file has none.
         uvs: ``(N, 2)`` texture coordinates, or None.
+        group: the part's material index in a per-material read (:mod:`.asset_parts`), else None.
     """
 
     vertices: NDArray[np.float64]
     faces: NDArray[np.int64]
     normals: NDArray[np.float64] | None = None
     uvs: NDArray[np.float64] | None = None
+    group: int | None = None
 
 
 def _degenerate(name: str, reason: str) -> ValueError:
@@ -123,11 +156,13 @@ def _authored_normals(geom: trimesh.Trimesh) -> NDArray[np.float64] | None:
     return np.asarray(n, dtype=np.float64)
 
 
-def _scene_parts(scene: trimesh.Scene, name: str) -> list[MeshPart]:
+def _scene_parts(scene: trimesh.Scene, name: str, *, tagged: bool = False) -> list[MeshPart]:
     """Every triangle mesh of a scene with its scene-graph transform applied (normals and winding too).
 
     UVs are kept only when the scene holds exactly one textured triangle mesh: UV charts of
     separate parts overlap, so a merged multi-part mesh is left without UVs for :func:`ensure_uv`.
+    ``tagged`` (a per-material read, :mod:`.asset_parts`): every part keeps its UVs and its
+    material index (``metadata[gltf_io.PART_TAG][0]``).
     """
     parts = []
     for node in scene.graph.nodes_geometry:
@@ -153,10 +188,11 @@ def _scene_parts(scene: trimesh.Scene, name: str) -> list[MeshPart]:
             f = f[:, ::-1]
         uv = getattr(geom.visual, "uv", None)
         uv = None if uv is None or len(uv) != len(geom.vertices) else np.asarray(uv, dtype=np.float64)
-        parts.append(MeshPart(v, f, n, uv))
+        group = (geom.metadata.get(gltf_io.PART_TAG) or [None])[0] if tagged else None
+        parts.append(MeshPart(v, f, n, uv, group))
     if not parts:
         raise _degenerate(name, "no triangle geometry (empty file, point cloud or lines only)")
-    if len(parts) > 1:
+    if len(parts) > 1 and not tagged:
         for p in parts:
             p.uvs = None
     return parts
@@ -197,7 +233,9 @@ def _flipped(before: NDArray[np.int64], after: NDArray[np.int64]) -> NDArray[np.
     return ~same
 
 
-def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | None = None) -> trimesh.Trimesh:
+def build_render_mesh(
+    parts: list[MeshPart], name: str, *, crease_deg: float | None = None, keep_parts: bool = False
+) -> trimesh.Trimesh:
     """Clean, orient and shade the parts of an asset: the one mesh every renderer gets.
 
     Steps: reject non-finite or empty input; weld vertices by position (UV seams and split
@@ -213,6 +251,9 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
         name: the asset's name for error messages (e.g. the file path).
         crease_deg: dihedral angle above which an edge without authored normals is hard
             (default :data:`CREASE_DEG`).
+        keep_parts: keep every part's UVs (zeros for a part without) and record the part of every
+            face in ``metadata["face_part"]`` (``(F,)`` indices into ``parts``); the faces, positions
+            and normals are those of the default call.
 
     Returns:
         A trimesh with ``vertex_normals`` set to the shading normals (do not edit its vertices:
@@ -243,16 +284,19 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
             [p.normals if p.normals is not None else np.full((len(p.vertices), 3), np.nan) for p in parts]
         )
     uv = parts[0].uvs if len(parts) == 1 else None
+    if keep_parts:
+        uv = np.concatenate([p.uvs if p.uvs is not None else np.zeros((len(p.vertices), 2)) for p in parts])
+    face_part = np.repeat(np.arange(len(parts)), [len(p.faces) for p in parts])
 
     weld_first, weld_id = weld(v, diag)
     wf = weld_id[faces]
     _, area = _mn.face_normals(v, faces)
     ok = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2]) & (area > 1e-14 * diag**2)
-    faces, wf = faces[ok], wf[ok]
+    faces, wf, face_part = faces[ok], wf[ok], face_part[ok]
     if len(wf):
         _, first = np.unique(np.sort(wf, axis=1), axis=0, return_index=True)
         keep = np.sort(first)
-        faces, wf = faces[keep], wf[keep]
+        faces, wf, face_part = faces[keep], wf[keep], face_part[keep]
     if len(faces) < 4:
         n = len(faces)
         raise _degenerate(name, f"only {n} non-degenerate face{'s' if n != 1 else ''} (a solid needs at least 4)")
@@ -293,16 +337,26 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
     mesh = trimesh.Trimesh(vertices=v[src], faces=rfaces, vertex_normals=rnormals, visual=visual, process=False)
     mesh.metadata["two_sided"] = bool(two_sided)
     mesh.metadata["bodies"] = int(welded.body_count)
+    if keep_parts:
+        mesh.metadata["face_part"] = face_part
     return mesh
 
 
-def _read_file(path: Path, suffix: str, name: str) -> list[MeshPart]:
-    """Parse a mesh file into parts; every failure becomes one ``ValueError`` naming the file."""
+def _read_file(path: Path, suffix: str, name: str, *, tagged: bool = False) -> list[MeshPart]:
+    """Parse a mesh file into parts; every failure becomes one ``ValueError`` naming the file.
+
+    ``tagged``: every part with its UVs and material index (:func:`.asset_parts.tagged_scene`).
+    """
     if suffix in (".gltf", ".glb"):
         _check_gltf(path, suffix, name)
     try:
-        scene = trimesh.load(path, file_type=suffix[1:], force="scene", process=False)
-        return _scene_parts(scene, name)
+        if tagged:
+            from .asset_parts import tagged_scene  # noqa: PLC0415 - asset_parts builds on this module
+
+            scene = tagged_scene(path, name)
+        else:
+            scene = trimesh.load(path, file_type=suffix[1:], force="scene", process=False)
+        return _scene_parts(scene, name, tagged=tagged)
     except Exception as e:  # trimesh raises many types for malformed files; report them as bad content
         if isinstance(e, ValueError) and str(e).startswith(name):
             raise
@@ -312,27 +366,7 @@ def _read_file(path: Path, suffix: str, name: str) -> list[MeshPart]:
 
 def _check_gltf(path: Path, suffix: str, name: str) -> None:
     """Refuse glTF features trimesh would silently misread: version 1 and Draco-compressed meshes."""
-    import json  # noqa: PLC0415
-    import struct  # noqa: PLC0415
-
-    raw = path.read_bytes()
-    try:
-        if suffix == ".glb":
-            if raw[:4] != b"glTF" or len(raw) < 20:
-                raise ValueError("not a GLB file (bad magic)")
-            container = struct.unpack_from("<I", raw, 4)[0]
-            if container != 2:
-                raise ValueError(f"unsupported GLB container version {container} (glTF 2.0 only; re-export it)")
-            length, kind = struct.unpack_from("<II", raw, 12)
-            if kind != 0x4E4F534A:  # "JSON"
-                raise ValueError("GLB without a JSON chunk")
-            doc = json.loads(raw[20 : 20 + length].decode("utf-8"))
-        else:
-            doc = json.loads(raw.decode("utf-8-sig"))
-    except (ValueError, UnicodeDecodeError, struct.error) as e:
-        raise ValueError(f"{name}: cannot read mesh: {e}") from None
-    if not isinstance(doc, dict):
-        raise ValueError(f"{name}: cannot read mesh: the glTF JSON is not an object")
+    doc = gltf_io.read_gltf(path, name)[0]
     version = str((doc.get("asset") or {}).get("version", "")) if isinstance(doc.get("asset"), dict) else ""
     if not version.startswith("2"):
         raise ValueError(f"{name}: unsupported glTF version {version or '1.0'!r} (glTF 2.0 only; re-export it)")
@@ -341,8 +375,13 @@ def _check_gltf(path: Path, suffix: str, name: str) -> None:
         raise ValueError(f"{name}: Draco-compressed glTF is not supported (re-export without Draco compression)")
 
 
-def usable_assets(files: Iterable[str | os.PathLike]) -> tuple[list[Path], dict[str, str]]:
+def usable_assets(files: Iterable[str | os.PathLike], *, materials: bool = False) -> tuple[list[Path], dict[str, str]]:
     """Split asset files into those :func:`load_mesh` loads and those it refuses.
+
+    Args:
+        files: the asset files.
+        materials: also read each file's materials and load its per-material parts
+            (:func:`.asset_parts.asset_parts`); a file whose materials cannot be read is refused.
 
     Returns:
         ``(loadable files in the given order, {file: the one-line reason})``.
@@ -351,6 +390,10 @@ def usable_assets(files: Iterable[str | os.PathLike]) -> tuple[list[Path], dict[
     for f in files:
         try:
             load_mesh(f)
+            if materials:
+                from .asset_parts import asset_parts  # noqa: PLC0415 - asset_parts builds on this module
+
+                asset_parts(f)
             ok.append(Path(f))
         except (ValueError, OSError) as e:
             refused[str(f)] = str(e)
@@ -372,8 +415,13 @@ def load_mesh(path_or_builtin: str | os.PathLike, *, crease_deg: float | None = 
     Meshes are cached per process (the last :data:`_CACHE_SIZE`, files keyed by path, size and
     modification time): treat the result as read-only.
 
+    ``"<file>#material=<K>"`` (:func:`split_mesh_ref`) is the part of a glTF/OBJ file drawn with
+    its material K, with that part's UVs (:func:`.asset_parts.load_part`); the parts of all
+    materials together are the file's mesh.
+
     Args:
-        path_or_builtin: a file path or ``builtin:<shape>[?key=value&...]``.
+        path_or_builtin: a file path (with an optional material selector) or
+            ``builtin:<shape>[?key=value&...]``.
         crease_deg: crease angle for meshes without authored normals (default :data:`CREASE_DEG`).
 
     Raises:
@@ -387,7 +435,7 @@ def load_mesh(path_or_builtin: str | os.PathLike, *, crease_deg: float | None = 
     key: tuple = (ref, crease_deg)
     if not ref.startswith(_BUILTIN_PREFIX):
         try:
-            st = os.stat(ref)
+            st = os.stat(mesh_file(ref))
             key += (st.st_mtime_ns, st.st_size)
         except OSError:
             key = ()
@@ -419,7 +467,8 @@ def _load_mesh(path_or_builtin: str | os.PathLike, crease_deg: float | None) -> 
             raw = procedural(shape, **params)
         part = MeshPart(np.asarray(raw.vertices, dtype=np.float64), np.asarray(raw.faces, dtype=np.int64))
         return build_render_mesh([part], str(path_or_builtin), crease_deg=crease_deg)
-    path = Path(path_or_builtin)
+    file, material = split_mesh_ref(path_or_builtin)
+    path = Path(file)
     name = str(path)
     if not path.is_file():
         raise FileNotFoundError(f"{name}: mesh file not found")
@@ -428,6 +477,10 @@ def _load_mesh(path_or_builtin: str | os.PathLike, crease_deg: float | None) -> 
         raise ValueError(f"{name}: unsupported mesh type {suffix!r}; supported: {list(MESH_SUFFIXES)}")
     if path.stat().st_size == 0:
         raise _degenerate(name, "empty file (0 bytes)")
+    if material is not None:
+        from .asset_parts import load_part  # noqa: PLC0415 - asset_parts builds on this module
+
+        return load_part(path, material, crease_deg=crease_deg)
     return build_render_mesh(_read_file(path, suffix, name), name, crease_deg=crease_deg)
 
 

@@ -1,0 +1,191 @@
+"""glTF 2.0 containers without a scene graph: the JSON document, its buffers and images, a GLB writer.
+
+:func:`read_gltf` parses a ``.gltf`` (JSON) or ``.glb`` (binary container) into the document and
+the GLB's binary chunk; :func:`buffer_view` and :func:`image_bytes` resolve what the document
+refers to (the binary chunk, ``data:`` URIs, files beside the document); :func:`tagged_document`
+rewrites a document so that trimesh's loader keeps, for every primitive, its material and UVs
+(:mod:`.asset_materials`); :func:`glb_bytes` writes a GLB back.
+
+Every failure is one ``ValueError`` line that starts with the file's name.
+"""
+
+from __future__ import annotations
+
+import base64
+import copy
+import json
+import os
+import struct
+from pathlib import Path
+from typing import Any
+from urllib.parse import unquote
+
+__all__ = ["PART_TAG", "buffer_view", "glb_bytes", "image_bytes", "item", "read_gltf", "tagged_document"]
+
+#: Key of a tagged mesh's ``extras`` (trimesh copies it into the geometry's metadata): ``[material, mesh, primitive]``.
+PART_TAG = "pbrdf_part"
+_GLB_MAGIC, _JSON, _BIN = b"glTF", 0x4E4F534A, 0x004E4942
+
+
+def read_gltf(path: str | os.PathLike, name: str | None = None) -> tuple[dict, bytes | None]:
+    """The JSON document of a glTF 2.0 file and, for a GLB, its binary chunk.
+
+    Args:
+        path: a ``.gltf`` or ``.glb`` file.
+        name: the file's name in errors (default: the path).
+
+    Returns:
+        ``(document, binary chunk or None)``.
+
+    Raises:
+        ValueError: ``"<name>: cannot read mesh: <reason>"`` (bad magic, container version, JSON).
+    """
+    path = Path(path)
+    name = str(path) if name is None else name
+    raw = path.read_bytes()
+    try:
+        binary = None
+        if path.suffix.lower() == ".glb":
+            if raw[:4] != _GLB_MAGIC or len(raw) < 20:
+                raise ValueError("not a GLB file (bad magic)")
+            container = struct.unpack_from("<I", raw, 4)[0]
+            if container != 2:
+                raise ValueError(f"unsupported GLB container version {container} (glTF 2.0 only; re-export it)")
+            length, kind = struct.unpack_from("<II", raw, 12)
+            if kind != _JSON:
+                raise ValueError("GLB without a JSON chunk")
+            doc = json.loads(raw[20 : 20 + length].decode("utf-8"))
+            at = 20 + length + (-length % 4)
+            if at + 8 <= len(raw):
+                blen, bkind = struct.unpack_from("<II", raw, at)
+                binary = raw[at + 8 : at + 8 + blen] if bkind == _BIN else None
+        else:
+            doc = json.loads(raw.decode("utf-8-sig"))
+    except (ValueError, UnicodeDecodeError, struct.error) as e:
+        raise ValueError(f"{name}: cannot read mesh: {e}") from None
+    if not isinstance(doc, dict):
+        raise ValueError(f"{name}: cannot read mesh: the glTF JSON is not an object")
+    return doc, binary
+
+
+def glb_bytes(doc: dict, binary: bytes | None) -> bytes:
+    """A GLB container holding ``doc`` and the binary chunk (padded to 4 bytes as the format asks).
+
+    >>> d, b = {"asset": {"version": "2.0"}}, b"xyz"
+    >>> import tempfile; p = Path(tempfile.mkdtemp()) / "a.glb"; _ = p.write_bytes(glb_bytes(d, b))
+    >>> read_gltf(p) == (d, b"xyz\\x00")
+    True
+    """
+    js = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    js += b" " * (-len(js) % 4)
+    chunks = struct.pack("<II", len(js), _JSON) + js
+    if binary is not None:
+        binary = binary + b"\0" * (-len(binary) % 4)
+        chunks += struct.pack("<II", len(binary), _BIN) + binary
+    return _GLB_MAGIC + struct.pack("<II", 2, 12 + len(chunks)) + chunks
+
+
+def _uri_bytes(uri: str, base: Path, name: str, what: str) -> bytes:
+    if uri.startswith("data:"):
+        try:
+            head, _, data = uri.partition(",")
+            return base64.b64decode(data, validate=True) if head.endswith(";base64") else unquote(data).encode()
+        except ValueError as e:
+            raise ValueError(f"{name}: {what}: bad data URI: {e}") from None
+    file = base / unquote(uri)
+    try:
+        return file.read_bytes()
+    except FileNotFoundError:
+        raise ValueError(f"{name}: {what}: file not found: {file}") from None
+    except OSError as e:
+        raise ValueError(f"{name}: {what}: cannot read {file}: {e.strerror or e}") from None
+
+
+def item(doc: dict, key: str, index: Any, name: str, what: str) -> dict:
+    """Entry ``index`` of the document's list ``key`` (``"textures"``, ``"images"``, ...), checked."""
+    items = doc.get(key) or []
+    if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < len(items):
+        raise ValueError(f"{name}: {what}: {key[:-1]} index {index!r} out of range (the file has {len(items)})")
+    item = items[index]
+    if not isinstance(item, dict):
+        raise ValueError(f"{name}: {what}: {key[:-1]} {index} is not a JSON object")
+    return item
+
+
+def buffer_view(doc: dict, binary: bytes | None, index: int, base: Path, name: str) -> bytes:
+    """The bytes of buffer view ``index`` (the GLB chunk, a ``data:`` URI or a file in ``base``)."""
+    what = f"bufferView {index}"
+    view = item(doc, "bufferViews", index, name, what)
+    buf = item(doc, "buffers", view.get("buffer"), name, what)
+    data = _uri_bytes(buf["uri"], base, name, what) if "uri" in buf else binary
+    if data is None:
+        raise ValueError(f"{name}: {what}: buffer {view.get('buffer')} has no data (no GLB binary chunk)")
+    start, length = int(view.get("byteOffset", 0)), int(view.get("byteLength", -1))
+    if start < 0 or length < 0 or start + length > len(data):
+        raise ValueError(f"{name}: {what}: bytes {start}..{start + length} outside its buffer of {len(data)}")
+    return data[start : start + length]
+
+
+def image_bytes(doc: dict, binary: bytes | None, index: int, base: Path, name: str) -> tuple[bytes, Path | None]:
+    """The encoded bytes of image ``index`` and the file they come from (None when embedded).
+
+    Raises:
+        ValueError: an index out of range, a missing or unreadable file, a bad buffer view.
+    """
+    what = f"image {index}"
+    img = item(doc, "images", index, name, what)
+    if "bufferView" in img:
+        return buffer_view(doc, binary, img["bufferView"], base, name), None
+    uri = img.get("uri")
+    if not isinstance(uri, str) or not uri:
+        raise ValueError(f"{name}: {what}: neither a uri nor a bufferView")
+    return _uri_bytes(uri, base, name, f"{what} ({uri[:40]})"), None if uri.startswith("data:") else base / unquote(uri)
+
+
+def tagged_document(doc: dict, texcoord: dict[int, int] | None = None) -> dict:
+    """A copy of ``doc`` that trimesh loads with every primitive's material and UVs.
+
+    Every primitive becomes a mesh of its own (a node holding a mesh of several primitives gets a
+    child node per primitive) whose ``extras`` hold :data:`PART_TAG` ``[material, mesh, primitive]``
+    (material -1: none); materials are replaced by empty ones (trimesh keeps ``TEXCOORD_0`` only for
+    a primitive with a material) and images dropped (nothing is decoded).
+
+    Args:
+        doc: the glTF document (left unchanged).
+        texcoord: per material, the ``TEXCOORD_<n>`` set its textures use; that set is given to
+            trimesh as ``TEXCOORD_0``.
+    """
+    texcoord = texcoord or {}
+    out = {k: copy.deepcopy(v) for k, v in doc.items() if k not in ("images", "textures", "samplers", "materials")}
+    n_mat = len(doc.get("materials") or [])
+    out["materials"] = [{} for _ in range(n_mat + 1)]  # the last: primitives without a material
+    meshes: list[dict] = []
+    per_mesh: list[list[int]] = []
+    for i, mesh in enumerate(doc.get("meshes") or []):
+        ids = []
+        for j, prim in enumerate(mesh.get("primitives") or []):
+            p = copy.deepcopy(prim)
+            mat = p.get("material")
+            key = mat if isinstance(mat, int) and 0 <= mat < n_mat else -1
+            attrs = p.get("attributes") or {}
+            uv = attrs.get(f"TEXCOORD_{texcoord.get(key, 0)}")
+            if uv is not None:
+                attrs["TEXCOORD_0"] = uv
+            p["material"] = key if key >= 0 else n_mat
+            ids.append(len(meshes))
+            meshes.append({"name": f"pbrdf_{i}_{j}", "primitives": [p], "extras": {PART_TAG: [key, i, j]}})
+        per_mesh.append(ids)
+    out["meshes"] = meshes
+    nodes = out.get("nodes") or []
+    for node in list(nodes):
+        if not isinstance(node, dict) or "mesh" not in node:
+            continue
+        m = node.pop("mesh")
+        ids = per_mesh[m] if isinstance(m, int) and 0 <= m < len(per_mesh) else []
+        if len(ids) == 1:
+            node["mesh"] = ids[0]
+            continue
+        node.pop("weights", None)
+        node["children"] = list(node.get("children") or []) + list(range(len(nodes), len(nodes) + len(ids)))
+        nodes.extend({"mesh": k} for k in ids)
+    return out
