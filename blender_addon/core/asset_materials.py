@@ -50,7 +50,7 @@ from numpy.typing import ArrayLike, NDArray
 from pbrdf.io.atomic import atomic_write_bytes
 from pbrdf.io.errors import one_line
 
-from . import gltf_io
+from . import asset_io, assets
 from .spec import MaterialSpec
 from .textures import MaterialTextures, TextureSpec, texture_array
 
@@ -58,11 +58,13 @@ __all__ = [
     "ACCEPTED_EXTENSIONS",
     "CONDUCTOR_ETA",
     "AssetMaterials",
+    "AssetPart",
+    "AssetParts",
+    "asset_parts",
     "conductor_ior",
-    "gltf_texcoord_sets",
     "image_cache_dir",
-    "mtl_names",
     "read_materials",
+    "usable_textured_assets",
 ]
 
 #: glTF extensions read (or harmless to leave out) and therefore accepted in ``extensionsRequired``.
@@ -165,7 +167,7 @@ class _Reader:
     def image_file(self, index: int) -> str:
         """A PNG/JPEG file holding image ``index`` (embedded ones extracted into :func:`image_cache_dir`)."""
         if index not in self.files:
-            data, file = gltf_io.image_bytes(self.doc, self.binary, index, self.path.parent, self.name)
+            data, file = asset_io.image_bytes(self.doc, self.binary, index, self.path.parent, self.name)
             kind = _image_kind(data)
             if kind is None:
                 raise ValueError(f"{self.name}: image {index} ({file or 'embedded'}): not a PNG or JPEG file")
@@ -194,31 +196,6 @@ def _texture_transform(info: dict) -> dict:
     return {k: tt[k] for k in ("offset", "rotation", "scale") if k in tt}
 
 
-def _texcoord(info: dict) -> int:
-    tt = (info.get("extensions") or {}).get("KHR_texture_transform") or {}
-    return int(tt.get("texCoord", info.get("texCoord", 0)))
-
-
-def _texture_infos(m: dict) -> dict[str, dict]:
-    """The textureInfos of a material the engine reads, by slot."""
-    pbr = m.get("pbrMetallicRoughness") or {}
-    infos = {
-        "albedo": pbr.get("baseColorTexture"),
-        "mr": pbr.get("metallicRoughnessTexture"),
-        "normal": m.get("normalTexture"),
-    }
-    return {k: v for k, v in infos.items() if isinstance(v, dict)}
-
-
-def gltf_texcoord_sets(doc: dict) -> dict[int, int]:
-    """Per glTF material, the UV set (``TEXCOORD_<n>``) its textures are read with: 0, or the one all of them use."""
-    out = {}
-    for k, m in enumerate(doc.get("materials") or []):
-        sets = {_texcoord(i) for i in _texture_infos(m).values()} if isinstance(m, dict) else set()
-        out[k] = next(iter(sets)) if len(sets) == 1 else 0
-    return out
-
-
 def _gltf_material(r: _Reader, k: int, m: dict, texcoord: int) -> MaterialSpec:
     """One glTF material as a MaterialSpec (textures, means, kind); notes go to ``r.notes``."""
     label = f"{k} {m.get('name')!r}" if m.get("name") else str(k)
@@ -237,15 +214,17 @@ def _gltf_material(r: _Reader, k: int, m: dict, texcoord: int) -> MaterialSpec:
     want = {"albedo": [((0, 1, 2), tuple(base), "srgb", "albedo")],
             "mr": [((1,), (rough_f,), "linear", "roughness"), ((2,), (metal_f,), "linear", "metallic")],
             "normal": [((0, 1, 2), (1.0, 1.0, 1.0), "linear", "normal")]}  # fmt: skip
-    for key, info in _texture_infos(m).items():
-        if _texcoord(info) != texcoord:
-            r.notes.add(f"textures on UV set {_texcoord(info)} dropped (one UV set per material; factor kept)", label)
+    for key, info in asset_io.texture_infos(m).items():
+        if asset_io.texcoord_of(info) != texcoord:
+            r.notes.add(
+                f"textures on UV set {asset_io.texcoord_of(info)} dropped (one UV set per material; factor kept)", label
+            )
             continue
-        tex = gltf_io.item(r.doc, "textures", info.get("index"), r.name, f"material {label}")
+        tex = asset_io.item(r.doc, "textures", info.get("index"), r.name, f"material {label}")
         if "source" not in tex:
             exts = sorted(tex.get("extensions") or {})
             raise ValueError(f"{r.name}: material {label}: texture {info['index']} has no PNG/JPEG source ({exts})")
-        sampler = {} if "sampler" not in tex else gltf_io.item(r.doc, "samplers", tex["sampler"], r.name, label)
+        sampler = {} if "sampler" not in tex else asset_io.item(r.doc, "samplers", tex["sampler"], r.name, label)
         for wrap in {sampler.get("wrapS", _REPEAT), sampler.get("wrapT", _REPEAT)} - {_REPEAT}:
             r.notes.add(f"sampler wrap {_WRAP_NAMES.get(wrap, wrap)} rendered as REPEAT", label)
         file = r.image_file(tex["source"])
@@ -289,7 +268,7 @@ def _note_unmodelled(r: _Reader, m: dict, label: str) -> None:
 
 
 def _gltf_materials(path: Path, name: str) -> AssetMaterials | None:
-    doc, binary = gltf_io.read_gltf(path, name)
+    doc, binary = asset_io.read_gltf(path, name)
     required = doc.get("extensionsRequired") or []
     for ext in required if isinstance(required, list) else []:
         if ext not in ACCEPTED_EXTENSIONS:
@@ -298,7 +277,7 @@ def _gltf_materials(path: Path, name: str) -> AssetMaterials | None:
     if not isinstance(mats, list) or not mats:
         return None
     r = _Reader(path, name, doc, binary)
-    texcoord = gltf_texcoord_sets(doc)
+    texcoord = asset_io.texcoord_sets(doc)
     out = []
     for k, m in enumerate(mats):
         if not isinstance(m, dict):
@@ -315,35 +294,6 @@ def _gltf_materials(path: Path, name: str) -> AssetMaterials | None:
 _MTL_READ = {"kd", "map_kd", "pr", "pm"}  # lower case: MTL keywords are matched case-insensitively
 _MAP_ARGS = {"-o": 3, "-s": 3, "-t": 3, "-mm": 2, "-bm": 1, "-boost": 1, "-texres": 1, "-clamp": 1, "-blendu": 1,
              "-blendv": 1, "-cc": 1, "-imfchan": 1, "-type": 1}  # fmt: skip
-
-
-def _mtl_libs(obj: Path) -> list[Path]:
-    libs = []
-    with open(obj, "rb") as f:
-        for raw in f:
-            if raw.lstrip().startswith(b"mtllib"):
-                rest = raw.decode("utf-8", "replace").split(None, 1)[1:]
-                if rest:
-                    libs.append(obj.parent / rest[0].strip().replace("\\", "/"))
-    return libs
-
-
-def _statements(mtl: Path) -> list[tuple[str, str]]:
-    out = []
-    for line in mtl.read_text("utf-8", "replace").splitlines():
-        parts = line.strip().split(None, 1)
-        if parts and not parts[0].startswith("#"):
-            out.append((parts[0], parts[1].strip() if len(parts) > 1 else ""))
-    return out
-
-
-def mtl_names(obj: str | os.PathLike) -> list[str]:
-    """Material names of the MTL files an OBJ names (``newmtl`` order, first of equal names; missing files skipped)."""
-    names: list[str] = []
-    for lib in _mtl_libs(Path(obj)):
-        if lib.is_file():
-            names += [v for k, v in _statements(lib) if k.lower() == "newmtl" and v not in names]
-    return names
 
 
 def _map_kd(value: str, base: Path, label: str, r: _Reader) -> tuple[str, dict]:
@@ -371,12 +321,12 @@ def _mtl_materials(obj: Path, name: str) -> AssetMaterials | None:
     r = _Reader(obj, name)
     entries: dict[str, dict[str, str]] = {}
     bases: dict[str, Path] = {}
-    for lib in _mtl_libs(obj):
+    for lib in asset_io.mtl_libs(obj):
         if not lib.is_file():
             r.notes.add(f"mtllib {lib.name} not found: its materials are left to the caller")
             continue
         current = None
-        for key, value in _statements(lib):
+        for key, value in asset_io.mtl_statements(lib):
             if key.lower() == "newmtl":
                 current = value if value not in entries else None
                 if current is not None:
@@ -450,3 +400,80 @@ def read_materials(path: str | os.PathLike) -> AssetMaterials | None:
     while len(_CACHE) > _CACHE_SIZE:
         _CACHE.pop(next(iter(_CACHE)))
     return out
+
+
+# --------------------------------------------------------------------------- parts with their materials
+
+
+@dataclass(frozen=True)
+class AssetPart:
+    """One material's share of an asset: an object of a scene.
+
+    Attributes:
+        mesh: the mesh reference ``"<file>#material=<K>"`` (:func:`.assets.load_part`).
+        key: K, the material index (:data:`.assets.MATERIAL_NONE` for triangles without one).
+        material: the file's material K, or None (no material: the caller picks one).
+    """
+
+    mesh: str
+    key: int
+    material: MaterialSpec | None
+
+
+@dataclass(frozen=True)
+class AssetParts:
+    """The parts of an asset file, one per material with triangles, and the notes of its reading.
+
+    Attributes:
+        file: the asset file.
+        parts: in material order (triangles without a material last).
+        notes: one line per thing read differently from the file (the sample's sidecar records them).
+    """
+
+    file: str
+    parts: tuple[AssetPart, ...]
+    notes: tuple[str, ...] = ()
+
+
+def asset_parts(path: str | os.PathLike, *, crease_deg: float | None = None) -> AssetParts | None:
+    """A glTF/OBJ file as one part per material with its MaterialSpec; None for a file without materials.
+
+    A scene holds a multi-material asset as one object per part, all at the asset's pose: the
+    object index of the ground truth tells the parts apart, and each part gets its own UVs.
+
+    Raises:
+        FileNotFoundError: no such file.
+        ValueError: one line ``"<file>: <reason>"``: unreadable materials or textures
+            (:func:`read_materials`), a mesh the asset pipeline refuses, NaN UVs.
+    """
+    mats = read_materials(path)
+    if mats is None:
+        return None
+    parts, notes, lost = [], list(mats.notes), []
+    for k in assets.material_keys(path, crease_deg=crease_deg):
+        material = mats.materials[k] if 0 <= k < len(mats.materials) else None
+        ref = f"{path}#material={'none' if k == assets.MATERIAL_NONE else k}"
+        mesh = assets.load_mesh(ref, crease_deg=crease_deg)
+        if material is not None and material.textures is not None and not mesh.metadata["has_uv"]:
+            lost.append(k)
+        parts.append(AssetPart(ref, k, material))
+    notes += mesh.metadata["uv_notes"]
+    if lost:
+        notes.append(f"textured materials {lost} have triangles without UVs (their textures read one texel there)")
+    return AssetParts(str(path), tuple(parts), tuple(notes))
+
+
+def usable_textured_assets(files: list[str | os.PathLike]) -> tuple[list[Path], dict[str, str]]:
+    """:func:`.assets.usable_assets`, with every file's materials and parts read too (:func:`asset_parts`).
+
+    Returns:
+        ``(usable files in the given order, {file: the one-line reason})``.
+    """
+    ok, refused = assets.usable_assets(files)
+    for f in list(ok):
+        try:
+            asset_parts(f)
+        except (ValueError, OSError) as e:
+            refused[str(f)] = one_line(e)
+            ok.remove(f)
+    return ok, refused

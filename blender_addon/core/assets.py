@@ -35,11 +35,10 @@ try:
 except ModuleNotFoundError:  # Blender's Python: specs and PLY output work without it
     trimesh = None
 
-from pbrdf.sensor.rig import atomic_write_bytes
-
-from . import gltf_io
+from . import asset_io
 from . import mesh_normals as _mn
 from .generated_shapes import GENERATED_SHAPES, generated_shape
+from .ply_io import write_ply_arrays
 from .procedural import PROCEDURAL_SHAPES, diameter, normalize, procedural, require_trimesh
 from .unseen_shapes import UNSEEN_SHAPES, unseen_shape
 
@@ -55,6 +54,8 @@ __all__ = [
     "ensure_uv",
     "list_assets",
     "load_mesh",
+    "load_part",
+    "material_keys",
     "mesh_file",
     "parse_builtin",
     "split_mesh_ref",
@@ -133,7 +134,7 @@ class MeshPart:
         faces: ``(F, 3)`` vertex indices.
         normals: ``(N, 3)`` authored vertex normals, or None when the file has none.
         uvs: ``(N, 2)`` texture coordinates, or None.
-        group: the part's material index in a per-material read (:mod:`.asset_parts`), else None.
+        group: the part's material index in a per-material read (:func:`load_part`), else None.
     """
 
     vertices: NDArray[np.float64]
@@ -161,8 +162,8 @@ def _scene_parts(scene: trimesh.Scene, name: str, *, tagged: bool = False) -> li
 
     UVs are kept only when the scene holds exactly one textured triangle mesh: UV charts of
     separate parts overlap, so a merged multi-part mesh is left without UVs for :func:`ensure_uv`.
-    ``tagged`` (a per-material read, :mod:`.asset_parts`): every part keeps its UVs and its
-    material index (``metadata[gltf_io.PART_TAG][0]``).
+    ``tagged`` (a per-material read, :func:`load_part`): every part keeps its UVs and its
+    material index (``metadata[asset_io.PART_TAG][0]``).
     """
     parts = []
     for node in scene.graph.nodes_geometry:
@@ -188,7 +189,7 @@ def _scene_parts(scene: trimesh.Scene, name: str, *, tagged: bool = False) -> li
             f = f[:, ::-1]
         uv = getattr(geom.visual, "uv", None)
         uv = None if uv is None or len(uv) != len(geom.vertices) else np.asarray(uv, dtype=np.float64)
-        group = (geom.metadata.get(gltf_io.PART_TAG) or [None])[0] if tagged else None
+        group = (geom.metadata.get(asset_io.PART_TAG) or [None])[0] if tagged else None
         parts.append(MeshPart(v, f, n, uv, group))
     if not parts:
         raise _degenerate(name, "no triangle geometry (empty file, point cloud or lines only)")
@@ -345,15 +346,13 @@ def build_render_mesh(
 def _read_file(path: Path, suffix: str, name: str, *, tagged: bool = False) -> list[MeshPart]:
     """Parse a mesh file into parts; every failure becomes one ``ValueError`` naming the file.
 
-    ``tagged``: every part with its UVs and material index (:func:`.asset_parts.tagged_scene`).
+    ``tagged``: every part with its UVs and material index (:func:`.asset_io.tagged_scene`).
     """
     if suffix in (".gltf", ".glb"):
         _check_gltf(path, suffix, name)
     try:
         if tagged:
-            from .asset_parts import tagged_scene  # noqa: PLC0415 - asset_parts builds on this module
-
-            scene = tagged_scene(path, name)
+            scene = asset_io.tagged_scene(path, name)
         else:
             scene = trimesh.load(path, file_type=suffix[1:], force="scene", process=False)
         return _scene_parts(scene, name, tagged=tagged)
@@ -366,7 +365,7 @@ def _read_file(path: Path, suffix: str, name: str, *, tagged: bool = False) -> l
 
 def _check_gltf(path: Path, suffix: str, name: str) -> None:
     """Refuse glTF features trimesh would silently misread: version 1 and Draco-compressed meshes."""
-    doc = gltf_io.read_gltf(path, name)[0]
+    doc = asset_io.read_gltf(path, name)[0]
     version = str((doc.get("asset") or {}).get("version", "")) if isinstance(doc.get("asset"), dict) else ""
     if not version.startswith("2"):
         raise ValueError(f"{name}: unsupported glTF version {version or '1.0'!r} (glTF 2.0 only; re-export it)")
@@ -375,13 +374,8 @@ def _check_gltf(path: Path, suffix: str, name: str) -> None:
         raise ValueError(f"{name}: Draco-compressed glTF is not supported (re-export without Draco compression)")
 
 
-def usable_assets(files: Iterable[str | os.PathLike], *, materials: bool = False) -> tuple[list[Path], dict[str, str]]:
+def usable_assets(files: Iterable[str | os.PathLike]) -> tuple[list[Path], dict[str, str]]:
     """Split asset files into those :func:`load_mesh` loads and those it refuses.
-
-    Args:
-        files: the asset files.
-        materials: also read each file's materials and load its per-material parts
-            (:func:`.asset_parts.asset_parts`); a file whose materials cannot be read is refused.
 
     Returns:
         ``(loadable files in the given order, {file: the one-line reason})``.
@@ -390,10 +384,6 @@ def usable_assets(files: Iterable[str | os.PathLike], *, materials: bool = False
     for f in files:
         try:
             load_mesh(f)
-            if materials:
-                from .asset_parts import asset_parts  # noqa: PLC0415 - asset_parts builds on this module
-
-                asset_parts(f)
             ok.append(Path(f))
         except (ValueError, OSError) as e:
             refused[str(f)] = str(e)
@@ -416,7 +406,7 @@ def load_mesh(path_or_builtin: str | os.PathLike, *, crease_deg: float | None = 
     modification time): treat the result as read-only.
 
     ``"<file>#material=<K>"`` (:func:`split_mesh_ref`) is the part of a glTF/OBJ file drawn with
-    its material K, with that part's UVs (:func:`.asset_parts.load_part`); the parts of all
+    its material K, with that part's UVs (:func:`load_part`); the parts of all
     materials together are the file's mesh.
 
     Args:
@@ -478,10 +468,74 @@ def _load_mesh(path_or_builtin: str | os.PathLike, crease_deg: float | None) -> 
     if path.stat().st_size == 0:
         raise _degenerate(name, "empty file (0 bytes)")
     if material is not None:
-        from .asset_parts import load_part  # noqa: PLC0415 - asset_parts builds on this module
-
         return load_part(path, material, crease_deg=crease_deg)
     return build_render_mesh(_read_file(path, suffix, name), name, crease_deg=crease_deg)
+
+
+#: Whole-file meshes :func:`load_part` cuts parts from, kept per process (large files: few).
+_GROUPED_SIZE = 4
+_GROUPED: dict[tuple, tuple] = {}
+
+
+def _grouped(path: Path, crease_deg: float | None) -> tuple[trimesh.Trimesh, NDArray[np.int64], list[str], set]:
+    """The file's render mesh with UVs, each face's material, the UV notes and the materials lacking UVs (cached)."""
+    st = os.stat(path)
+    key = (str(path), st.st_mtime_ns, st.st_size, crease_deg)
+    if key not in _GROUPED:
+        parts = _read_file(path, path.suffix.lower(), str(path), tagged=True)
+        notes = asset_io.clean_uvs(parts, str(path))
+        mesh = build_render_mesh(parts, str(path), crease_deg=crease_deg, keep_parts=True)
+        groups = np.array([MATERIAL_NONE if p.group is None else p.group for p in parts], dtype=np.int64)
+        _GROUPED[key] = (mesh, groups[mesh.metadata["face_part"]], notes, {p.group for p in parts if p.uvs is None})
+        while len(_GROUPED) > _GROUPED_SIZE:
+            _GROUPED.pop(next(iter(_GROUPED)))
+    return _GROUPED[key]
+
+
+def material_keys(path: str | os.PathLike, *, crease_deg: float | None = None) -> list[int]:
+    """The materials of a glTF/OBJ file that have triangles, in index order (:data:`MATERIAL_NONE` last)."""
+    keys = np.unique(_grouped(Path(path), crease_deg)[1]).tolist()
+    return sorted(keys, key=lambda k: (k == MATERIAL_NONE, k))
+
+
+def load_part(path: str | os.PathLike, material: int, *, crease_deg: float | None = None) -> trimesh.Trimesh:
+    """The triangles of material ``material`` of a glTF/OBJ file with their UVs: ``load_mesh("<file>#material=K")``.
+
+    The parts are cut from one render mesh of the whole file (:func:`build_render_mesh` with
+    ``keep_parts``), so the parts of all materials together have the faces, positions (within
+    the weld tolerance) and shading normals of ``load_mesh(file)``: an asset renders the same as
+    one object or as one object per material. UVs: :func:`.asset_io.tagged_scene`,
+    :func:`.asset_io.clean_uvs`.
+
+    Returns:
+        A trimesh with ``vertex_normals`` (the whole file's shading normals), UVs (zeros where
+        the file has none) and ``metadata``: ``two_sided`` and ``bodies`` of the whole file,
+        ``material`` (the key), ``uv_notes`` (:func:`.asset_io.clean_uvs`) and ``has_uv`` (False:
+        some of its triangles come without UVs).
+
+    Raises:
+        ValueError: ``"<file>: <reason>"``: no triangles of that material, NaN UVs, a file the
+            asset pipeline refuses.
+    """
+    path = Path(path)
+    whole, groups, notes, no_uv = _grouped(path, crease_deg)
+    sel = groups == material
+    if not sel.any():
+        label = "none" if material == MATERIAL_NONE else material
+        raise ValueError(f"{path}: no triangles with material {label}; materials with triangles: "
+                         f"{material_keys(path, crease_deg=crease_deg)}")  # fmt: skip
+    faces = np.asarray(whole.faces)[sel]
+    used, inverse = np.unique(faces, return_inverse=True)
+    mesh = trimesh.Trimesh(
+        vertices=np.asarray(whole.vertices)[used],
+        faces=inverse.reshape(-1, 3),
+        vertex_normals=np.asarray(whole.vertex_normals)[used],
+        visual=trimesh.visual.TextureVisuals(uv=np.asarray(whole.visual.uv)[used]),
+        process=False,
+    )
+    meta = {k: whole.metadata[k] for k in ("two_sided", "bodies")}
+    mesh.metadata.update(meta, material=int(material), uv_notes=list(notes), has_uv=material not in no_uv)
+    return mesh
 
 
 # --------------------------------------------------------------------------- scale, UVs
@@ -550,55 +604,3 @@ def write_ply(mesh: trimesh.Trimesh, path: str | os.PathLike) -> None:
     if len(mesh.vertices) == 0 or len(mesh.faces) == 0:
         raise ValueError("write_ply: the mesh has no triangles")
     write_ply_arrays(path, mesh.vertices, mesh.faces, normals=mesh.vertex_normals, uvs=uv)
-
-
-def write_ply_arrays(
-    path: str | os.PathLike,
-    vertices: ArrayLike,
-    faces: ArrayLike,
-    *,
-    normals: ArrayLike | None = None,
-    uvs: ArrayLike | None = None,
-) -> None:
-    """Write triangles as a binary little-endian PLY (Mitsuba 3's ``ply`` plugin reads it), atomically.
-
-    Args:
-        path: output file.
-        vertices: ``(N, 3)`` positions.
-        faces: ``(F, 3)`` vertex indices, counter-clockwise seen from the front.
-        normals: optional ``(N, 3)`` vertex normals (``nx ny nz``); without them Mitsuba shades flat.
-        uvs: optional ``(N, 2)`` texture coordinates (``u v``, v up).
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"write_ply: need vertices (N, 3) and faces (F, 3), got {v.shape} and {f.shape}")
-    if len(v) == 0 or len(f) == 0:
-        raise ValueError("write_ply: the mesh has no triangles")
-    if f.min() < 0 or f.max() >= len(v):
-        raise ValueError(f"write_ply: face indices must be in [0, {len(v)}), got [{f.min()}, {f.max()}]")
-    extra = {"n": normals, "uv": uvs}
-    fields = [(k, "<f4") for k in ("x", "y", "z")]
-    if normals is not None:
-        extra["n"] = np.asarray(normals, dtype=np.float64).reshape(len(v), 3)
-        fields += [(k, "<f4") for k in ("nx", "ny", "nz")]
-    if uvs is not None:
-        extra["uv"] = np.asarray(uvs, dtype=np.float64).reshape(len(v), 2)
-        fields += [("u", "<f4"), ("v", "<f4")]
-    vert = np.empty(len(v), dtype=fields)
-    for i, k in enumerate("xyz"):
-        vert[k] = v[:, i]
-        if normals is not None:
-            vert["n" + k] = extra["n"][:, i]
-    if uvs is not None:
-        vert["u"], vert["v"] = extra["uv"][:, 0], extra["uv"][:, 1]
-    face = np.empty(len(f), dtype=[("n", "u1"), ("i", "<u4", (3,))])
-    face["n"] = 3
-    face["i"] = f
-    props = "".join(f"property float {k}\n" for k, _ in fields)
-    header = (
-        "ply\nformat binary_little_endian 1.0\ncomment written by blender_addon.core.assets\n"
-        f"element vertex {len(v)}\n{props}"
-        f"element face {len(f)}\nproperty list uchar uint vertex_indices\nend_header\n"
-    )
-    atomic_write_bytes(path, header.encode("ascii") + vert.tobytes() + face.tobytes())

@@ -22,7 +22,8 @@ from numpy.typing import NDArray
 
 from pbrdf.sensor.rig import Rig
 
-from . import asset_parts, assets
+from . import assets
+from .asset_materials import asset_parts
 from .placement import place
 from .procedural import PROCEDURAL_SHAPES
 from .spec import MaterialSpec, ObjectSpec, SceneSpec
@@ -166,7 +167,7 @@ def random_scene(
         pose_tries: pose draws per object while it overlaps an earlier one.
         asset_materials: an asset file with materials (glTF, OBJ+MTL) becomes one object per
             material, ``object_<i>_part<j>`` with mesh ``<file>#material=<K>`` and the file's own
-            material (:func:`.asset_parts.asset_parts`; no table or analytic draw; triangles
+            material (:func:`.asset_materials.asset_parts`; no table or analytic draw; triangles
             without a material get one random analytic material); the notes of its reading go
             to ``metadata["asset_notes"][file]``. False: every file is one object, as before.
 
@@ -214,7 +215,7 @@ def random_scene(
             continue  # no free pose: leave the object out
         placed.append((centre, radius))
         suffix = "" if len(placed) == 1 else f"_{len(placed)}"  # objects (assets) placed so far
-        own = asset_parts.asset_parts(mesh_ref) if asset_materials and k < len(files) else None
+        own = asset_parts(mesh_ref) if asset_materials and k < len(files) else None
         if own is not None:
             _add_parts(own, rng, tuple(map(tuple, to_world)), f"object{suffix}", objs, mats)
             notes.update({own.file: list(own.notes)} if own.notes else {})
@@ -231,8 +232,10 @@ def random_scene(
     return SceneSpec(rig=rig, objects=tuple(objs), materials=tuple(mats), seed=int(seed) % 2**31, metadata=meta)
 
 
-def _add_parts(own, rng, to_world, name: str, objs: list[ObjectSpec], mats: list[MaterialSpec]) -> None:
-    """One object per part of an asset (:class:`.asset_parts.AssetParts`) at one pose, each with its material."""
+def _add_parts(
+    own, rng: np.random.Generator, to_world: tuple, name: str, objs: list[ObjectSpec], mats: list[MaterialSpec]
+) -> None:
+    """One object per part of an asset (:class:`.asset_materials.AssetParts`) at one pose, each with its material."""
     for j, part in enumerate(own.parts):
         fallback = name.replace("object", "material", 1) + f"_part{j}"
         material = part.material if part.material is not None else random_material(rng, fallback)

@@ -1,10 +1,15 @@
-"""glTF 2.0 containers without a scene graph: the JSON document, its buffers and images, a GLB writer.
+"""Asset files below the mesh pipeline: glTF containers, the per-material tagged scene, MTL statements.
 
 :func:`read_gltf` parses a ``.gltf`` (JSON) or ``.glb`` (binary container) into the document and
 the GLB's binary chunk; :func:`buffer_view` and :func:`image_bytes` resolve what the document
-refers to (the binary chunk, ``data:`` URIs, files beside the document); :func:`tagged_document`
-rewrites a document so that trimesh's loader keeps, for every primitive, its material and UVs
-(:mod:`.asset_materials`); :func:`glb_bytes` writes a GLB back.
+refers to (the binary chunk, ``data:`` URIs, files beside the document); :func:`glb_bytes`
+writes a GLB back. :func:`tagged_scene` loads a glTF or OBJ file with trimesh so that every
+geometry holds one material's triangles with their UVs (:func:`.assets.load_part`);
+:func:`clean_uvs` checks those UVs. :func:`mtl_libs`, :func:`mtl_statements` and :func:`mtl_names`
+read the MTL files an OBJ names.
+
+Convention (UVs): OpenGL's, ``v`` up (:mod:`.textures`); trimesh's glTF reader turns glTF's ``v``
+down into that (``v = 1 - v_gltf``).
 
 Every failure is one ``ValueError`` line that starts with the file's name.
 """
@@ -13,6 +18,7 @@ from __future__ import annotations
 
 import base64
 import copy
+import io
 import json
 import os
 import struct
@@ -20,11 +26,38 @@ from pathlib import Path
 from typing import Any
 from urllib.parse import unquote
 
-__all__ = ["PART_TAG", "buffer_view", "glb_bytes", "image_bytes", "item", "read_gltf", "tagged_document"]
+import numpy as np
+
+try:
+    import trimesh
+except ModuleNotFoundError:  # Blender's Python: only the mesh loaders need trimesh
+    trimesh = None
+
+__all__ = [
+    "PART_TAG",
+    "UV_LIMIT",
+    "buffer_view",
+    "clean_uvs",
+    "glb_bytes",
+    "image_bytes",
+    "item",
+    "mtl_libs",
+    "mtl_names",
+    "mtl_statements",
+    "read_gltf",
+    "tagged_document",
+    "tagged_scene",
+    "texcoord_of",
+    "texcoord_sets",
+    "texture_infos",
+]
 
 #: Key of a tagged mesh's ``extras`` (trimesh copies it into the geometry's metadata): ``[material, mesh, primitive]``.
 PART_TAG = "pbrdf_part"
+#: Largest UV magnitude :func:`clean_uvs` keeps as it is (float32 still resolves 1e-4 of a texture repeat there).
+UV_LIMIT = 1024.0
 _GLB_MAGIC, _JSON, _BIN = b"glTF", 0x4E4F534A, 0x004E4942
+_FLOAT = 5126  # glTF componentType FLOAT
 
 
 def read_gltf(path: str | os.PathLike, name: str | None = None) -> tuple[dict, bytes | None]:
@@ -189,3 +222,136 @@ def tagged_document(doc: dict, texcoord: dict[int, int] | None = None) -> dict:
         node["children"] = list(node.get("children") or []) + list(range(len(nodes), len(nodes) + len(ids)))
         nodes.extend({"mesh": k} for k in ids)
     return out
+
+
+def texcoord_of(info: dict) -> int:
+    """The UV set a textureInfo reads (``KHR_texture_transform``'s ``texCoord`` overrides its own)."""
+    tt = (info.get("extensions") or {}).get("KHR_texture_transform") or {}
+    return int(tt.get("texCoord", info.get("texCoord", 0)))
+
+
+def texture_infos(m: dict) -> dict[str, dict]:
+    """The textureInfos of a material the engine reads, by slot."""
+    pbr = m.get("pbrMetallicRoughness") or {}
+    infos = {
+        "albedo": pbr.get("baseColorTexture"),
+        "mr": pbr.get("metallicRoughnessTexture"),
+        "normal": m.get("normalTexture"),
+    }
+    return {k: v for k, v in infos.items() if isinstance(v, dict)}
+
+
+def texcoord_sets(doc: dict) -> dict[int, int]:
+    """Per glTF material, the UV set (``TEXCOORD_<n>``) its textures are read with: 0, or the one all of them use."""
+    out = {}
+    for k, m in enumerate(doc.get("materials") or []):
+        sets = {texcoord_of(i) for i in texture_infos(m).values()} if isinstance(m, dict) else set()
+        out[k] = next(iter(sets)) if len(sets) == 1 else 0
+    return out
+
+
+def _check_uv_accessors(doc: dict, sets: dict[int, int], name: str) -> None:
+    """Refuse integer (quantised) UVs: trimesh reads them without their normalisation."""
+    accessors = doc.get("accessors") or []
+    for i, mesh in enumerate(doc.get("meshes") or []):
+        for j, p in enumerate(mesh.get("primitives") or []):
+            mat = p.get("material")
+            t = sets.get(mat, 0) if isinstance(mat, int) else 0
+            a = (p.get("attributes") or {}).get(f"TEXCOORD_{t}")
+            if isinstance(a, int) and 0 <= a < len(accessors) and accessors[a].get("componentType", _FLOAT) != _FLOAT:
+                raise ValueError(f"{name}: mesh {i} primitive {j}: integer (quantised) UVs are not supported")
+
+
+def tagged_scene(path: Path, name: str) -> trimesh.Scene:
+    """The file as a trimesh scene whose every geometry holds one material's triangles with their UVs.
+
+    Each geometry's ``metadata[PART_TAG][0]`` is its material index (-1: none): glTF primitives
+    are tagged through :func:`tagged_document`, OBJ groups by their MTL material name.
+
+    Raises:
+        ValueError: a file type without materials, integer glTF UVs.
+    """
+    suffix = path.suffix.lower()
+    if suffix in (".gltf", ".glb"):
+        doc, binary = read_gltf(path, name)
+        sets = texcoord_sets(doc)
+        _check_uv_accessors(doc, sets, name)
+        tagged = tagged_document(doc, sets)
+        data = glb_bytes(tagged, binary) if suffix == ".glb" else json.dumps(tagged).encode("utf-8")
+        resolver = trimesh.resolvers.FilePathResolver(str(path))
+        return trimesh.load(io.BytesIO(data), file_type=suffix[1:], resolver=resolver, force="scene", process=False)
+    if suffix == ".obj":
+        scene = trimesh.load(path, file_type="obj", force="scene", process=False)
+        names = mtl_names(path)
+        for geom in scene.geometry.values():
+            mname = getattr(getattr(getattr(geom, "visual", None), "material", None), "name", None)
+            geom.metadata[PART_TAG] = [names.index(mname) if mname in names else -1]
+        return scene
+    raise ValueError(f"{name}: material selectors need a glTF/GLB or OBJ file, got {suffix!r}")
+
+
+def clean_uvs(parts: list, name: str) -> list[str]:
+    """Check the UVs of :class:`.assets.MeshPart` s in place: NaN/Inf raise, huge ones are shifted or wrapped.
+
+    UVs within ``+-UV_LIMIT`` stay. Beyond, a part's UVs are shifted by the integer floor of their
+    median (exact under REPEAT for a texture without a non-integer ``KHR_texture_transform``);
+    still beyond, every UV is wrapped into [0, 1) (a triangle across a texture edge shows a seam).
+
+    Returns:
+        One note per part changed.
+
+    Raises:
+        ValueError: ``"<name>: N UV coordinates NaN or infinite (material K)"``.
+    """
+    notes = []
+    for p in parts:
+        if p.uvs is None:
+            continue
+        bad = int(np.sum(~np.isfinite(p.uvs).all(axis=1)))
+        if bad:
+            raise ValueError(
+                f"{name}: {bad} UV coordinate{'s' if bad != 1 else ''} NaN or infinite (material {p.group})"
+            )
+        if np.abs(p.uvs).max(initial=0.0) <= UV_LIMIT:
+            continue
+        uv = p.uvs - np.floor(np.median(p.uvs, axis=0))
+        how = "shifted by an integer"
+        if np.abs(uv).max() > UV_LIMIT:
+            uv, how = uv - np.floor(uv), "wrapped into [0, 1) per vertex"
+        notes.append(f"UVs beyond +-{UV_LIMIT:g} {how} (material {p.group})")
+        p.uvs = uv
+    return notes
+
+
+# --------------------------------------------------------------------------- OBJ + MTL
+
+
+def mtl_libs(obj: Path) -> list[Path]:
+    """The MTL files an OBJ names (``mtllib``), relative to its folder (Windows separators accepted)."""
+    libs = []
+    with open(obj, "rb") as f:
+        for raw in f:
+            if raw.lstrip().startswith(b"mtllib"):
+                rest = raw.decode("utf-8", "replace").split(None, 1)[1:]
+                if rest:
+                    libs.append(obj.parent / rest[0].strip().replace("\\", "/"))
+    return libs
+
+
+def mtl_statements(mtl: Path) -> list[tuple[str, str]]:
+    """``(keyword, rest of the line)`` of every statement of an MTL file (comments left out)."""
+    out = []
+    for line in mtl.read_text("utf-8", "replace").splitlines():
+        parts = line.strip().split(None, 1)
+        if parts and not parts[0].startswith("#"):
+            out.append((parts[0], parts[1].strip() if len(parts) > 1 else ""))
+    return out
+
+
+def mtl_names(obj: str | os.PathLike) -> list[str]:
+    """Material names of the MTL files an OBJ names (``newmtl`` order, first of equal names; missing files skipped)."""
+    names: list[str] = []
+    for lib in mtl_libs(Path(obj)):
+        if lib.is_file():
+            names += [v for k, v in mtl_statements(lib) if k.lower() == "newmtl" and v not in names]
+    return names
