@@ -134,15 +134,20 @@ def _uri_bytes(uri: str, base: Path, name: str, what: str) -> bytes:
         raise ValueError(f"{name}: {what}: cannot read {file}: {e.strerror or e}") from None
 
 
-def item(doc: dict, key: str, index: Any, name: str, what: str) -> dict:
-    """Entry ``index`` of the document's list ``key`` (``"textures"``, ``"images"``, ...), checked."""
+def item(doc: dict, key: str, index: Any, name: str, what: str = "") -> dict:
+    """Entry ``index`` of the document's list ``key`` (``"textures"``, ``"images"``, ...), checked.
+
+    Raises:
+        ValueError: ``"<name>: [<what>: ]<texture> index 5 out of range (the file has 1)"``, or not an object.
+    """
     items = doc.get(key) or []
+    where = f"{what}: " if what else ""
     if not isinstance(index, int) or isinstance(index, bool) or not 0 <= index < len(items):
-        raise ValueError(f"{name}: {what}: {key[:-1]} index {index!r} out of range (the file has {len(items)})")
-    item = items[index]
-    if not isinstance(item, dict):
-        raise ValueError(f"{name}: {what}: {key[:-1]} {index} is not a JSON object")
-    return item
+        raise ValueError(f"{name}: {where}{key[:-1]} index {index!r} out of range (the file has {len(items)})")
+    entry = items[index]
+    if not isinstance(entry, dict):
+        raise ValueError(f"{name}: {where}{key[:-1]} {index} is not a JSON object")
+    return entry
 
 
 def buffer_view(doc: dict, binary: bytes | None, index: int, base: Path, name: str) -> bytes:
@@ -166,7 +171,7 @@ def image_bytes(doc: dict, binary: bytes | None, index: int, base: Path, name: s
         ValueError: an index out of range, a missing or unreadable file, a bad buffer view.
     """
     what = f"image {index}"
-    img = item(doc, "images", index, name, what)
+    img = item(doc, "images", index, name)
     if "bufferView" in img:
         return buffer_view(doc, binary, img["bufferView"], base, name), None
     uri = img.get("uri")

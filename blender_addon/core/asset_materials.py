@@ -19,7 +19,9 @@ Convention (glTF 2.0, section 3.9):
       (:func:`conductor_ior`); a factor strictly between 0 and 1 is rounded to 0 or 1 (noted).
     * MTL: ``Kd`` is the (linear) base-colour factor, ``map_Kd`` its sRGB texture (the two
       multiply, as the MTL format says), ``-o``/``-s`` become a texture transform, ``Pr``/``Pm``
-      set roughness/metallic (default 0.5/0); everything else is noted and ignored.
+      set roughness/metallic (default 0.5/0); ``Ka``, ``illum``, ``Tf`` and ``sharpness`` are
+      ignored silently (no effect on an opaque surface without ambient light), everything else
+      (``Ks``, ``Ns``, ``d``, bump maps, ...) is noted and ignored.
 
 Fallbacks and errors (issue 26, bad input):
     * A texture on a UV set other than the material's one (glTF ``texCoord``; a material whose
@@ -99,7 +101,7 @@ def conductor_ior(
     fixed ``n`` the extinction is :math:`k = \\sqrt{(R_0 (n+1)^2 - (n-1)^2) / (1 - R_0)}`; a
     reflectance below :math:`((n-1)/(n+1))^2` (0.04 for n = 1.5) needs no absorption: then
     ``k = 0`` and :math:`n = (1 + \\sqrt{R_0}) / (1 - \\sqrt{R_0})`. ``R0`` is clipped to
-    [0, 0.999] (a perfect mirror needs an infinite k). With n = 1.5, R0 = 0.91 gives k = 7.7
+    [0, 0.999] (a perfect mirror needs an infinite k). With n = 1.5, R0 = 0.91 gives k = 7.8
     (aluminium: n 1.45, k 7.6 at 630 nm).
 
     Args:
@@ -112,7 +114,7 @@ def conductor_ior(
     Example:
         >>> n, k = conductor_ior([0.91, 0.5, 0.04])
         >>> n.round(3).tolist(), k.round(2).tolist()
-        ([1.5, 1.5, 1.5], [7.72, 2.5, 0.0])
+        ([1.5, 1.5, 1.5], [7.77, 2.4, 0.0])
     """
     r0 = np.clip(np.asarray(base_colour, dtype=np.float64), 0.0, 0.999)
     floor = ((eta - 1) / (eta + 1)) ** 2
@@ -292,6 +294,7 @@ def _gltf_materials(path: Path, name: str) -> AssetMaterials | None:
 # --------------------------------------------------------------------------- OBJ + MTL
 
 _MTL_READ = {"kd", "map_kd", "pr", "pm"}  # lower case: MTL keywords are matched case-insensitively
+_MTL_SILENT = {"ka", "illum", "tf", "sharpness"}  # no effect on an opaque surface without ambient light
 _MAP_ARGS = {"-o": 3, "-s": 3, "-t": 3, "-mm": 2, "-bm": 1, "-boost": 1, "-texres": 1, "-clamp": 1, "-blendu": 1,
              "-blendv": 1, "-cc": 1, "-imfchan": 1, "-type": 1}  # fmt: skip
 
@@ -333,8 +336,8 @@ def _mtl_materials(obj: Path, name: str) -> AssetMaterials | None:
                     entries[current], bases[current] = {}, lib.parent
             elif current is not None and key.lower() in _MTL_READ:
                 entries[current][key.lower()] = value
-            elif current is not None:
-                r.notes.add(f"MTL statement {key} not modelled, ignored", current)
+            elif current is not None and key.lower() not in _MTL_SILENT:
+                r.notes.add(f"MTL statement {key} not modelled, ignored", current or "''")
     if not entries:
         return None
     out = []
@@ -390,12 +393,15 @@ def read_materials(path: str | os.PathLike) -> AssetMaterials | None:
     if key in _CACHE:
         return _CACHE[key]
     suffix = path.suffix.lower()
-    if suffix in (".gltf", ".glb"):
-        out = _gltf_materials(path, name)
-    elif suffix == ".obj":
-        out = _mtl_materials(path, name)
-    else:
-        out = None
+    try:
+        out = _gltf_materials(path, name) if suffix in (".gltf", ".glb") else None
+        out = _mtl_materials(path, name) if suffix == ".obj" else out
+    except ValueError as e:
+        if str(e).startswith(name):
+            raise
+        raise ValueError(f"{name}: malformed material data: {one_line(e)}") from None
+    except (AttributeError, TypeError, KeyError, IndexError) as e:  # JSON of the wrong types
+        raise ValueError(f"{name}: malformed material data: {type(e).__name__}: {one_line(e)}") from None
     _CACHE[key] = out
     while len(_CACHE) > _CACHE_SIZE:
         _CACHE.pop(next(iter(_CACHE)))
