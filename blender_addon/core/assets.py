@@ -111,7 +111,8 @@ def split_mesh_ref(mesh: str | os.PathLike) -> tuple[str, int | None]:
     ref = os.fspath(mesh)
     m = _SELECTOR.search(ref) if not ref.startswith(_BUILTIN_PREFIX) else None
     if m is None:
-        if "#material=" in ref and not ref.startswith(_BUILTIN_PREFIX):
+        tail = ref.rpartition("#material=")[2] if "#material=" in ref else "/"
+        if not ref.startswith(_BUILTIN_PREFIX) and "/" not in tail and os.sep not in tail:
             raise ValueError(f"{ref}: bad material selector; use <file>#material=<index> or #material=none")
         return ref, None
     return ref[: m.start()], MATERIAL_NONE if m.group(1) == "none" else int(m.group(1))

@@ -327,6 +327,22 @@ class TestParts:
         np.testing.assert_allclose(np.unique(union.round(6), axis=0), np.unique(plain.round(6), axis=0), atol=1e-9)
         assert all(p.metadata["two_sided"] == whole.metadata["two_sided"] for p in parts)
 
+    def test_cleaning_keeps_each_face_with_its_material(self, tmp_path, rng):
+        v, uv = box_triangles(rng)
+
+        def junk(k):  # a degenerate face and a duplicate face before the primitive's own 6
+            return np.concatenate([np.repeat(v[18 * k : 18 * k + 1], 3, axis=0), v[18 * k + 3 : 18 * k + 6]])
+
+        prims = [{"v": np.concatenate([junk(k), v[18 * k : 18 * k + 18]]), "uv": np.concatenate([uv[:6], uv[:18]]),
+                  "material": k} for k in (0, 1)]  # fmt: skip
+        path = write_gltf(tmp_path, "junk", prims, materials=[textured(), textured()])
+        assert len(assets.load_mesh(path).faces) == 12
+        for k in (0, 1):  # each part has exactly its primitive's 6 faces
+            part = assets.load_mesh(f"{path}#material={k}")
+            centroid = np.asarray(part.vertices)[part.faces].mean(axis=1)
+            own = v[18 * k : 18 * k + 18].reshape(-1, 3, 3).mean(axis=1) + (0.1, 0, 0)
+            np.testing.assert_allclose(np.sort(centroid, axis=0), np.sort(own, axis=0), atol=1e-6)
+
     def test_textures_on_uv_set_1_read_texcoord_1(self, tmp_path, rng):
         png(tmp_path / "a.png", np.zeros((2, 2, 3)))
         m = textured(base={"index": 0, "texCoord": 1})
