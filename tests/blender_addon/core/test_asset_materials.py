@@ -392,6 +392,29 @@ class TestParts:
         spec.validate(check_files=True)  # the selector's file exists, every part is in view
 
 
+@pytest.mark.mitsuba
+def test_parts_render_the_geometry_of_the_whole(tmp_path, rng):
+    """One object per material covers the pixels of the asset as one object, with the depth and normals."""
+    from blender_addon.core import placement, render
+    from blender_addon.core.spec import ObjectSpec
+
+    path, *_ = two_material_box(tmp_path, rng, [textured(), textured()])
+    rig = Rig()
+    pose = tuple(map(tuple, placement.place(assets.load_mesh(path), rig, np.random.default_rng(4), distance=(0.6, 0.6),
+                                            size=(0.3, 0.3))))  # fmt: skip
+    grey = MaterialSpec.plastic("grey", (0.5, 0.5, 0.5), roughness=0.3)
+    whole = SceneSpec(rig=rig, objects=(ObjectSpec("o", str(path), pose, "grey"),), materials=(grey,), seed=1)
+    parts = (ObjectSpec("a", f"{path}#material=0", pose, "grey"), ObjectSpec("b", f"{path}#material=1", pose, "grey"))
+    split = SceneSpec(rig=rig, objects=parts, materials=(grey,), seed=1)
+    settings = render.RenderSettings(resolution=64, spp=4)
+    one, two = render.render_stokes(whole, settings), render.render_stokes(split, settings)
+    assert np.array_equal(one.mask, two.mask) and one.mask.sum() > 100
+    assert set(np.unique(two.object_index[two.mask])) == {0, 1}  # the ground truth tells the parts apart
+    np.testing.assert_allclose(two.depth[two.mask], one.depth[one.mask], atol=1e-4)
+    inner = one.mask & (np.abs(np.diff(np.pad(two.object_index, 1, mode="edge"), axis=1))[1:-1, 1:] == 0)
+    np.testing.assert_allclose(two.normal[inner], one.normal[inner], atol=1e-3)
+
+
 # --------------------------------------------------------------------------- OBJ + MTL
 
 
