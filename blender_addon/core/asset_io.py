@@ -104,9 +104,12 @@ def read_gltf(path: str | os.PathLike, name: str | None = None) -> tuple[dict, b
 def glb_bytes(doc: dict, binary: bytes | None) -> bytes:
     """A GLB container holding ``doc`` and the binary chunk (padded to 4 bytes as the format asks).
 
-    >>> d, b = {"asset": {"version": "2.0"}}, b"xyz"
-    >>> import tempfile; p = Path(tempfile.mkdtemp()) / "a.glb"; _ = p.write_bytes(glb_bytes(d, b))
-    >>> read_gltf(p) == (d, b"xyz\\x00")
+    >>> import tempfile
+    >>> doc = {"asset": {"version": "2.0"}}
+    >>> with tempfile.TemporaryDirectory() as folder:
+    ...     path = Path(folder) / "a.glb"
+    ...     _ = path.write_bytes(glb_bytes(doc, b"xyz"))
+    ...     read_gltf(path) == (doc, b"xyz\\x00")  # the binary chunk padded to 4 bytes
     True
     """
     js = json.dumps(doc, separators=(",", ":")).encode("utf-8")

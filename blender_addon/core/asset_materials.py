@@ -226,7 +226,8 @@ def _gltf_material(r: _Reader, k: int, m: dict, texcoord: int) -> MaterialSpec:
         if "source" not in tex:
             exts = sorted(tex.get("extensions") or {})
             raise ValueError(f"{r.name}: material {label}: texture {info['index']} has no PNG/JPEG source ({exts})")
-        sampler = {} if "sampler" not in tex else asset_io.item(r.doc, "samplers", tex["sampler"], r.name, label)
+        where = f"material {label}"
+        sampler = {} if "sampler" not in tex else asset_io.item(r.doc, "samplers", tex["sampler"], r.name, where)
         for wrap in {sampler.get("wrapS", _REPEAT), sampler.get("wrapT", _REPEAT)} - {_REPEAT}:
             r.notes.add(f"sampler wrap {_WRAP_NAMES.get(wrap, wrap)} rendered as REPEAT", label)
         file = r.image_file(tex["source"])
