@@ -485,7 +485,7 @@ def export_scene(
             mat = slots[index] if index < len(slots) else None
             name = _unique(base if len(parts) == 1 else f"{base}.{mat.name if mat else index}", taken)
             path = out / "meshes" / f"{_safe_name(name)}.ply"
-            from .core.assets import write_ply_arrays  # noqa: PLC0415 - bpy-free core, numpy only
+            from .core.ply_io import write_ply_arrays  # noqa: PLC0415 - bpy-free core, numpy only
 
             write_ply_arrays(path, arrays["v"], arrays["f"], normals=arrays["n"], uvs=arrays["uv"])
             objects.append(ObjectSpec(name, str(path.resolve()), material=material_name(mat)))

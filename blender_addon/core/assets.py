@@ -13,13 +13,14 @@ Convention (mesh strings):
     ('torus', {'seed': 3, 'minor': 0.3})
 
 trimesh is needed to build or load meshes (:func:`load_mesh`); without it the rest (mesh
-references, :func:`write_ply_arrays`) still imports and works, so the Blender add-on can use the
+references) still imports and works, so the Blender add-on can use the
 scene spec in a Python without trimesh.
 """
 
 from __future__ import annotations
 
 import os
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,15 +35,16 @@ try:
 except ModuleNotFoundError:  # Blender's Python: specs and PLY output work without it
     trimesh = None
 
-from pbrdf.sensor.rig import atomic_write_bytes
-
+from . import asset_io
 from . import mesh_normals as _mn
 from .generated_shapes import GENERATED_SHAPES, generated_shape
+from .ply_io import write_ply_arrays
 from .procedural import PROCEDURAL_SHAPES, diameter, normalize, procedural, require_trimesh
 from .unseen_shapes import UNSEEN_SHAPES, unseen_shape
 
 __all__ = [
     "CREASE_DEG",
+    "MATERIAL_NONE",
     "MESH_SUFFIXES",
     "MIN_THICKNESS",
     "MeshPart",
@@ -52,9 +54,12 @@ __all__ = [
     "ensure_uv",
     "list_assets",
     "load_mesh",
+    "load_part",
+    "material_keys",
+    "mesh_file",
     "parse_builtin",
+    "split_mesh_ref",
     "write_ply",
-    "write_ply_arrays",
     # re-exported from .procedural (their home) for existing callers
     "PROCEDURAL_SHAPES",
     "diameter",
@@ -70,6 +75,9 @@ CREASE_DEG = 30.0
 MIN_THICKNESS = 0.005
 
 _BUILTIN_PREFIX = "builtin:"
+#: Material key of a selector ``#material=none``: the primitives without a material.
+MATERIAL_NONE = -1
+_SELECTOR = re.compile(r"#material=(\d+|none)$")
 
 
 def parse_builtin(mesh: str) -> tuple[str, dict[str, Any]] | None:
@@ -90,6 +98,30 @@ def parse_builtin(mesh: str) -> tuple[str, dict[str, Any]] | None:
     return shape, params
 
 
+def split_mesh_ref(mesh: str | os.PathLike) -> tuple[str, int | None]:
+    """Split ``"<file>#material=<K>"`` (the triangles of material K of an asset) into ``(file, K)``.
+
+    K is the material's index in the file (glTF ``materials``, MTL ``newmtl`` order) or ``none``
+    (:data:`MATERIAL_NONE`: the primitives without a material); other references give ``(ref, None)``.
+
+    >>> split_mesh_ref("chair.gltf#material=2"), split_mesh_ref("a.glb#material=none"), split_mesh_ref("a.ply")
+    (('chair.gltf', 2), ('a.glb', -1), ('a.ply', None))
+    """
+    ref = os.fspath(mesh)
+    m = _SELECTOR.search(ref) if not ref.startswith(_BUILTIN_PREFIX) else None
+    if m is None:
+        tail = ref.rpartition("#material=")[2] if "#material=" in ref else "/"
+        if not ref.startswith(_BUILTIN_PREFIX) and "/" not in tail and os.sep not in tail:
+            raise ValueError(f"{ref}: bad material selector; use <file>#material=<index> or #material=none")
+        return ref, None
+    return ref[: m.start()], MATERIAL_NONE if m.group(1) == "none" else int(m.group(1))
+
+
+def mesh_file(mesh: str | os.PathLike) -> str:
+    """The file a mesh reference reads (its material selector left out); the reference itself for a ``builtin:``."""
+    return split_mesh_ref(mesh)[0]
+
+
 # --------------------------------------------------------------------------- loading and cleaning
 
 
@@ -102,12 +134,14 @@ class MeshPart:
         faces: ``(F, 3)`` vertex indices.
         normals: ``(N, 3)`` authored vertex normals, or None when the file has none.
         uvs: ``(N, 2)`` texture coordinates, or None.
+        group: the part's material index in a per-material read (:func:`load_part`), else None.
     """
 
     vertices: NDArray[np.float64]
     faces: NDArray[np.int64]
     normals: NDArray[np.float64] | None = None
     uvs: NDArray[np.float64] | None = None
+    group: int | None = None
 
 
 def _degenerate(name: str, reason: str) -> ValueError:
@@ -123,11 +157,13 @@ def _authored_normals(geom: trimesh.Trimesh) -> NDArray[np.float64] | None:
     return np.asarray(n, dtype=np.float64)
 
 
-def _scene_parts(scene: trimesh.Scene, name: str) -> list[MeshPart]:
+def _scene_parts(scene: trimesh.Scene, name: str, *, tagged: bool = False) -> list[MeshPart]:
     """Every triangle mesh of a scene with its scene-graph transform applied (normals and winding too).
 
     UVs are kept only when the scene holds exactly one textured triangle mesh: UV charts of
     separate parts overlap, so a merged multi-part mesh is left without UVs for :func:`ensure_uv`.
+    ``tagged`` (a per-material read, :func:`load_part`): every part keeps its UVs and its
+    material index (``metadata[asset_io.PART_TAG][0]``).
     """
     parts = []
     for node in scene.graph.nodes_geometry:
@@ -153,10 +189,11 @@ def _scene_parts(scene: trimesh.Scene, name: str) -> list[MeshPart]:
             f = f[:, ::-1]
         uv = getattr(geom.visual, "uv", None)
         uv = None if uv is None or len(uv) != len(geom.vertices) else np.asarray(uv, dtype=np.float64)
-        parts.append(MeshPart(v, f, n, uv))
+        group = (geom.metadata.get(asset_io.PART_TAG) or [None])[0] if tagged else None
+        parts.append(MeshPart(v, f, n, uv, group))
     if not parts:
         raise _degenerate(name, "no triangle geometry (empty file, point cloud or lines only)")
-    if len(parts) > 1:
+    if len(parts) > 1 and not tagged:
         for p in parts:
             p.uvs = None
     return parts
@@ -197,7 +234,9 @@ def _flipped(before: NDArray[np.int64], after: NDArray[np.int64]) -> NDArray[np.
     return ~same
 
 
-def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | None = None) -> trimesh.Trimesh:
+def build_render_mesh(
+    parts: list[MeshPart], name: str, *, crease_deg: float | None = None, keep_parts: bool = False
+) -> trimesh.Trimesh:
     """Clean, orient and shade the parts of an asset: the one mesh every renderer gets.
 
     Steps: reject non-finite or empty input; weld vertices by position (UV seams and split
@@ -213,6 +252,9 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
         name: the asset's name for error messages (e.g. the file path).
         crease_deg: dihedral angle above which an edge without authored normals is hard
             (default :data:`CREASE_DEG`).
+        keep_parts: keep every part's UVs (zeros for a part without) and record the part of every
+            face in ``metadata["face_part"]`` (``(F,)`` indices into ``parts``); the faces, positions
+            and normals are those of the default call.
 
     Returns:
         A trimesh with ``vertex_normals`` set to the shading normals (do not edit its vertices:
@@ -243,16 +285,19 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
             [p.normals if p.normals is not None else np.full((len(p.vertices), 3), np.nan) for p in parts]
         )
     uv = parts[0].uvs if len(parts) == 1 else None
+    if keep_parts:
+        uv = np.concatenate([p.uvs if p.uvs is not None else np.zeros((len(p.vertices), 2)) for p in parts])
+    face_part = np.repeat(np.arange(len(parts)), [len(p.faces) for p in parts])
 
     weld_first, weld_id = weld(v, diag)
     wf = weld_id[faces]
     _, area = _mn.face_normals(v, faces)
     ok = (wf[:, 0] != wf[:, 1]) & (wf[:, 1] != wf[:, 2]) & (wf[:, 0] != wf[:, 2]) & (area > 1e-14 * diag**2)
-    faces, wf = faces[ok], wf[ok]
+    faces, wf, face_part = faces[ok], wf[ok], face_part[ok]
     if len(wf):
         _, first = np.unique(np.sort(wf, axis=1), axis=0, return_index=True)
         keep = np.sort(first)
-        faces, wf = faces[keep], wf[keep]
+        faces, wf, face_part = faces[keep], wf[keep], face_part[keep]
     if len(faces) < 4:
         n = len(faces)
         raise _degenerate(name, f"only {n} non-degenerate face{'s' if n != 1 else ''} (a solid needs at least 4)")
@@ -293,16 +338,24 @@ def build_render_mesh(parts: list[MeshPart], name: str, *, crease_deg: float | N
     mesh = trimesh.Trimesh(vertices=v[src], faces=rfaces, vertex_normals=rnormals, visual=visual, process=False)
     mesh.metadata["two_sided"] = bool(two_sided)
     mesh.metadata["bodies"] = int(welded.body_count)
+    if keep_parts:
+        mesh.metadata["face_part"] = face_part
     return mesh
 
 
-def _read_file(path: Path, suffix: str, name: str) -> list[MeshPart]:
-    """Parse a mesh file into parts; every failure becomes one ``ValueError`` naming the file."""
+def _read_file(path: Path, suffix: str, name: str, *, tagged: bool = False) -> list[MeshPart]:
+    """Parse a mesh file into parts; every failure becomes one ``ValueError`` naming the file.
+
+    ``tagged``: every part with its UVs and material index (:func:`.asset_io.tagged_scene`).
+    """
     if suffix in (".gltf", ".glb"):
         _check_gltf(path, suffix, name)
     try:
-        scene = trimesh.load(path, file_type=suffix[1:], force="scene", process=False)
-        return _scene_parts(scene, name)
+        if tagged:
+            scene = asset_io.tagged_scene(path, name)
+        else:
+            scene = trimesh.load(path, file_type=suffix[1:], force="scene", process=False)
+        return _scene_parts(scene, name, tagged=tagged)
     except Exception as e:  # trimesh raises many types for malformed files; report them as bad content
         if isinstance(e, ValueError) and str(e).startswith(name):
             raise
@@ -312,27 +365,7 @@ def _read_file(path: Path, suffix: str, name: str) -> list[MeshPart]:
 
 def _check_gltf(path: Path, suffix: str, name: str) -> None:
     """Refuse glTF features trimesh would silently misread: version 1 and Draco-compressed meshes."""
-    import json  # noqa: PLC0415
-    import struct  # noqa: PLC0415
-
-    raw = path.read_bytes()
-    try:
-        if suffix == ".glb":
-            if raw[:4] != b"glTF" or len(raw) < 20:
-                raise ValueError("not a GLB file (bad magic)")
-            container = struct.unpack_from("<I", raw, 4)[0]
-            if container != 2:
-                raise ValueError(f"unsupported GLB container version {container} (glTF 2.0 only; re-export it)")
-            length, kind = struct.unpack_from("<II", raw, 12)
-            if kind != 0x4E4F534A:  # "JSON"
-                raise ValueError("GLB without a JSON chunk")
-            doc = json.loads(raw[20 : 20 + length].decode("utf-8"))
-        else:
-            doc = json.loads(raw.decode("utf-8-sig"))
-    except (ValueError, UnicodeDecodeError, struct.error) as e:
-        raise ValueError(f"{name}: cannot read mesh: {e}") from None
-    if not isinstance(doc, dict):
-        raise ValueError(f"{name}: cannot read mesh: the glTF JSON is not an object")
+    doc = asset_io.read_gltf(path, name)[0]
     version = str((doc.get("asset") or {}).get("version", "")) if isinstance(doc.get("asset"), dict) else ""
     if not version.startswith("2"):
         raise ValueError(f"{name}: unsupported glTF version {version or '1.0'!r} (glTF 2.0 only; re-export it)")
@@ -372,8 +405,13 @@ def load_mesh(path_or_builtin: str | os.PathLike, *, crease_deg: float | None = 
     Meshes are cached per process (the last :data:`_CACHE_SIZE`, files keyed by path, size and
     modification time): treat the result as read-only.
 
+    ``"<file>#material=<K>"`` (:func:`split_mesh_ref`) is the part of a glTF/OBJ file drawn with
+    its material K, with that part's UVs (:func:`load_part`); the parts of all
+    materials together are the file's mesh.
+
     Args:
-        path_or_builtin: a file path or ``builtin:<shape>[?key=value&...]``.
+        path_or_builtin: a file path (with an optional material selector) or
+            ``builtin:<shape>[?key=value&...]``.
         crease_deg: crease angle for meshes without authored normals (default :data:`CREASE_DEG`).
 
     Raises:
@@ -387,7 +425,7 @@ def load_mesh(path_or_builtin: str | os.PathLike, *, crease_deg: float | None = 
     key: tuple = (ref, crease_deg)
     if not ref.startswith(_BUILTIN_PREFIX):
         try:
-            st = os.stat(ref)
+            st = os.stat(mesh_file(ref))
             key += (st.st_mtime_ns, st.st_size)
         except OSError:
             key = ()
@@ -419,7 +457,8 @@ def _load_mesh(path_or_builtin: str | os.PathLike, crease_deg: float | None) -> 
             raw = procedural(shape, **params)
         part = MeshPart(np.asarray(raw.vertices, dtype=np.float64), np.asarray(raw.faces, dtype=np.int64))
         return build_render_mesh([part], str(path_or_builtin), crease_deg=crease_deg)
-    path = Path(path_or_builtin)
+    file, material = split_mesh_ref(path_or_builtin)
+    path = Path(file)
     name = str(path)
     if not path.is_file():
         raise FileNotFoundError(f"{name}: mesh file not found")
@@ -428,7 +467,75 @@ def _load_mesh(path_or_builtin: str | os.PathLike, crease_deg: float | None) -> 
         raise ValueError(f"{name}: unsupported mesh type {suffix!r}; supported: {list(MESH_SUFFIXES)}")
     if path.stat().st_size == 0:
         raise _degenerate(name, "empty file (0 bytes)")
+    if material is not None:
+        return load_part(path, material, crease_deg=crease_deg)
     return build_render_mesh(_read_file(path, suffix, name), name, crease_deg=crease_deg)
+
+
+#: Whole-file meshes :func:`load_part` cuts parts from, kept per process (large files: few).
+_GROUPED_SIZE = 4
+_GROUPED: dict[tuple, tuple] = {}
+
+
+def _grouped(path: Path, crease_deg: float | None) -> tuple[trimesh.Trimesh, NDArray[np.int64], list[str], set]:
+    """The file's render mesh with UVs, each face's material, the UV notes and the materials lacking UVs (cached)."""
+    st = os.stat(path)
+    key = (str(path), st.st_mtime_ns, st.st_size, crease_deg)
+    if key not in _GROUPED:
+        parts = _read_file(path, path.suffix.lower(), str(path), tagged=True)
+        notes = asset_io.clean_uvs(parts, str(path))
+        mesh = build_render_mesh(parts, str(path), crease_deg=crease_deg, keep_parts=True)
+        groups = np.array([MATERIAL_NONE if p.group is None else p.group for p in parts], dtype=np.int64)
+        _GROUPED[key] = (mesh, groups[mesh.metadata["face_part"]], notes, {p.group for p in parts if p.uvs is None})
+        while len(_GROUPED) > _GROUPED_SIZE:
+            _GROUPED.pop(next(iter(_GROUPED)))
+    return _GROUPED[key]
+
+
+def material_keys(path: str | os.PathLike, *, crease_deg: float | None = None) -> list[int]:
+    """The materials of a glTF/OBJ file that have triangles, in index order (:data:`MATERIAL_NONE` last)."""
+    keys = np.unique(_grouped(Path(path), crease_deg)[1]).tolist()
+    return sorted(keys, key=lambda k: (k == MATERIAL_NONE, k))
+
+
+def load_part(path: str | os.PathLike, material: int, *, crease_deg: float | None = None) -> trimesh.Trimesh:
+    """The triangles of material ``material`` of a glTF/OBJ file with their UVs: ``load_mesh("<file>#material=K")``.
+
+    The parts are cut from one render mesh of the whole file (:func:`build_render_mesh` with
+    ``keep_parts``), so the parts of all materials together have the faces, positions (within
+    the weld tolerance) and shading normals of ``load_mesh(file)``: an asset renders the same as
+    one object or as one object per material. UVs: :func:`.asset_io.tagged_scene`,
+    :func:`.asset_io.clean_uvs`.
+
+    Returns:
+        A trimesh with ``vertex_normals`` (the whole file's shading normals), UVs (zeros where
+        the file has none) and ``metadata``: ``two_sided`` and ``bodies`` of the whole file,
+        ``material`` (the key), ``uv_notes`` (:func:`.asset_io.clean_uvs`) and ``has_uv`` (False:
+        some of its triangles come without UVs).
+
+    Raises:
+        ValueError: ``"<file>: <reason>"``: no triangles of that material, NaN UVs, a file the
+            asset pipeline refuses.
+    """
+    path = Path(path)
+    whole, groups, notes, no_uv = _grouped(path, crease_deg)
+    sel = groups == material
+    if not sel.any():
+        label = "none" if material == MATERIAL_NONE else material
+        raise ValueError(f"{path}: no triangles with material {label}; materials with triangles: "
+                         f"{material_keys(path, crease_deg=crease_deg)}")  # fmt: skip
+    faces = np.asarray(whole.faces)[sel]
+    used, inverse = np.unique(faces, return_inverse=True)
+    mesh = trimesh.Trimesh(
+        vertices=np.asarray(whole.vertices)[used],
+        faces=inverse.reshape(-1, 3),
+        vertex_normals=np.asarray(whole.vertex_normals)[used],
+        visual=trimesh.visual.TextureVisuals(uv=np.asarray(whole.visual.uv)[used]),
+        process=False,
+    )
+    meta = {k: whole.metadata[k] for k in ("two_sided", "bodies")}
+    mesh.metadata.update(meta, material=int(material), uv_notes=list(notes), has_uv=material not in no_uv)
+    return mesh
 
 
 # --------------------------------------------------------------------------- scale, UVs
@@ -497,55 +604,3 @@ def write_ply(mesh: trimesh.Trimesh, path: str | os.PathLike) -> None:
     if len(mesh.vertices) == 0 or len(mesh.faces) == 0:
         raise ValueError("write_ply: the mesh has no triangles")
     write_ply_arrays(path, mesh.vertices, mesh.faces, normals=mesh.vertex_normals, uvs=uv)
-
-
-def write_ply_arrays(
-    path: str | os.PathLike,
-    vertices: ArrayLike,
-    faces: ArrayLike,
-    *,
-    normals: ArrayLike | None = None,
-    uvs: ArrayLike | None = None,
-) -> None:
-    """Write triangles as a binary little-endian PLY (Mitsuba 3's ``ply`` plugin reads it), atomically.
-
-    Args:
-        path: output file.
-        vertices: ``(N, 3)`` positions.
-        faces: ``(F, 3)`` vertex indices, counter-clockwise seen from the front.
-        normals: optional ``(N, 3)`` vertex normals (``nx ny nz``); without them Mitsuba shades flat.
-        uvs: optional ``(N, 2)`` texture coordinates (``u v``, v up).
-    """
-    v = np.asarray(vertices, dtype=np.float64)
-    f = np.asarray(faces, dtype=np.int64)
-    if v.ndim != 2 or v.shape[1] != 3 or f.ndim != 2 or f.shape[1] != 3:
-        raise ValueError(f"write_ply: need vertices (N, 3) and faces (F, 3), got {v.shape} and {f.shape}")
-    if len(v) == 0 or len(f) == 0:
-        raise ValueError("write_ply: the mesh has no triangles")
-    if f.min() < 0 or f.max() >= len(v):
-        raise ValueError(f"write_ply: face indices must be in [0, {len(v)}), got [{f.min()}, {f.max()}]")
-    extra = {"n": normals, "uv": uvs}
-    fields = [(k, "<f4") for k in ("x", "y", "z")]
-    if normals is not None:
-        extra["n"] = np.asarray(normals, dtype=np.float64).reshape(len(v), 3)
-        fields += [(k, "<f4") for k in ("nx", "ny", "nz")]
-    if uvs is not None:
-        extra["uv"] = np.asarray(uvs, dtype=np.float64).reshape(len(v), 2)
-        fields += [("u", "<f4"), ("v", "<f4")]
-    vert = np.empty(len(v), dtype=fields)
-    for i, k in enumerate("xyz"):
-        vert[k] = v[:, i]
-        if normals is not None:
-            vert["n" + k] = extra["n"][:, i]
-    if uvs is not None:
-        vert["u"], vert["v"] = extra["uv"][:, 0], extra["uv"][:, 1]
-    face = np.empty(len(f), dtype=[("n", "u1"), ("i", "<u4", (3,))])
-    face["n"] = 3
-    face["i"] = f
-    props = "".join(f"property float {k}\n" for k, _ in fields)
-    header = (
-        "ply\nformat binary_little_endian 1.0\ncomment written by blender_addon.core.assets\n"
-        f"element vertex {len(v)}\n{props}"
-        f"element face {len(f)}\nproperty list uchar uint vertex_indices\nend_header\n"
-    )
-    atomic_write_bytes(path, header.encode("ascii") + vert.tobytes() + face.tobytes())

@@ -173,6 +173,8 @@ class GenerateConfig:
         if refused:
             log.warning("assets=%s: %d of %d files refused and left out", self.assets, len(refused),
                         len(refused) + len(files))  # fmt: skip
+            for why in refused.values():
+                log.warning("asset left out: %s", why)
         if not files:
             first = next(iter(refused.values()))
             raise ValueError(f"assets={self.assets}: every file was refused (first: {first})")

@@ -184,7 +184,7 @@ def _preview_display(display: DisplaySpec, files_dir: Path) -> dict:
     if display.curvature_radius is None:
         scale = np.diag([display.width / 2, display.height / 2, 1.0, 1.0])
         return {"type": "rectangle", "to_world": scalar_transform(to_world @ scale), "emitter": emitter}
-    from .assets import write_ply_arrays  # noqa: PLC0415
+    from .ply_io import write_ply_arrays  # noqa: PLC0415
 
     v, f, uv = curved_strip(display, 0.0)
     world = v @ to_world[:3, :3].T + to_world[:3, 3]

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from pbrdf.sensor.rig import Rig
 
 from . import assets
+from .asset_materials import asset_parts
 from .placement import place
 from .procedural import PROCEDURAL_SHAPES
 from .spec import MaterialSpec, ObjectSpec, SceneSpec
@@ -138,6 +139,7 @@ def random_scene(
     objects: tuple[int, int] = (1, 1),
     table_fraction: float | None = None,
     pose_tries: int = POSE_TRIES,
+    asset_materials: bool = False,
 ) -> SceneSpec:
     """Objects at random, non-overlapping poses in view, each with its own random material.
 
@@ -163,6 +165,11 @@ def random_scene(
         table_fraction: probability that an object's material is a table of ``materials`` rather
             than an analytic one; None: 1 with ``materials``, else 0.
         pose_tries: pose draws per object while it overlaps an earlier one.
+        asset_materials: an asset file with materials (glTF, OBJ+MTL) becomes one object per
+            material, ``object_<i>_part<j>`` with mesh ``<file>#material=<K>`` and the file's own
+            material (:func:`.asset_materials.asset_parts`; no table or analytic draw; triangles
+            without a material get one random analytic material); the notes of its reading go
+            to ``metadata["asset_notes"][file]``. False: every file is one object, as before.
 
     Returns:
         The scene, seeded with ``seed % 2**31``.
@@ -190,6 +197,7 @@ def random_scene(
     placed: list[tuple[NDArray, float]] = []
     objs: list[ObjectSpec] = []
     mats: list[MaterialSpec] = []
+    notes: dict[str, list[str]] = {}
     for _ in range(count):
         k = int(rng.integers(len(pool)))
         mesh_ref = pool[k]
@@ -206,8 +214,13 @@ def random_scene(
         else:
             continue  # no free pose: leave the object out
         placed.append((centre, radius))
+        suffix = "" if len(placed) == 1 else f"_{len(placed)}"  # objects (assets) placed so far
+        own = asset_parts(mesh_ref) if asset_materials and k < len(files) else None
+        if own is not None:
+            _add_parts(own, rng, tuple(map(tuple, to_world)), f"object{suffix}", objs, mats)
+            notes.update({own.file: list(own.notes)} if own.notes else {})
+            continue
         table = table_fraction == 1.0 or (0.0 < table_fraction and rng.random() < table_fraction)
-        suffix = "" if not objs else f"_{len(objs) + 1}"
         material = materials[int(rng.integers(len(materials)))] if table else random_material(rng, f"material{suffix}")
         material = replace(material, name=_unique(material.name, {m.name for m in mats}))
         obj = ObjectSpec(
@@ -215,7 +228,20 @@ def random_scene(
         )
         objs.append(obj)
         mats.append(material)
-    return SceneSpec(rig=rig, objects=tuple(objs), materials=tuple(mats), seed=int(seed) % 2**31)
+    meta = {"asset_notes": notes} if notes else {}
+    return SceneSpec(rig=rig, objects=tuple(objs), materials=tuple(mats), seed=int(seed) % 2**31, metadata=meta)
+
+
+def _add_parts(
+    own, rng: np.random.Generator, to_world: tuple, name: str, objs: list[ObjectSpec], mats: list[MaterialSpec]
+) -> None:
+    """One object per part of an asset (:class:`.asset_materials.AssetParts`) at one pose, each with its material."""
+    for j, part in enumerate(own.parts):
+        fallback = name.replace("object", "material", 1) + f"_part{j}"
+        material = part.material if part.material is not None else random_material(rng, fallback)
+        material = replace(material, name=_unique(material.name, {m.name for m in mats}))
+        objs.append(ObjectSpec(name=f"{name}_part{j}", mesh=part.mesh, to_world=to_world, material=material.name))
+        mats.append(material)
 
 
 def benchmark_scene(seed: int = 0) -> SceneSpec:

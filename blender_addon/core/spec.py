@@ -210,8 +210,8 @@ class ObjectSpec:
 
     Attributes:
         name: unique name.
-        mesh: path of a PLY/OBJ/GLB/GLTF file or ``builtin:<shape>[?key=value&...]``
-            (see :func:`blender_addon.core.assets.load_mesh`).
+        mesh: path of a PLY/OBJ/GLB/GLTF file (``<file>#material=<K>``: the part of material K)
+            or ``builtin:<shape>[?key=value&...]`` (see :func:`blender_addon.core.assets.load_mesh`).
         to_world: object-to-world affine transform (4x4 nested tuples) with a positive
             determinant (no mirroring, which would turn the normals inside out).
         material: name of a :class:`MaterialSpec` of the scene.
@@ -352,7 +352,7 @@ class SceneSpec:
             builtin = assets.parse_builtin(obj.mesh) is not None
             if not builtin and not check_files:
                 continue
-            if not builtin and not Path(obj.mesh).is_file():
+            if not builtin and not Path(assets.mesh_file(obj.mesh)).is_file():
                 raise FileNotFoundError(f"object {obj.name!r}: mesh file not found: {obj.mesh}")
             try:
                 mesh = assets.load_mesh(obj.mesh)

@@ -117,6 +117,32 @@ class TestLoad:
             assets.load_mesh(junk)
 
 
+class TestMaterialSelectors:
+    def test_split_mesh_ref(self, tmp_path):
+        assert assets.split_mesh_ref(tmp_path / "a.gltf#material=12") == (str(tmp_path / "a.gltf"), 12)
+        assert assets.split_mesh_ref("dir#material=1/a.obj") == ("dir#material=1/a.obj", None)  # not at the end
+        assert assets.split_mesh_ref("builtin:torus?seed=3") == ("builtin:torus?seed=3", None)
+        assert assets.mesh_file("x.glb#material=none") == "x.glb"
+        with pytest.raises(ValueError, match="bad material selector"):
+            assets.split_mesh_ref("x.glb#material=-2")
+
+    def test_selector_needs_a_file_with_materials(self, tmp_path):
+        path = tmp_path / "box.ply"
+        trimesh.creation.box().export(path)
+        with pytest.raises(ValueError, match=rf"^{path}: material selectors need a glTF/GLB or OBJ file"):
+            assets.load_mesh(f"{path}#material=0")
+        with pytest.raises(FileNotFoundError, match="mesh file not found"):
+            assets.load_mesh(f"{tmp_path / 'gone.glb'}#material=0")
+
+    def test_scene_validation_reads_the_file_of_a_selector(self, tmp_path):
+        from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec
+
+        mat = MaterialSpec.plastic("m", (0.5, 0.5, 0.5), 0.3)
+        obj = ObjectSpec("o", f"{tmp_path / 'gone.gltf'}#material=0", material="m")
+        with pytest.raises(FileNotFoundError, match=r"mesh file not found: .*gone.gltf#material=0"):
+            SceneSpec(objects=(obj,), materials=(mat,)).validate()
+
+
 class TestEnsureUV:
     def test_ensure_uv(self):
         m = procedural("sphere", subdivisions=2)
