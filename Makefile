@@ -108,6 +108,7 @@ test-sets: setup  ## render the test splits (48 scenes each, raw brackets kept) 
 	$(PY) headless/expand_pbrdf.py --out $(SPLITS_DIR)/pbrdfs-test --count 24 --seed 22000 --quiet
 	$(PY) headless/render.py --split test-pbrdf --pbrdfs $(SPLITS_DIR)/pbrdfs-test --out $(SPLITS_DIR)/test-pbrdf --resume --quiet
 	$(PY) headless/render.py --split test-scenes --pbrdfs $(SPLITS_DIR)/pbrdfs-test --out $(SPLITS_DIR)/test-scenes --resume --quiet
+	$(PY) headless/render.py --split test-textured --pbrdfs $(SPLITS_DIR)/pbrdfs-test --out $(SPLITS_DIR)/test-textured --resume --quiet
 
 # The data engine's training data (pbrdf/data/splits.py train-engine, val-engine): 2,000 + 64
 # scenes of 1-3 objects at 192 px, half the materials expanded pBRDF tables. Long: every command

@@ -6,8 +6,8 @@ the camera model and the decoder.
     python headless/render.py --split NAME [--out DIR] [--count N] [--resume]
     python headless/render.py --out DIR --count N [--resolution 384] [--seed S] [--spp 32]
         [--assets DIR] [--shapes SET] [--objects MIN-MAX] [--pbrdfs DIR] [--table-fraction F]
-        [--variant auto] [--rig FILE] [--resume] [--shard K/N] [--scene SPEC.json] [--via-blender]
-        [--npz] [--quiet]
+        [--texture-fraction F] [--asset-materials] [--variant auto] [--rig FILE] [--resume]
+        [--shard K/N] [--scene SPEC.json] [--via-blender] [--npz] [--quiet]
 
 Each sample is DIR/samples/NNNNNN.exr (nine maps, mask, normal, albedo, roughness, metallic,
 depth; optionally Stokes) plus a JSON sidecar (rig, pose, material, Disney parameters, seeds,
@@ -30,7 +30,11 @@ spheres disjoint (an object without a free pose after 20 draws is left out). Mat
 analytic polarimetric ones (pplastic and rough conductors) with random parameters, or with
 --pbrdfs DIR entries of that pBRDF table library; --table-fraction F draws each object's
 material from the library with probability F and analytic otherwise (default 1 with --pbrdfs,
-0 without). --variant picks the Mitsuba variant: auto (default; cuda_ad_mono_polarized when
+0 without). --texture-fraction F gives each drawn material seeded procedural textures with
+probability F (base colour and roughness that vary, metal segments or worn paint, a mild normal
+map, a mix of pBRDF tables; default 0: uniform materials); --asset-materials keeps the materials
+of asset files that have them (glTF metallic-roughness, OBJ+MTL: one object per material, with
+its textures) instead of drawing one. --variant picks the Mitsuba variant: auto (default; cuda_ad_mono_polarized when
 Dr.Jit has a CUDA backend, else llvm), llvm, cuda, scalar (scalar_spectral_polarized, slow) or
 any *_polarized variant name; --split renders with llvm unless --variant is given. --scene
 renders one given scene spec (e.g. exported by the Blender add-on) instead of random scenes
@@ -82,8 +86,9 @@ def _apply_split(args: argparse.Namespace) -> str | None:
         raise ValueError(f"--split {split.name} renders with seed {split.seed}; --seed cannot change it")
     if args.scene is not None or args.assets is not None:
         raise ValueError("--split draws its own scenes: it cannot be combined with --scene or --assets")
-    if args.objects is not None or args.table_fraction is not None:
-        raise ValueError(f"--split {split.name} fixes the objects and materials: drop --objects and --table-fraction")
+    if args.objects is not None or args.table_fraction is not None or args.texture_fraction is not None:
+        raise ValueError(f"--split {split.name} fixes the objects and materials: drop --objects, --table-fraction "
+                         "and --texture-fraction")  # fmt: skip
     if split.pbrdfs and args.pbrdfs is None:
         raise ValueError(f"--split {split.name} needs --pbrdfs DIR (expanded tables; `make test-sets` makes them)")
     if not split.pbrdfs and args.pbrdfs is not None:
@@ -103,6 +108,8 @@ def _apply_split(args: argparse.Namespace) -> str | None:
     args.keep_raw = args.keep_raw or split.keep_raw
     args.objects = f"{split.objects[0]}-{split.objects[1]}"
     args.table_fraction = split.table_fraction
+    args.texture_fraction = split.texture_fraction
+    args.asset_materials = args.asset_materials or split.asset_materials
     args.assets = split.asset_folder()
     args.variant = args.variant or "llvm"  # the variant the splits were made with, GPU or not
     args.out = args.out or Path("out/splits") / split.name
@@ -111,7 +118,7 @@ def _apply_split(args: argparse.Namespace) -> str | None:
 
 #: The GenerateConfig fields that are flags here (its errors name them as ``field=value``).
 GENERATE_FLAGS = ("count", "resolution", "seed", "spp", "shapes", "objects", "table_fraction", "variant", "assets",
-                  "pbrdfs", "rig", "pattern", "scene", "shard")  # fmt: skip
+                  "pbrdfs", "rig", "pattern", "scene", "shard", "texture_fraction", "asset_materials")  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -146,6 +153,16 @@ def build_parser() -> argparse.ArgumentParser:
         type=float,
         help="probability that an object's material comes from --pbrdfs rather than analytic (default 1 with "
         "--pbrdfs, else 0; > 0 needs --pbrdfs)",
+    )
+    parser.add_argument(
+        "--texture-fraction",
+        type=float,
+        help="probability that an object's drawn material gets seeded procedural textures (default 0: uniform)",
+    )
+    parser.add_argument(
+        "--asset-materials",
+        action="store_true",
+        help="keep the materials of asset files that have them (glTF, OBJ+MTL): one object per material",
     )
     parser.add_argument(
         "--variant",
@@ -206,6 +223,8 @@ def main(argv: list[str] | None = None) -> int:
             shapes=args.shapes,
             objects=parse_objects(args.objects) if args.objects is not None else (1, 1),
             table_fraction=args.table_fraction,
+            texture_fraction=args.texture_fraction or 0.0,
+            asset_materials=args.asset_materials,
             variant=args.variant or "auto",
             split=split,
             assets=args.assets,

@@ -16,6 +16,7 @@ Blender and exports it back there (:func:`blender_addon.build_spec.roundtrip_spe
 from __future__ import annotations
 
 import io
+import json
 import logging
 import platform
 import time
@@ -32,6 +33,7 @@ from pbrdf.io.atomic import atomic_write_bytes, remove_leftovers
 from pbrdf.sensor.rig import BUILTIN_PATTERNS, Rig
 
 from . import assets, passes, render, scenegen
+from .asset_materials import usable_textured_assets
 from .generated_shapes import GENERATED_SHAPES
 from .procedural import PROCEDURAL_SHAPES
 from .spec import SceneSpec
@@ -96,6 +98,8 @@ class GenerateConfig:
     objects: tuple[int, int] = (1, 1)
     table_fraction: float | None = None
     variant: str = "auto"
+    texture_fraction: float = 0.0
+    asset_materials: bool = False
 
     def __post_init__(self) -> None:
         """Check the fields; ``shapes`` None becomes ``none`` with ``assets``, else ``procedural``."""
@@ -123,6 +127,10 @@ class GenerateConfig:
                 raise ValueError(f"table_fraction={self.table_fraction} must be in [0, 1]")
             if self.table_fraction > 0 and self.pbrdfs is None:
                 raise ValueError(f"table_fraction={self.table_fraction} > 0 needs pbrdfs=DIR (a pBRDF table library)")
+        if not 0.0 <= self.texture_fraction <= 1.0:
+            raise ValueError(f"texture_fraction={self.texture_fraction} must be in [0, 1]")
+        if self.scene is not None and (self.texture_fraction > 0 or self.asset_materials):
+            raise ValueError("scene renders the given scene: it cannot take texture_fraction or asset_materials")
         if self.variant not in VARIANT_ALIASES and not self.variant.endswith("_polarized"):
             valid = f"one of {list(VARIANT_ALIASES)} or a *_polarized Mitsuba variant"
             raise ValueError(f"variant={self.variant!r} must be {valid}")
@@ -169,7 +177,7 @@ class GenerateConfig:
         if not files:
             raise ValueError(f"assets={self.assets}: no {'/'.join(s[1:].upper() for s in assets.MESH_SUFFIXES)} files")
         # The same pool for every shard and rerun.
-        files, refused = assets.usable_assets(files)
+        files, refused = (usable_textured_assets if self.asset_materials else assets.usable_assets)(files)
         if refused:
             log.warning("assets=%s: %d of %d files refused and left out", self.assets, len(refused),
                         len(refused) + len(files))  # fmt: skip
@@ -187,6 +195,10 @@ class GenerateConfig:
             args["objects_range"] = list(self.objects)
         if self.table_fraction is not None:
             args["table_fraction"] = self.table_fraction
+        if self.texture_fraction > 0:
+            args["texture_fraction"] = self.texture_fraction
+        if self.asset_materials:
+            args["asset_materials"] = True
         return args
 
 
@@ -301,8 +313,6 @@ def write_arrays(root: str | Path, index: int, sample: dict, meta: dict) -> Path
     For readers without OpenEXR (Blender's Python): keys are the sample's arrays, plus
     ``map_names`` (the nine maps' names) and ``metadata`` (the sidecar metadata as JSON).
     """
-    import json  # noqa: PLC0415
-
     from pbrdf.sensor.decode import NINE_MAP_NAMES  # noqa: PLC0415
 
     buf = io.BytesIO()
@@ -338,13 +348,14 @@ def generate(
     """
     inputs = cfg.load_inputs()
     out = Path(cfg.out)
+    info = _run_info(cfg, inputs, spec_hook)
+    _check_same_scenes(out, info)
     todo = dataset.plan_work(out, cfg.count, cfg.shard, cfg.resume)
     if cfg.resume:
         dataset.cleanup_partial(out, shard=cfg.shard)
     dataset.remove_manifest_leftovers(out)
     remove_leftovers(out / ARRAYS_DIR, lambda name: _array_in_shard(name, cfg.shard))
     report = GenerateReport(skipped=len(dataset.shard_indices(cfg.count, cfg.shard)) - len(todo))
-    info = _run_info(cfg, inputs, spec_hook)
     bar = None
     if progress:
         from tqdm import tqdm  # noqa: PLC0415
@@ -369,6 +380,28 @@ def generate(
         bar.close()
     dataset.write_manifest(out, info)
     return report
+
+
+#: The manifest's ``config`` fields that decide what a sample holds: a run adding to a folder must match them.
+SCENE_FIELDS = ("resolution", "seed", "spp", "shapes", "objects", "table_fraction", "texture_fraction",
+                "asset_materials", "pattern", "noise", "keep_raw", "split")  # fmt: skip
+
+
+def _check_same_scenes(out: Path, info: dict) -> None:
+    """Refuse to add samples to a dataset whose manifest was written with other scene settings.
+
+    A split whose definition changed (e.g. textures added) would otherwise mix two kinds of samples
+    in one folder on ``resume``. Fields a manifest lacks (older runs) are not compared.
+    """
+    try:
+        old = dataset.read_manifest(out).get("config") or {}
+    except FileNotFoundError:
+        return
+    new = json.loads(json.dumps(info["config"], default=str))  # as the manifest stores it (tuples as lists)
+    differ = [f"{k}={old[k]!r} there, {new[k]!r} now" for k in SCENE_FIELDS if k in old and old[k] != new.get(k)]
+    if differ:
+        raise ValueError(f"{out}: its samples were made with other settings ({'; '.join(differ)}); "
+                         "render into a new folder")  # fmt: skip
 
 
 def _run_info(cfg: GenerateConfig, inputs: GenerateInputs, spec_hook: Callable | None) -> dict:
@@ -403,6 +436,7 @@ def _write_one(
         spec = scenegen.random_scene(
             inputs.rig, seed, asset_files=inputs.asset_files, materials=inputs.materials,
             shapes=SHAPE_SETS[cfg.shapes], objects=cfg.objects, table_fraction=cfg.table_fraction,
+            asset_materials=cfg.asset_materials, texture_fraction=cfg.texture_fraction,
         )  # fmt: skip
     if spec_hook is not None:
         spec = spec_hook(spec)

@@ -10,14 +10,16 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from .textures import MAX_TABLES, PROCEDURAL_PREFIX, MaterialTextures, TextureSpec
+from .spec import MaterialSpec
+from .textures import MAX_TABLES, PROCEDURAL_PREFIX, MaterialTextures, TextureSpec, texture_mean
 
-__all__ = ["random_material_textures"]
+__all__ = ["random_material_textures", "textured_material"]
 
 
 def _seed(rng: np.random.Generator) -> int:
@@ -121,3 +123,44 @@ def random_material_textures(
         kw["weights"] = _spec("segments", range(n), (1.0,) * n, seed=_seed(rng), size=size, count=n + 1,
                               softness=float(rng.uniform(0.002, 0.01)))  # fmt: skip
     return MaterialTextures(**kw)
+
+
+def textured_material(
+    rng: np.random.Generator, material: MaterialSpec, library: Sequence[MaterialSpec] = (), *, size: int = 256
+) -> MaterialSpec:
+    """``material`` with seeded procedural textures (:func:`random_material_textures`) and their means as constants.
+
+    A ``measured`` material mixes its table with one or two other tables of ``library`` (when
+    it holds others) by segments; its constants become the weighted means of the tables' fitted
+    Disney values. Analytic materials keep their kind; their albedo, roughness and metallic
+    become the textures' means.
+
+    Args:
+        rng: the generator every choice is drawn from.
+        material: the untextured material.
+        library: the pBRDF table materials the mixture may draw from (:func:`.scenegen.load_material_library`).
+        size: texture side in texels.
+
+    Returns:
+        The textured material (same name and kind).
+    """
+    others = [m for m in library if m.table != material.table] if material.kind == "measured" else []
+    extra = []
+    if others:
+        for i in rng.choice(len(others), size=min(len(others), int(rng.integers(1, 3))), replace=False):
+            extra.append(others[int(i)])
+    tex = random_material_textures(rng, material.kind, albedo=material.albedo, roughness=material.roughness,
+                                   tables=[m.table for m in extra], size=size)  # fmt: skip
+    albedo = np.asarray(texture_mean(tex.albedo), np.float64) if tex.albedo is not None else np.asarray(material.albedo)
+    rough = texture_mean(tex.roughness)[0] if tex.roughness is not None else material.roughness
+    metal = texture_mean(tex.metallic)[0] if tex.metallic is not None else material.metallic
+    if extra:  # the mixture's mean: weights of the extra tables, the rest on the own table
+        w = np.asarray(texture_mean(tex.weights), np.float64)
+        w = np.concatenate([[max(1.0 - w.sum(), 0.0)], w])
+        mats = [material, *extra]
+        scale = albedo / np.maximum(np.asarray(material.albedo, np.float64), 1e-6)  # the albedo texture's darkening
+        albedo = w @ np.array([m.albedo for m in mats], np.float64) * np.minimum(scale, 1.0)
+        rough = float(w @ np.array([m.roughness for m in mats]))
+        metal = float(w @ np.array([m.metallic for m in mats]))
+    return replace(material, albedo=tuple(float(a) for a in np.clip(albedo, 0.0, 1.0)), roughness=float(rough),
+                   metallic=float(np.clip(metal, 0.0, 1.0)), textures=tex)  # fmt: skip

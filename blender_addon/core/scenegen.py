@@ -26,6 +26,7 @@ from . import assets
 from .asset_materials import asset_parts
 from .placement import place
 from .procedural import PROCEDURAL_SHAPES
+from .random_textures import textured_material
 from .spec import MaterialSpec, ObjectSpec, SceneSpec
 from .unseen_shapes import UNSEEN_SHAPES
 
@@ -140,6 +141,7 @@ def random_scene(
     table_fraction: float | None = None,
     pose_tries: int = POSE_TRIES,
     asset_materials: bool = False,
+    texture_fraction: float = 0.0,
 ) -> SceneSpec:
     """Objects at random, non-overlapping poses in view, each with its own random material.
 
@@ -170,6 +172,11 @@ def random_scene(
             material (:func:`.asset_materials.asset_parts`; no table or analytic draw; triangles
             without a material get one random analytic material); the notes of its reading go
             to ``metadata["asset_notes"][file]``. False: every file is one object, as before.
+        texture_fraction: probability that an object's drawn material (not an asset's own)
+            gets seeded procedural textures (:func:`.random_textures.textured_material`: varying
+            base colour and roughness, metal segments or wear, a normal map, a mix of tables);
+            drawn after the material, only when above 0, so 0 keeps the random stream of
+            untextured scenes.
 
     Returns:
         The scene, seeded with ``seed % 2**31``.
@@ -187,6 +194,8 @@ def random_scene(
         raise ValueError(f"table_fraction {table_fraction} > 0 needs a pBRDF table library (materials)")
     if pose_tries < 1:
         raise ValueError(f"pose_tries must be >= 1, got {pose_tries}")
+    if not 0.0 <= texture_fraction <= 1.0:
+        raise ValueError(f"texture_fraction must be in [0, 1], got {texture_fraction}")
     files = [str(f) for f in asset_files or ()]
     builtins = tuple(shapes) if shapes is not None else (() if files else PROCEDURAL_SHAPES)
     pool = files + [f"builtin:{s}" for s in builtins]
@@ -222,6 +231,8 @@ def random_scene(
             continue
         table = table_fraction == 1.0 or (0.0 < table_fraction and rng.random() < table_fraction)
         material = materials[int(rng.integers(len(materials)))] if table else random_material(rng, f"material{suffix}")
+        if texture_fraction > 0 and rng.random() < texture_fraction:
+            material = textured_material(rng, material, materials or ())
         material = replace(material, name=_unique(material.name, {m.name for m in mats}))
         obj = ObjectSpec(
             name=f"object{suffix}", mesh=mesh_ref, to_world=tuple(map(tuple, to_world)), material=material.name

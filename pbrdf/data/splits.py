@@ -50,7 +50,10 @@ ROLES = ("train", "val", "test")
 #: Built-in shape sets a split may draw from (``headless/render.py --shapes``).
 SHAPE_SET_NAMES = ("procedural", "generated", "train", "meshes", "none")
 #: Asset corpora a split may add to its shape pool, by name -> folder.
-ASSET_CORPORA = {"assimp-testmodels": "/usr/share/assimp/models"}
+ASSET_CORPORA = {
+    "assimp-testmodels": "/usr/share/assimp/models",
+    "examples-gltf": str(Path(__file__).resolve().parents[2] / "examples" / "gltf"),  # CC0 models the project ships
+}
 
 
 @dataclass(frozen=True)
@@ -79,6 +82,9 @@ class Split:
         pattern: the display pattern (:data:`pbrdf.sensor.rig.BUILTIN_PATTERNS`).
         twin_of: the split whose scenes (seed, count and every setting but ``pattern``) this one
             re-renders; None for an independent split.
+        texture_fraction: the probability that an object's drawn material gets seeded procedural
+            textures (``headless/render.py --texture-fraction``).
+        asset_materials: asset files keep their own materials (``--asset-materials``).
     """
 
     name: str
@@ -96,6 +102,8 @@ class Split:
     assets: str | None = None
     pattern: str = "rgb_halves"
     twin_of: str | None = None
+    texture_fraction: float = 0.0
+    asset_materials: bool = False
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
@@ -188,6 +196,22 @@ SPLITS: dict[str, Split] = {
             table_fraction=0.5,
             assets="assimp-testmodels",
             description="1-4 objects: assimp-testmodels corpus files and unseen meshes, half pBRDF tables",
+        ),
+        Split(
+            "test-textured",
+            "test",
+            seed=24_000,
+            count=48,
+            shapes="meshes",
+            pbrdfs=True,
+            keep_raw=True,
+            objects=(1, 3),
+            table_fraction=0.5,
+            assets="examples-gltf",
+            texture_fraction=1.0,
+            asset_materials=True,
+            description="1-3 objects with textured materials: unseen meshes with procedural textures (half pBRDF "
+            "table mixtures) and the shipped CC0 glTF models with their own",
         ),
     )
 }

@@ -93,6 +93,19 @@ def test_rerun_without_resume_refuses(tmp_path):
         generate(GenerateConfig(out=tmp_path, count=1, **SMALL), progress=False)
 
 
+def test_resume_with_other_scene_settings_refuses(tmp_path):
+    """A split whose definition changed (textures added) must not add samples to its old folder."""
+    generate(GenerateConfig(out=tmp_path, count=2, shard=(0, 2), **SMALL), progress=False)
+    with pytest.raises(ValueError, match=r"texture_fraction=0.0 there, 0.5 now.*new folder") as info:
+        generate(GenerateConfig(out=tmp_path, count=2, resume=True, texture_fraction=0.5, **SMALL), progress=False)
+    assert (
+        "\n" not in str(info.value)
+        and psample.check_complete(tmp_path, 0)
+        and not (tmp_path / "samples" / "000001.exr").exists()
+    )
+    assert generate(GenerateConfig(out=tmp_path, count=2, resume=True, **SMALL), progress=False).written == [1]
+
+
 def test_assets_folder_and_rig_file(tmp_path):
     import trimesh
 
@@ -202,6 +215,8 @@ def test_default_config_keeps_the_single_object_run():
         ({"shapes": "cubes"}, "shapes='cubes' must be one of"),
         ({"variant": "gpu"}, r"variant='gpu' must be one of \['auto', 'llvm', 'cuda', 'scalar'\]"),
         ({"scene": ROOT / "pyproject.toml", "objects": (2, 2)}, "cannot be combined with objects"),
+        ({"texture_fraction": 1.5}, r"texture_fraction=1.5 must be in \[0, 1\]"),
+        ({"scene": ROOT / "pyproject.toml", "asset_materials": True}, "cannot take texture_fraction or asset_mat"),
     ],
 )
 def test_bad_config_fails_with_one_line(kwargs, message):

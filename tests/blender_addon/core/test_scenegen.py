@@ -1,6 +1,7 @@
 """blender_addon/core/scenegen.py: random scenes with one or more objects, reproducible from a seed."""
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -65,6 +66,31 @@ def test_one_object_reproduces_the_single_object_scenes(library, asset_files):
         assert scenegen.random_scene(RIG, seed, shapes=PROCEDURAL_SHAPES) == base
         tables = scenegen.random_scene(RIG, seed, materials=library)
         assert scenegen.random_scene(RIG, seed, materials=library, table_fraction=1.0) == tables
+        assert scenegen.random_scene(RIG, seed, texture_fraction=0.0) == base
+
+
+def test_texture_fraction_textures_drawn_materials_reproducibly(tmp_path):
+    """Every drawn material textured at fraction 1, half at 0.5; the same seed gives the same textures."""
+    tabs = [MaterialSpec.measured(f"t{i}", str(tmp_path / f"t{i}.bin"), (0.6, 0.5, 0.4), 0.2 + 0.2 * i, i / 3)
+            for i in range(3)]  # fmt: skip
+    for t in tabs:
+        Path(t.table).write_bytes(b"x")
+    kinds = set()
+    for seed in range(6):
+        spec = scenegen.random_scene(RIG, seed, shapes=FAST, objects=(1, 3), materials=tabs, table_fraction=0.5,
+                                     texture_fraction=1.0)  # fmt: skip
+        assert spec == scenegen.random_scene(RIG, seed, shapes=FAST, objects=(1, 3), materials=tabs,
+                                             table_fraction=0.5, texture_fraction=1.0)  # fmt: skip
+        for m in spec.materials:
+            kinds.add(m.kind)
+            assert m.textures is not None and m.textures.albedo is not None, m
+            assert all(0.0 <= a <= 1.0 for a in m.albedo) and 0.0 <= m.roughness <= 1.0 and 0.0 <= m.metallic <= 1.0
+            if m.kind == "measured" and m.textures.tables:  # a mixture: its constants lie between the tables'
+                assert 0.2 - 1e-9 <= m.roughness <= 0.6 + 1e-9 and m.textures.weights is not None
+        assert type(spec).from_dict(spec.to_dict()) == spec  # the textures travel in the sidecar's spec
+    assert {"measured"} < kinds  # analytic and table materials both got textures
+    half = [scenegen.random_scene(RIG, s, shapes=FAST, texture_fraction=0.5).materials[0].textures for s in range(40)]
+    assert 8 <= sum(t is not None for t in half) <= 32
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -156,6 +182,7 @@ def test_generated_shapes_are_drawn_with_a_seed():
         ({"table_fraction": 0.5}, "needs a pBRDF table library"),
         ({"shapes": ()}, "no shapes to draw from"),
         ({"pose_tries": 0}, "pose_tries must be >= 1"),
+        ({"texture_fraction": -0.1}, r"texture_fraction must be in \[0, 1\]"),
     ],
 )
 def test_bad_arguments_raise_one_line(kwargs, message):

@@ -11,7 +11,7 @@ def test_roles_and_sizes():
     roles = {s.name: s.role for s in splits.SPLITS.values()}
     assert roles["train"] == "train" and roles["val"] == "val"
     tests = splits.test_splits()
-    assert {s.name for s in tests} == {"test-procedural", "test-meshes", "test-pbrdf", "test-scenes"}
+    assert {s.name for s in tests} == {"test-procedural", "test-meshes", "test-pbrdf", "test-scenes", "test-textured"}
     assert all(s.count >= 48 and s.keep_raw for s in tests)  # scored through the real-capture path
     independent = [s for s in splits.SPLITS.values() if s.twin_of is None]
     assert len({s.seed for s in independent}) == len(independent)
