@@ -1,0 +1,105 @@
+"""An independent .glb reader and a validator-like check for the glTF tests (json + struct + numpy + Pillow).
+
+Written from the glTF 2.0 specification, not from :mod:`pbrdf.io.gltf`: the container layout
+(header, JSON chunk, BIN chunk), accessors read through their buffer views, and the rules a
+validator checks for the files we write (required fields, counts, lengths, 4-byte alignment,
+min/max that match the data, unit normals and tangents, indices in range).
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import struct
+
+import numpy as np
+from PIL import Image
+
+_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
+_DTYPES = {5126: np.float32, 5125: np.uint32, 5123: np.uint16, 5121: np.uint8}
+
+
+def read_glb(data: bytes) -> tuple[dict, bytes]:
+    """``(json document, BIN chunk bytes)`` of a .glb, checking the container's layout."""
+    magic, version, length = struct.unpack_from("<4sII", data)
+    assert (magic, version, length) == (b"glTF", 2, len(data))
+    json_len, json_type = struct.unpack_from("<II", data, 12)
+    assert json_type == 0x4E4F534A and json_len % 4 == 0
+    doc = json.loads(data[20 : 20 + json_len])
+    off = 20 + json_len
+    bin_len, bin_type = struct.unpack_from("<II", data, off)
+    assert bin_type == 0x004E4942 and bin_len % 4 == 0 and off + 8 + bin_len == len(data)
+    return doc, data[off + 8 : off + 8 + bin_len]
+
+
+def accessor(doc: dict, blob: bytes, index: int) -> np.ndarray:
+    """The data of accessor ``index``: ``(count, components)`` (or ``(count,)`` for SCALAR)."""
+    acc = doc["accessors"][index]
+    view = doc["bufferViews"][acc["bufferView"]]
+    n = _COMPONENTS[acc["type"]]
+    dtype = np.dtype(_DTYPES[acc["componentType"]])
+    start = view.get("byteOffset", 0) + acc.get("byteOffset", 0)
+    assert view.get("byteStride", n * dtype.itemsize) == n * dtype.itemsize  # tightly packed (we write no stride)
+    out = np.frombuffer(blob, dtype, acc["count"] * n, start).reshape(-1, n)
+    return out[:, 0] if acc["type"] == "SCALAR" else out
+
+
+def image(doc: dict, blob: bytes, texture_index: int) -> np.ndarray:
+    """The decoded ``(H, W, C)`` uint8 PNG of texture ``texture_index``."""
+    img = doc["images"][doc["textures"][texture_index]["source"]]
+    view = doc["bufferViews"][img["bufferView"]]
+    png = blob[view.get("byteOffset", 0) : view.get("byteOffset", 0) + view["byteLength"]]
+    assert img["mimeType"] == "image/png" and png[:8] == b"\x89PNG\r\n\x1a\n"
+    a = np.asarray(Image.open(io.BytesIO(png)))
+    return a[..., None] if a.ndim == 2 else a
+
+
+def validate(doc: dict, blob: bytes) -> list[str]:
+    """What a validator would report for the files we write (an empty list: none)."""
+    issues = []
+    for key in ("asset", "scenes", "nodes", "meshes", "accessors", "bufferViews", "buffers", "materials"):
+        if key not in doc:
+            issues.append(f"{key}: missing")
+    if doc.get("asset", {}).get("version") != "2.0":
+        issues.append("asset.version: not 2.0")
+    if len(doc["buffers"]) != 1 or "uri" in doc["buffers"][0] or doc["buffers"][0]["byteLength"] > len(blob):
+        issues.append("buffers: a GLB has one buffer without uri, within the BIN chunk")
+    for i, view in enumerate(doc["bufferViews"]):
+        off = view.get("byteOffset", 0)
+        if off % 4 or off + view["byteLength"] > doc["buffers"][0]["byteLength"]:
+            issues.append(f"bufferViews[{i}]: offset {off} not 4-aligned or past the buffer")
+    for i, acc in enumerate(doc["accessors"]):
+        view = doc["bufferViews"][acc["bufferView"]]
+        size = _COMPONENTS[acc["type"]] * np.dtype(_DTYPES[acc["componentType"]]).itemsize
+        if acc["count"] * size > view["byteLength"] - acc.get("byteOffset", 0):
+            issues.append(f"accessors[{i}]: count {acc['count']} does not fit its bufferView")
+        data = accessor(doc, blob, i).reshape(acc["count"], -1)
+        for bound, fn in (("min", np.min), ("max", np.max)):
+            if bound not in acc or not np.array_equal(np.asarray(acc[bound], data.dtype), fn(data, axis=0)):
+                issues.append(f"accessors[{i}].{bound}: missing or not the data's")
+    n_images = len(doc.get("images", []))
+    for prim in (p for m in doc["meshes"] for p in m["primitives"]):
+        att = prim["attributes"]
+        counts = {k: doc["accessors"][v]["count"] for k, v in att.items()}
+        if "POSITION" not in att or len(set(counts.values())) != 1:
+            issues.append(f"primitive attributes: POSITION missing or counts differ: {counts}")
+        if doc["accessors"][prim["indices"]]["count"] % 3:
+            issues.append("indices: count not a multiple of 3")
+        idx = accessor(doc, blob, prim["indices"])
+        if idx.max() >= counts["POSITION"]:
+            issues.append("indices: out of range")
+        for key, width in (("NORMAL", 3), ("TANGENT", 3)):
+            if key in att:
+                vec = accessor(doc, blob, att[key])
+                if np.abs(np.linalg.norm(vec[:, :width], axis=1) - 1).max() > 5e-4:
+                    issues.append(f"{key}: not unit length")
+        if "TANGENT" in att and not np.all(np.abs(accessor(doc, blob, att["TANGENT"])[:, 3]) == 1):
+            issues.append("TANGENT.w: not +-1")
+    for tex in doc.get("textures", []):
+        if not 0 <= tex["source"] < n_images or not 0 <= tex.get("sampler", 0) < len(doc.get("samplers", [{}])):
+            issues.append("textures: source or sampler out of range")
+    for cam in doc.get("cameras", []):
+        p = cam.get("perspective", {})
+        if cam.get("type") != "perspective" or not (0 < p.get("yfov", 0) < np.pi and p.get("znear", 0) > 0):
+            issues.append("cameras: not a valid perspective camera")
+    return issues
