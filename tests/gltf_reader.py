@@ -103,3 +103,62 @@ def validate(doc: dict, blob: bytes) -> list[str]:
         if cam.get("type") != "perspective" or not (0 < p.get("yfov", 0) < np.pi and p.get("znear", 0) > 0):
             issues.append("cameras: not a valid perspective camera")
     return issues
+
+
+def attributes(doc: dict, blob: bytes) -> tuple[dict, np.ndarray]:
+    """``({attribute: (N, C) float64}, faces (F, 3))`` of the first mesh primitive."""
+    att = doc["meshes"][0]["primitives"][0]["attributes"]
+    idx = accessor(doc, blob, doc["meshes"][0]["primitives"][0]["indices"]).reshape(-1, 3)
+    return {k: accessor(doc, blob, v).astype(np.float64) for k, v in att.items()}, idx
+
+
+def texel_interpolation(uv: np.ndarray, faces: np.ndarray, attrs: dict, th: int, tw: int) -> tuple[np.ndarray, dict]:
+    """Per texel centre of a ``th x tw`` texture: the vertex attributes interpolated over the triangle covering it.
+
+    Barycentric in UV space (glTF: texel ``(i, j)``'s centre is ``((j + 0.5) / tw, (i + 0.5) / th)``).
+
+    Returns:
+        ``(covered (th, tw) bool, {name: (th, tw, C)})``.
+    """
+    tx = uv[faces] * [tw, th] - 0.5  # triangle corners in texel-index units (texel centres at integers)
+    lo = np.ceil(tx.min(1) - 1e-4).astype(int)
+    span = (np.floor(tx.max(1) + 1e-4).astype(int) - lo + 1).max(0)
+    oy, ox = np.mgrid[0 : span[1], 0 : span[0]]
+    cand = lo[:, None, :] + np.stack([ox.ravel(), oy.ravel()], -1)[None]  # (F, S, 2) texel (col, row)
+    a, b, c = (tx[:, i][:, None, :] for i in range(3))
+    v0, v1, q = b - a, c - a, cand - a
+    den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
+    l1 = (q[..., 0] * v1[..., 1] - q[..., 1] * v1[..., 0]) / den
+    l2 = (v0[..., 0] * q[..., 1] - v0[..., 1] * q[..., 0]) / den
+    bary = np.stack([1 - l1 - l2, l1, l2], -1)
+    inside = (bary >= -1e-4).all(-1) & (cand >= 0).all(-1) & (cand[..., 0] < tw) & (cand[..., 1] < th)
+    f_idx, s_idx = np.nonzero(inside)
+    col, row = cand[f_idx, s_idx, 0], cand[f_idx, s_idx, 1]
+    covered = np.zeros((th, tw), bool)
+    covered[row, col] = True
+    out = {}
+    for name, values in attrs.items():
+        interp = np.einsum("kc,kcd->kd", bary[f_idx, s_idx], values[faces[f_idx]])
+        grid = np.zeros((th, tw, values.shape[1]))
+        grid[row, col] = interp
+        out[name] = grid
+    return covered, out
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
+def shading_normals(doc: dict, blob: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """``(covered (th, tw) bool, n (th, tw, 3))``: the shading normal a viewer rebuilds at each normal-map texel centre.
+
+    ``n = T x + B y + N z`` with ``(x, y, z)`` the decoded texel and T, N the exported vertex
+    attributes interpolated over the triangle covering the texel centre, each normalised (as
+    viewers do), ``B = cross(N, T) w`` (glTF 2.0, 3.7.2.1).
+    """
+    attrs, faces = attributes(doc, blob)
+    ts = image(doc, blob, doc["materials"][0]["normalTexture"]["index"]) / 255.0 * 2 - 1
+    covered, f = texel_interpolation(attrs["TEXCOORD_0"], faces, attrs, *ts.shape[:2])
+    normal, tangent = _unit(f["NORMAL"]), _unit(f["TANGENT"][..., :3])
+    bitangent = np.cross(normal, tangent) * np.sign(f["TANGENT"][..., 3:])
+    return covered, _unit(tangent * ts[..., :1] + bitangent * ts[..., 1:2] + normal * ts[..., 2:])

@@ -1,7 +1,9 @@
 """A prediction as a glTF 2.0 asset: relief mesh (or card), PBR textures, tangent-space normal map, camera.
 
 :func:`build_asset` turns predicted maps (:func:`pbrdf.data.predictions.write_predictions`'s
-``pred``) into the parts of a .glb (:mod:`pbrdf.io.gltf`); :func:`write_gltf_asset` writes it.
+``pred``) into the parts of a .glb (:mod:`pbrdf.io.gltf`), checked and encoded in memory;
+:func:`write_asset` writes it (``headless/infer.py --gltf`` builds before it writes any file),
+:func:`write_gltf_asset` does both.
 What the file holds:
 
 * Mesh: with a depth map, the relief mesh of :func:`pbrdf.geometry.relief.relief_mesh` (the same
@@ -47,7 +49,15 @@ from numpy.typing import ArrayLike, NDArray
 from pbrdf.geometry.relief import dilate, extend_maps, relief_mesh
 from pbrdf.io.gltf import GlbCamera, GlbMaterial, GlbMesh, encode_png, write_glb
 
-__all__ = ["GltfAsset", "build_asset", "capture_camera", "write_gltf_asset", "linear_to_srgb", "vertex_frames"]
+__all__ = [
+    "GltfAsset",
+    "build_asset",
+    "capture_camera",
+    "write_asset",
+    "write_gltf_asset",
+    "linear_to_srgb",
+    "vertex_frames",
+]
 
 #: Near and far planes of the exported camera, m (the rig works at 0.5 - 1 m; room to move around).
 ZNEAR, ZFAR = 0.01, 100.0
@@ -187,7 +197,10 @@ def build_asset(
     if "depth" in maps:
         vertices, faces, pixels = relief_mesh(maps["depth"], dilate(inside), k_crop, max_jump=max_jump)
         if len(faces) == 0:
-            raise ValueError("pred: depth: gives no triangle inside the mask")
+            raise ValueError(
+                f"pred: depth: gives no triangle inside the mask (each crosses a depth step over {max_jump:.0%}); "
+                "a card (no depth) needs none"
+            )
         used = np.unique(faces)  # drop vertices no triangle uses
         remap = np.zeros(len(vertices), np.int64)
         remap[used] = np.arange(len(used))
@@ -261,15 +274,19 @@ def capture_camera(intrinsics: ArrayLike, shape: tuple[int, int]) -> GlbCamera:
     return GlbCamera(2 * math.atan(hy / fy), float((hx / fx) / (hy / fy)), ZNEAR, ZFAR, "capture camera", extras)
 
 
+def write_asset(path: str | os.PathLike, asset: GltfAsset, *, name: str = "reconstruction") -> Path:
+    """Write a built asset to ``path`` (.glb) atomically; ``name`` names its mesh, node and scene."""
+    return write_glb(path, asset.mesh, asset.material, asset.camera, name=name, extras=asset.extras)
+
+
 def write_gltf_asset(
     path: str | os.PathLike, pred: Mapping[str, NDArray], intrinsics: ArrayLike, *, distance: float = 0.75,
     name: str = "reconstruction",
 ) -> Path:  # fmt: skip
-    """Build (:func:`build_asset`) and write ``path`` (.glb) atomically; returns the path.
+    """Build (:func:`build_asset`) and write (:func:`write_asset`) ``path`` (.glb) atomically; returns the path.
 
     Raises:
         ValueError: bad maps (one line; nothing written).
         OSError: the file cannot be written (nothing left behind).
     """
-    asset = build_asset(pred, intrinsics, distance=distance)
-    return write_glb(path, asset.mesh, asset.material, asset.camera, name=name, extras=asset.extras)
+    return write_asset(path, build_asset(pred, intrinsics, distance=distance), name=name)

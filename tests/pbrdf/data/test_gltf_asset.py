@@ -13,7 +13,7 @@ import pytest
 
 from pbrdf.data.gltf_asset import build_asset, capture_camera, write_gltf_asset
 from pbrdf.sensor.projection import camera_to_pixel, pixel_rays
-from tests.gltf_reader import accessor, image, read_glb, validate
+from tests.gltf_reader import attributes, image, read_glb, shading_normals, validate
 
 H, W = 40, 56
 # off-centre principal point and fx != fy: the camera must still put every vertex on its pixel
@@ -74,55 +74,6 @@ def _box(doc):
     return doc["asset"]["extras"]["texture_box_rows_cols"]
 
 
-def _attributes(doc, blob):
-    att = doc["meshes"][0]["primitives"][0]["attributes"]
-    idx = accessor(doc, blob, doc["meshes"][0]["primitives"][0]["indices"]).reshape(-1, 3)
-    return {k: accessor(doc, blob, v).astype(np.float64) for k, v in att.items()}, idx
-
-
-def _texel_frames(uv, faces, attrs, th, tw):
-    """Per texel centre: the vertex attributes interpolated barycentrically over the triangle covering it.
-
-    Returns ``(covered (th, tw) bool, {name: (th, tw, C)})``.
-    """
-    tx = uv[faces] * [tw, th] - 0.5  # triangle corners in texel-index units (texel centres at integers)
-    lo = np.ceil(tx.min(1) - 1e-4).astype(int)
-    span = (np.floor(tx.max(1) + 1e-4).astype(int) - lo + 1).max(0)
-    oy, ox = np.mgrid[0 : span[1], 0 : span[0]]
-    cand = lo[:, None, :] + np.stack([ox.ravel(), oy.ravel()], -1)[None]  # (F, S, 2) texel (col, row)
-    a, b, c = (tx[:, i][:, None, :] for i in range(3))
-    v0, v1, q = b - a, c - a, cand - a
-    den = v0[..., 0] * v1[..., 1] - v0[..., 1] * v1[..., 0]
-    l1 = (q[..., 0] * v1[..., 1] - q[..., 1] * v1[..., 0]) / den
-    l2 = (v0[..., 0] * q[..., 1] - v0[..., 1] * q[..., 0]) / den
-    bary = np.stack([1 - l1 - l2, l1, l2], -1)
-    inside = (bary >= -1e-4).all(-1) & (cand >= 0).all(-1) & (cand[..., 0] < tw) & (cand[..., 1] < th)
-    f_idx, s_idx = np.nonzero(inside)
-    col, row = cand[f_idx, s_idx, 0], cand[f_idx, s_idx, 1]
-    covered = np.zeros((th, tw), bool)
-    covered[row, col] = True
-    out = {}
-    for name, values in attrs.items():
-        interp = np.einsum("kc,kcd->kd", bary[f_idx, s_idx], values[faces[f_idx]])
-        grid = np.zeros((th, tw, values.shape[1]))
-        grid[row, col] = interp
-        out[name] = grid
-    return covered, out
-
-
-def _rebuilt_normals(doc, blob):
-    """``(covered, n (th, tw, 3))``: the shading normal a viewer rebuilds at each texel centre."""
-    attrs, faces = _attributes(doc, blob)
-    y0, x0, y1, x1 = _box(doc)
-    covered, f = _texel_frames(attrs["TEXCOORD_0"], faces, attrs, y1 - y0, x1 - x0)
-    unit = lambda v: v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)  # noqa: E731
-    normal, tangent = unit(f["NORMAL"]), unit(f["TANGENT"][..., :3])
-    bitangent = np.cross(normal, tangent) * np.sign(f["TANGENT"][..., 3:])  # glTF: B = cross(N, T) w
-    ts = image(doc, blob, doc["materials"][0]["normalTexture"]["index"]) / 255.0 * 2 - 1
-    n = tangent * ts[..., :1] + bitangent * ts[..., 1:2] + normal * ts[..., 2:]
-    return covered, unit(n)
-
-
 def _angle_deg(a, b):
     return np.degrees(np.arccos(np.clip((a * b).sum(-1), -1, 1)))
 
@@ -131,7 +82,7 @@ def _angle_deg(a, b):
 def test_normal_map_reproduces_the_predicted_normals(which, request):
     pred, _, (doc, blob) = request.getfixturevalue(which)
     y0, x0, y1, x1 = _box(doc)
-    covered, n = _rebuilt_normals(doc, blob)
+    covered, n = shading_normals(doc, blob)
     inside = pred["mask"][y0:y1, x0:x1, 0] > 0
     # every mask texel lies on the mesh but where the relief drops triangles across steep depth
     # steps at the rim (pbrdf.geometry.relief: > 5 % within a triangle, as in the Blender import)
@@ -140,7 +91,7 @@ def test_normal_map_reproduces_the_predicted_normals(which, request):
     err = _angle_deg(n[on], pred["normal"][y0:y1, x0:x1][on])
     assert np.percentile(err, 99) < 2.0 and err.max() < 2.0, (np.percentile(err, 99), err.max())
     # not a trivial map: the ripples are in the map, not in the mesh's own normals
-    attrs, _ = _attributes(doc, blob)
+    attrs, _ = attributes(doc, blob)
     ts = image(doc, blob, 2)[inside] / 255.0 * 2 - 1
     assert np.degrees(np.arccos(np.clip(ts[:, 2], -1, 1))).max() > 10
 
@@ -149,7 +100,7 @@ def test_normal_map_reproduces_the_predicted_normals(which, request):
 def test_tangent_frames_follow_the_uvs(which, request):
     """T along dP/du, B = cross(N, T) w up the image (-dP/dv: glTF's v runs down), as MikkTSpace would make them."""
     _, _, (doc, blob) = request.getfixturevalue(which)
-    attrs, faces = _attributes(doc, blob)
+    attrs, faces = attributes(doc, blob)
     p, uv = attrs["POSITION"][faces], attrs["TEXCOORD_0"][faces]
     e1, e2 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]
     d1, d2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
@@ -217,7 +168,7 @@ def test_camera_puts_every_vertex_on_its_pixel(relief):
     assert doc["nodes"][1] == {"name": "capture camera", "camera": 0}  # at the origin, no transform
     extras = cam["extras"]
     vw, vh = extras["viewport_px"]
-    attrs, _ = _attributes(doc, blob)
+    attrs, _ = attributes(doc, blob)
     v = attrs["POSITION"]
     # the glTF projection (symmetric frustum) mapped onto a vw x vh viewport
     ndc_x = v[:, 0] / (-v[:, 2] * math.tan(p["yfov"] / 2) * p["aspectRatio"])
@@ -237,7 +188,7 @@ def test_centred_camera_is_the_capture_frame():
 
 def test_card_is_a_camera_facing_quad_at_the_distance(card):
     pred, _, (doc, blob) = card
-    attrs, faces = _attributes(doc, blob)
+    attrs, faces = attributes(doc, blob)
     assert len(attrs["POSITION"]) == 4 and len(faces) == 2
     np.testing.assert_allclose(attrs["POSITION"][:, 2], -0.8, rtol=1e-6)
     np.testing.assert_allclose(attrs["NORMAL"], [[0, 0, 1]] * 4, atol=1e-7)
