@@ -6,7 +6,7 @@ import numpy as np
 
 from pbrdf.io.exr import read_exr
 from pbrdf.sensor.projection import camera_to_pixel
-from tests.gltf_reader import attributes, image, read_glb, shading_normals, validate
+from tests.gltf_helpers import attributes, image, read_glb, shading_normals, validate
 from tests.headless.test_infer import _assert_one_error_line, _infer, toy  # noqa: F401 (toy: a toy model, a sample)
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -1,4 +1,4 @@
-"""The reconstruction as a glTF asset (pbrdf/data/gltf_asset.py), read back independently (tests/gltf_reader.py).
+"""The reconstruction as a glTF asset (pbrdf/data/gltf_asset.py), read back independently (tests/gltf_helpers.py).
 
 The physics check: a viewer rebuilds the shading normal as ``T x + B y + N z`` from the normal
 map and the exported vertex frame interpolated over each triangle; done here with our own
@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from pbrdf.data.gltf_asset import build_asset, capture_camera, write_gltf_asset
-from pbrdf.sensor.projection import camera_to_pixel, pixel_rays
-from tests.gltf_reader import attributes, image, read_glb, shading_normals, validate
+from pbrdf.sensor.projection import camera_to_pixel
+from tests.gltf_helpers import attributes, image, read_glb, shading_normals, sphere_prediction, validate
 
 H, W = 40, 56
 # off-centre principal point and fx != fy: the camera must still put every vertex on its pixel
@@ -30,41 +30,16 @@ def _srgb_to_linear(s):
     return np.where(s <= 0.04045, s / 12.92, ((s + 0.055) / 1.055) ** 2.4)
 
 
-def _sphere_prediction(rng, *, bumps=True, centre=(0.03, -0.02, -0.9), radius=0.22):
-    """Maps of a real sphere seen through ``K``; with ``bumps`` the predicted normals carry detail the mesh lacks."""
-    r = pixel_rays(K, H, W)
-    d = r / np.linalg.norm(r, axis=-1, keepdims=True)
-    c = np.asarray(centre)
-    b = d @ c
-    disc = b * b - (c @ c - radius**2)
-    mask = disc > 0
-    p = d * (b - np.sqrt(np.maximum(disc, 0)))[..., None]
-    n = (p - c) / radius
-    if bumps:  # tilt by up to ~17 degrees in a ripple pattern
-        yy, xx = np.mgrid[0:H, 0:W]
-        n = n + 0.3 * np.stack([np.sin(xx / 2.0), np.cos(yy / 3.0), np.zeros_like(xx, float)], -1)
-        n /= np.linalg.norm(n, axis=-1, keepdims=True)
-    m = mask[..., None]
-    return {
-        "normal": np.where(m, n, 0).astype(np.float32),
-        "albedo": np.where(m, rng.uniform(0, 1, (H, W, 3)), 0).astype(np.float32),
-        "roughness": np.where(m, rng.uniform(0, 1, (H, W, 1)), 0).astype(np.float32),
-        "metallic": np.where(m, rng.uniform(0, 1, (H, W, 1)), 0).astype(np.float32),
-        "mask": m.astype(np.float32),
-        "depth": np.where(m, -p[..., 2:], 0).astype(np.float32),
-    }
-
-
 @pytest.fixture(scope="module")
 def relief(tmp_path_factory):
-    pred = _sphere_prediction(np.random.default_rng(3))
+    pred = sphere_prediction(np.random.default_rng(3), K, H, W)
     path = write_gltf_asset(tmp_path_factory.mktemp("glb") / "sphere.glb", pred, K, name="sphere")
     return pred, path, read_glb(path.read_bytes())
 
 
 @pytest.fixture(scope="module")
 def card(tmp_path_factory):
-    pred = _sphere_prediction(np.random.default_rng(4))
+    pred = sphere_prediction(np.random.default_rng(4), K, H, W)
     del pred["depth"]
     path = write_gltf_asset(tmp_path_factory.mktemp("glb") / "card.glb", pred, K, distance=0.8)
     return pred, path, read_glb(path.read_bytes())
@@ -201,7 +176,7 @@ def test_card_is_a_camera_facing_quad_at_the_distance(card):
 
 
 def test_bad_maps_are_one_line_errors(tmp_path):
-    pred = _sphere_prediction(np.random.default_rng(0))
+    pred = sphere_prediction(np.random.default_rng(0), K, H, W)
     with pytest.raises(ValueError, match="^pred: albedo: missing$"):
         build_asset({k: v for k, v in pred.items() if k != "albedo"}, K)
     with pytest.raises(ValueError, match="^pred: mask: empty"):

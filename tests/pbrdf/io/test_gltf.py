@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from pbrdf.io.gltf import GlbCamera, GlbMaterial, GlbMesh, encode_png, glb_bytes, write_glb
-from tests.gltf_reader import accessor, image, read_glb, validate
+from tests.gltf_helpers import accessor, image, read_glb, validate
 
 
 def _grid_mesh(n=5):

@@ -1,4 +1,4 @@
-"""An independent .glb reader and a validator-like check for the glTF tests (json + struct + numpy + Pillow).
+"""An independent .glb reader, a validator-like check and a test prediction for the glTF tests (numpy, Pillow).
 
 Written from the glTF 2.0 specification, not from :mod:`pbrdf.io.gltf`: the container layout
 (header, JSON chunk, BIN chunk), accessors read through their buffer views, and the rules a
@@ -14,6 +14,8 @@ import struct
 
 import numpy as np
 from PIL import Image
+
+from pbrdf.sensor.projection import pixel_rays
 
 _COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4}
 _DTYPES = {5126: np.float32, 5125: np.uint32, 5123: np.uint16, 5121: np.uint8}
@@ -162,3 +164,28 @@ def shading_normals(doc: dict, blob: bytes) -> tuple[np.ndarray, np.ndarray]:
     normal, tangent = _unit(f["NORMAL"]), _unit(f["TANGENT"][..., :3])
     bitangent = np.cross(normal, tangent) * np.sign(f["TANGENT"][..., 3:])
     return covered, _unit(tangent * ts[..., :1] + bitangent * ts[..., 1:2] + normal * ts[..., 2:])
+
+
+def sphere_prediction(rng, k, h, w, *, bumps=True, centre=(0.03, -0.02, -0.9), radius=0.22) -> dict:
+    """Predicted maps of a real sphere seen through ``k`` (``h x w``); ``bumps``: normals with detail the mesh lacks."""
+    r = pixel_rays(k, h, w)
+    d = r / np.linalg.norm(r, axis=-1, keepdims=True)
+    c = np.asarray(centre)
+    b = d @ c
+    disc = b * b - (c @ c - radius**2)
+    mask = disc > 0
+    p = d * (b - np.sqrt(np.maximum(disc, 0)))[..., None]
+    n = (p - c) / radius
+    if bumps:  # tilt by up to ~17 degrees in a ripple pattern
+        yy, xx = np.mgrid[0:h, 0:w]
+        n = n + 0.3 * np.stack([np.sin(xx / 2.0), np.cos(yy / 3.0), np.zeros_like(xx, float)], -1)
+        n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    m = mask[..., None]
+    return {
+        "normal": np.where(m, n, 0).astype(np.float32),
+        "albedo": np.where(m, rng.uniform(0, 1, (h, w, 3)), 0).astype(np.float32),
+        "roughness": np.where(m, rng.uniform(0, 1, (h, w, 1)), 0).astype(np.float32),
+        "metallic": np.where(m, rng.uniform(0, 1, (h, w, 1)), 0).astype(np.float32),
+        "mask": m.astype(np.float32),
+        "depth": np.where(m, -p[..., 2:], 0).astype(np.float32),
+    }
