@@ -120,11 +120,11 @@ def vertex_frames(vertices: NDArray, faces: NDArray, uvs: NDArray) -> tuple[NDAr
     sign = np.sign(du1 * dv2 - du2 * dv1)[:, None]  # dP/du, dP/dv times the UV area (2x), no division
     dp_du = sign * (e1 * dv2[:, None] - e2 * dv1[:, None])
     dp_dv = sign * (e2 * du1[:, None] - e1 * du2[:, None])
-    n = len(vertices)
-    acc = {key: np.zeros((n, 3)) for key in ("n", "t", "b")}
-    for key, per_face in (("n", np.cross(e1, e2)), ("t", dp_du), ("b", dp_dv)):
-        for corner in range(3):
-            np.add.at(acc[key], faces[:, corner], per_face)
+    n, corners = len(vertices), faces.T.ravel()  # each face's value goes to its three corners
+    acc = {
+        key: np.stack([np.bincount(corners, np.tile(per_face[:, c], 3), minlength=n) for c in range(3)], axis=1)
+        for key, per_face in (("n", np.cross(e1, e2)), ("t", dp_du), ("b", dp_dv))
+    }
     normal = _unit(acc["n"], np.array([0.0, 0.0, 1.0]))
     tangent = acc["t"] - normal * (acc["t"] * normal).sum(1, keepdims=True)
     for axis in (np.array([1.0, 0, 0]), np.array([0.0, 1, 0])):  # degenerate: an axis orthogonal to N

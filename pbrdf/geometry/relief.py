@@ -139,22 +139,26 @@ def extend_maps(
     arrays = {k: np.where(filled.reshape(h, w, *([1] * (v.ndim - 2))), v, 0.0) for k, v in arrays.items()}
     offsets = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
 
-    def shifted(a: NDArray, dy: int, dx: int) -> NDArray:
-        """``a`` at ``(y + dy, x + dx)`` (zeros / False outside the image)."""
-        pad = [(2, 2), (2, 2)] + [(0, 0)] * (a.ndim - 2)
-        return np.pad(a, pad)[2 + dy : 2 + dy + h, 2 + dx : 2 + dx + w]
+    def padded(a: NDArray) -> NDArray:
+        """``a`` in two rings of zeros (False): ``shift(padded(a), dy, dx)`` is ``a`` at ``(y + dy, x + dx)``."""
+        return np.pad(a, [(2, 2), (2, 2)] + [(0, 0)] * (a.ndim - 2))
+
+    def shift(p: NDArray, dy: int, dx: int) -> NDArray:
+        return p[2 + dy : 2 + dy + h, 2 + dx : 2 + dx + w]
 
     for _ in range(rings):
         count = np.zeros((h, w))
         sums = {k: np.zeros_like(v) for k, v in arrays.items()}
         d_sum, d_count = np.zeros((h, w)), np.zeros((h, w))
+        pads = {k: padded(v) for k, v in arrays.items()}
+        pad_filled = padded(filled)
         for dy, dx in offsets:
-            near, far = shifted(filled, dy, dx), shifted(filled, 2 * dy, 2 * dx)
+            near, far = shift(pad_filled, dy, dx), shift(pad_filled, 2 * dy, 2 * dx)
             count += near
-            for k, v in arrays.items():
-                sums[k] += shifted(v, dy, dx)
+            for k in arrays:
+                sums[k] += shift(pads[k], dy, dx)
             if "depth" in arrays:
-                d1, d2 = shifted(arrays["depth"], dy, dx), shifted(arrays["depth"], 2 * dy, 2 * dx)
+                d1, d2 = shift(pads["depth"], dy, dx), shift(pads["depth"], 2 * dy, 2 * dx)
                 step = np.clip(np.where(far, d1 - d2, 0.0), -max_step * d1, max_step * d1)
                 d_sum += np.where(near, d1 + step, 0.0)
                 d_count += near
