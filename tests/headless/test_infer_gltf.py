@@ -56,3 +56,18 @@ def test_card_asset_and_a_relief_without_triangles(tmp_path, toy):  # noqa: F811
     proc = _infer("--checkpoint", str(ckpt), "--input", str(sample), "--out", str(tmp_path / "r"), "--gltf")
     _assert_one_error_line(proc, "pred: depth: gives no triangle inside the mask")
     assert not (tmp_path / "r").exists()
+
+
+def test_sequence_writes_one_asset_per_frame(tmp_path, toy):  # noqa: F811
+    import shutil
+
+    seq = tmp_path / "face"
+    for frame in ("t000", "t001"):
+        shutil.copytree(ROOT / "examples" / "capture", seq / frame)
+    out = tmp_path / "o"
+    proc = _infer("--checkpoint", str(toy[0]), "--input", str(seq), "--out", str(out), "--card", "--gltf")
+    assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+    assert sorted(p.name for p in out.glob("*.glb")) == ["face_0001.glb", "face_0002.glb"]
+    for i in (1, 2):
+        doc, blob = read_glb((out / f"face_{i:04d}.glb").read_bytes())
+        assert validate(doc, blob) == [] and doc["nodes"][0]["name"] == f"face_{i:04d}"
