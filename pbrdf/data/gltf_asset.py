@@ -127,9 +127,8 @@ def vertex_frames(vertices: NDArray, faces: NDArray, uvs: NDArray) -> tuple[NDAr
     }
     normal = _unit(acc["n"], np.array([0.0, 0.0, 1.0]))
     tangent = acc["t"] - normal * (acc["t"] * normal).sum(1, keepdims=True)
-    for axis in (np.array([1.0, 0, 0]), np.array([0.0, 1, 0])):  # degenerate: an axis orthogonal to N
-        bad = np.linalg.norm(tangent, axis=1) < 1e-12 * np.maximum(np.linalg.norm(acc["t"], axis=1), 1e-300)
-        bad |= np.linalg.norm(tangent, axis=1) < 1e-30
+    for axis in np.eye(3)[:2]:  # degenerate (no faces, or dP/du along N): the camera's x, else y, minus its N part
+        bad = np.linalg.norm(tangent, axis=1) <= 1e-9 * np.linalg.norm(acc["t"], axis=1) + 1e-30
         tangent[bad] = axis - normal[bad] * (normal[bad] @ axis)[:, None]
     tangent = _unit(tangent, np.array([1.0, 0.0, 0.0]))
     w = np.where((np.cross(normal, tangent) * -acc["b"]).sum(1) < 0, -1.0, 1.0)

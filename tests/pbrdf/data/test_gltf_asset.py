@@ -66,7 +66,6 @@ def test_normal_map_reproduces_the_predicted_normals(which, request):
     err = _angle_deg(n[on], pred["normal"][y0:y1, x0:x1][on])
     assert np.percentile(err, 99) < 2.0 and err.max() < 2.0, (np.percentile(err, 99), err.max())
     # not a trivial map: the ripples are in the map, not in the mesh's own normals
-    attrs, _ = attributes(doc, blob)
     ts = image(doc, blob, 2)[inside] / 255.0 * 2 - 1
     assert np.degrees(np.arccos(np.clip(ts[:, 2], -1, 1))).max() > 10
 
