@@ -63,6 +63,7 @@ MODULES = (
     "render_operator",
     "pbr_import",
     "reconstruct_operator",
+    "gltf_export_operator",
     "relight_operator",
     "bake",
 )

@@ -1,7 +1,7 @@
 """Predict normal, albedo, roughness and metallic maps from a capture or a rendered sample.
 
     python headless/infer.py --input (capture folder | sample.exr | folder of capture folders) --out DIR
-        [--checkpoint model.pt] [--resolution full|network] [--blend] [--quiet]
+        [--checkpoint model.pt] [--resolution full|network] [--blend] [--gltf] [--quiet]
 
 Without --checkpoint the shipped model (models/small/model.pt, see its MODEL_CARD.md) is used,
 so a real capture folder gives maps without training anything. A capture folder is raw HDR
@@ -16,7 +16,12 @@ import turns it into a relief mesh; --card leaves it out for a flat card), a PNG
 each, and _camera.json (the maps' intrinsics and distance, so the Blender camera matches the
 capture's). With --blend, also DIR/<name>.blend: the maps imported into Blender as a
 relightable Principled BSDF asset (headless/relight.py in its own process; needs the bpy wheel:
-pip install bpy).
+pip install bpy). With --gltf, also DIR/<name>.glb (a sequence: DIR/<name>_NNNN.glb per frame):
+one glTF 2.0 binary that Blender, Unreal, Unity, three.js and Substance open, holding the relief
+mesh (a flat card with --card) with UVs, a base-colour texture (sRGB albedo, the mask as alpha,
+cut at 0.5), a metallic-roughness texture (roughness in G, metallic in B), a tangent-space normal
+map baked from the predicted normals against the file's own vertex tangents, and the capture
+camera (pbrdf/data/gltf_asset.py says how an off-centre principal point is kept).
 
 Maps are predicted at the input's own resolution (--resolution full: the encoder sees the object
 resized to the network's input size, and the per-pixel decoder reads every pixel of the capture);
@@ -70,6 +75,8 @@ def build_parser() -> argparse.ArgumentParser:
                         help="decode every s-th pixel, interpolate the rest where smooth (faster)")  # fmt: skip
     parser.add_argument("--resolution", choices=["full", "network"], default="full",
                         help="decode at the capture's resolution (default) or at the network's input size")  # fmt: skip
+    parser.add_argument("--gltf", action="store_true",
+                        help="also write <name>.glb (a sequence: one per frame), the asset for any engine")  # fmt: skip
     parser.add_argument("--card", action="store_true", help="no depth map (the import makes a flat card)")
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
     parser.add_argument("--progress-lines", action="store_true",
@@ -159,8 +166,11 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
     if frames is None:
         pred, camera = _reconstruct(model, ckpt, args.input, args, progress)
         progress(0.95, "writing the maps")
+        asset = _gltf_asset(args, pred, camera)
         write_predictions(args.out, name, pred, camera)
-        summary.append(f"wrote {len(pred)} maps ({name}_*.exr/.png) to {args.out.resolve()}")
+        _write_gltf(args, name, asset)
+        glb = f", {name}.glb" if asset else ""
+        summary.append(f"wrote {len(pred)} maps ({name}_*.exr/.png{glb}) to {args.out.resolve()}")
         return 0
     seconds = []
     for i, frame in enumerate(tqdm(frames, desc="frames", unit="frame", disable=args.quiet), start=1):
@@ -171,7 +181,9 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
         except (ValueError, OSError) as exc:
             raise ValueError(f"frame {i} ({frame.name}): {exc}") from None
         seconds.append(time.perf_counter() - start)
+        asset = _gltf_asset(args, pred, camera)
         write_predictions(args.out, f"{name}_{i:04d}", pred, camera)
+        _write_gltf(args, f"{name}_{i:04d}", asset)
     record = SequenceRecord.of_frames(name, frames, seconds)
     write_sequence(args.out, record)
     summary.append(
@@ -179,6 +191,23 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
         f"{record.to_dict()['frames_per_second']:.2f} frames/s (decode + prediction)"
     )
     return 0
+
+
+def _gltf_asset(args: argparse.Namespace, pred: dict, camera: CameraRecord):
+    """``--gltf``: the asset (:mod:`pbrdf.data.gltf_asset`), built and checked before any file is written; else None."""
+    if not args.gltf:
+        return None
+    from network.infer import DEFAULT_DISTANCE  # noqa: PLC0415
+    from pbrdf.data.gltf_asset import build_asset  # noqa: PLC0415
+
+    return build_asset(pred, camera.intrinsics, distance=camera.distance_m or DEFAULT_DISTANCE)
+
+
+def _write_gltf(args: argparse.Namespace, prefix: str, asset) -> None:
+    if asset is not None:
+        from pbrdf.data.gltf_asset import write_asset  # noqa: PLC0415
+
+        write_asset(args.out / f"{prefix}.glb", asset, name=prefix)
 
 
 def _save_blend(args: argparse.Namespace) -> int:

@@ -23,7 +23,6 @@ Convention (camera):
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 
@@ -31,6 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbrdf.data.predictions import CameraRecord
+from pbrdf.geometry.relief import relief_mesh
 from pbrdf.sensor import projection
 
 __all__ = [
@@ -283,8 +283,9 @@ def depth_mesh(
 ) -> tuple[NDArray, NDArray, NDArray]:
     """A camera-frame triangle mesh with one vertex per valid pixel centre, displaced to its depth.
 
-    Two triangles per 2x2 block of valid pixels (one where three are valid), none across depth
-    jumps larger than ``max_jump`` (relative), so silhouettes do not become skirts.
+    :func:`pbrdf.geometry.relief.relief_mesh` in this frustum, with Blender's UVs: two triangles
+    per 2x2 block of valid pixels (one where three are valid), none across depth jumps larger
+    than ``max_jump`` (relative), so silhouettes do not become skirts.
 
     Args:
         depth: ``(H, W)`` metres along the optical axis.
@@ -302,34 +303,6 @@ def depth_mesh(
         raise ValueError(
             f"depth {depth.shape}, valid {valid.shape} and frustum {frustum.height}x{frustum.width} differ"
         )
-    index = -np.ones((h, w), np.int64)
-    index[valid] = np.arange(int(valid.sum()))
-    xy = frustum.pixel_xy()
-    d = depth.astype(np.float64)
-    vertices = np.concatenate([xy[valid] * d[valid][:, None], -d[valid][:, None]], axis=1)
-    rows, cols = np.nonzero(valid)
-    uvs = np.stack([(cols + 0.5) / w, 1.0 - (rows + 0.5) / h], axis=1)
-    # corners of each 2x2 block: a top-left, b top-right, c bottom-left, e bottom-right (image rows down)
-    a, b, c, e = index[:-1, :-1], index[:-1, 1:], index[1:, :-1], index[1:, 1:]
-    da, db, dc, de = d[:-1, :-1], d[:-1, 1:], d[1:, :-1], d[1:, 1:]
-    ok = (a >= 0, b >= 0, c >= 0, e >= 0)
-    n_ok = sum(o.astype(np.int8) for o in ok)
-    # Seen from the camera (x right, y up) every triangle below is counter-clockwise. A full
-    # block gets two triangles, a block with three valid pixels the triangle of those three.
-    cases = (
-        ((c, e, a), (dc, de, da), (n_ok == 4) | ((n_ok == 3) & ~ok[1])),
-        ((e, b, a), (de, db, da), (n_ok == 4) | ((n_ok == 3) & ~ok[2])),
-        ((c, e, b), (dc, de, db), (n_ok == 3) & ~ok[0]),
-        ((c, b, a), (dc, db, da), (n_ok == 3) & ~ok[3]),
-    )
-    faces = []
-    for tri, dd, use in cases:
-        lo = np.minimum(np.minimum(dd[0], dd[1]), dd[2])
-        hi = np.maximum(np.maximum(dd[0], dd[1]), dd[2])
-        with np.errstate(invalid="ignore"):
-            use = use & ((hi - lo) <= max_jump * lo)
-        faces.append(np.stack([t[use] for t in tri], axis=1))
-    faces_arr = np.concatenate(faces, axis=0)
-    if not math.isfinite(float(vertices.sum())):
-        raise ValueError("depth mesh has non-finite vertices")
-    return vertices, faces_arr, uvs
+    vertices, faces, pixels = relief_mesh(depth, valid, frustum.intrinsics(), max_jump=max_jump)
+    uvs = np.stack([(pixels[:, 1] + 0.5) / w, 1.0 - (pixels[:, 0] + 0.5) / h], axis=1)
+    return vertices, faces, uvs

@@ -27,13 +27,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbrdf.data.predictions import MAP_NAMES
+from pbrdf.geometry.relief import dilate, extend_maps
 
 from .map_names import IMAGE_SUFFIXES, MapFiles, filename_tokens, match_kinds
 
 __all__ = [
     "PBRMaps",
     "Reader",
-    "dilate",
+    "dilate",  # pbrdf.geometry.relief.dilate, named here for the import and its tests
     "extend_past_mask",
     "load_map",
     "load_maps",
@@ -256,38 +257,13 @@ class PBRMaps:
         )
 
 
-def dilate(region: NDArray, rings: int = 1) -> NDArray:
-    """``region`` (``(H, W)`` bool) grown by ``rings`` pixels, 8-connected (numpy only: Blender's Python has no scipy).
-
-    Example:
-        >>> dilate(np.eye(4, dtype=bool)[:1], 1).astype(int).tolist()
-        [[1, 1, 0, 0]]
-    """
-    out = np.asarray(region, dtype=bool).copy()
-    for _ in range(rings):
-        p = np.pad(out, 1)
-        out = np.zeros_like(out)
-        for dy in range(3):
-            for dx in range(3):
-                out |= p[dy : dy + out.shape[0], dx : dx + out.shape[1]]
-    return out
-
-
 def extend_past_mask(maps: PBRMaps, rings: int = 2, *, max_step: float = 0.04) -> PBRMaps:
     """A copy of ``maps`` whose normal, albedo, roughness, metallic and depth go on ``rings`` pixels past the mask.
 
-    Ring by ring, each new pixel gets the mean of its already-filled 8-neighbours (normals
-    renormalised); its depth continues the surface: the mean of ``2 d_p - d_pp`` over the filled
-    neighbours ``p`` whose next pixel ``pp`` on the same line is filled too (else ``d_p``), each
-    step limited to ``max_step`` of ``d_p`` (under the relief mesh's 5 % jump limit,
-    :func:`blender_addon.core.frustum.depth_mesh`, so the extended triangles are kept). The mask
-    is unchanged. The import needs this at the
-    outline: Blender samples textures bilinearly and Cycles filters pixels, so an edge pixel
-    would otherwise blend its values with the zeros (black albedo, ``(0, 0, 1)`` normals) outside
-    the mask, and a relief mesh over the mask alone ends at the edge pixels' centres, half a
-    pixel inside the outline. With the maps extended, the mesh reaches past the outline (as a
-    continuation of the surface, not a shelf that the edge would see and reflect) and the
-    mask, as alpha, cuts it where the mask's pixels end.
+    :func:`pbrdf.geometry.relief.extend_maps` (which says how and why); the mask is unchanged. The
+    import needs this at the outline: with the maps extended, the relief mesh reaches past the
+    outline (as a continuation of the surface, not a shelf that the edge would see and reflect)
+    and the mask, as alpha, cuts it where the mask's pixels end.
 
     Example:
         >>> m = PBRMaps(mask=np.array([[0, 1, 1, 0]], np.float32), albedo=np.array([[[0, 0, 0], [0.5, 0.5, 0.5],
@@ -296,42 +272,9 @@ def extend_past_mask(maps: PBRMaps, rings: int = 2, *, max_step: float = 0.04) -
         >>> e.albedo[0, :, 0].round(3).tolist(), e.depth[0].round(3).tolist(), e.mask[0].tolist()
         ([0.5, 0.5, 0.3, 0.3], [1.99, 2.0, 2.01, 2.02], [0.0, 1.0, 1.0, 0.0])
     """
-    filled = maps.valid
-    if filled.all() or not filled.any():
-        return replace(maps)
-    h, w = filled.shape
     arrays = {k: getattr(maps, k) for k in ("normal", "albedo", "roughness", "metallic", "depth")}
-    arrays = {k: np.array(v, dtype=np.float64) for k, v in arrays.items() if v is not None}
-    arrays = {k: np.where(filled.reshape(h, w, *([1] * (v.ndim - 2))), v, 0.0) for k, v in arrays.items()}
-    offsets = [(dy, dx) for dy in (-1, 0, 1) for dx in (-1, 0, 1) if dy or dx]
-
-    def shifted(a: NDArray, dy: int, dx: int) -> NDArray:
-        """``a`` at ``(y + dy, x + dx)`` (zeros / False outside the image)."""
-        pad = [(2, 2), (2, 2)] + [(0, 0)] * (a.ndim - 2)
-        return np.pad(a, pad)[2 + dy : 2 + dy + h, 2 + dx : 2 + dx + w]
-
-    for _ in range(rings):
-        count = np.zeros((h, w))
-        sums = {k: np.zeros_like(v) for k, v in arrays.items()}
-        d_sum, d_count = np.zeros((h, w)), np.zeros((h, w))
-        for dy, dx in offsets:
-            near, far = shifted(filled, dy, dx), shifted(filled, 2 * dy, 2 * dx)
-            count += near
-            for k, v in arrays.items():
-                sums[k] += shifted(v, dy, dx)
-            if "depth" in arrays:
-                d1, d2 = shifted(arrays["depth"], dy, dx), shifted(arrays["depth"], 2 * dy, 2 * dx)
-                step = np.clip(np.where(far, d1 - d2, 0.0), -max_step * d1, max_step * d1)
-                d_sum += np.where(near, d1 + step, 0.0)
-                d_count += near
-        ring = ~filled & (count > 0)
-        for k, v in arrays.items():
-            total, n = (d_sum, d_count) if k == "depth" else (sums[k], count)
-            v[ring] = total[ring] / (n[ring][:, None] if v.ndim == 3 else n[ring])
-            if k == "normal":
-                v[ring] /= np.maximum(np.linalg.norm(v[ring], axis=-1, keepdims=True), 1e-12)
-        filled = filled | ring
-    return replace(maps, **{k: v.astype(np.float32) for k, v in arrays.items()})
+    arrays = {k: v for k, v in arrays.items() if v is not None}
+    return replace(maps, **extend_maps(arrays, maps.valid, rings, max_step=max_step))
 
 
 def _clip01(arr: NDArray, kind: str, path: Path, valid: NDArray, warnings: list[str]) -> NDArray:
