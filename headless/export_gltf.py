@@ -59,6 +59,7 @@ def _export(args: argparse.Namespace, summary: list[str]) -> int:
     import numpy as np  # noqa: PLC0415
 
     from blender_addon.core import map_io, map_names  # noqa: PLC0415
+    from pbrdf.data.capture import DEFAULT_DISTANCE_M  # noqa: PLC0415
     from pbrdf.data.gltf_asset import build_asset, write_asset  # noqa: PLC0415
     from pbrdf.data.predictions import CameraRecord  # noqa: PLC0415
 
@@ -85,7 +86,7 @@ def _export(args: argparse.Namespace, summary: list[str]) -> int:
         pred[key] = np.where(inside[..., None], value if value.ndim == 3 else value[..., None], 0.0)
     if maps.depth is not None and not args.card:
         pred["depth"] = np.where(inside, maps.depth, 0.0)[..., None]
-    asset = build_asset(pred, camera.intrinsics, distance=camera.distance_m or 0.75)
+    asset = build_asset(pred, camera.intrinsics, distance=camera.distance_m or DEFAULT_DISTANCE_M)
     path = write_asset(args.out, asset, name=args.out.stem)
     what = f"relief, {len(asset.mesh.positions)} vertices" if "depth" in pred else "card"
     summary.append(f"wrote {path.resolve()} ({what})")

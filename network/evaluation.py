@@ -42,6 +42,7 @@ import torch
 
 from pbrdf.data import dataset as pdataset
 from pbrdf.data import sample as psample
+from pbrdf.data.capture import DEFAULT_DISTANCE_M
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.data.splits import SPLITS, dataset_split
 from pbrdf.geometry.normal_integration import integrate_normals
@@ -53,7 +54,7 @@ from . import baseline as ps
 from . import metrics
 from .constant import constant_predict
 from .data import checkpoint_input_scale
-from .infer import DEFAULT_CHECKPOINT, DEFAULT_DISTANCE, load_input, predict
+from .infer import DEFAULT_CHECKPOINT, load_input, predict
 from .inputs import checkpoint_inputs
 from .lpips import lpips_status
 from .statistics import summarize
@@ -191,7 +192,7 @@ def score(
     if intrinsics is not None and "depth" in gt and "normal" in pred and region.any():
         valid = region & (gt["depth"] > 0)
         if valid.any():
-            depth = integrate_normals(pred["normal"], region, intrinsics, DEFAULT_DISTANCE)
+            depth = integrate_normals(pred["normal"], region, intrinsics, DEFAULT_DISTANCE_M)
             out["depth_si_error"] = metrics.si_depth_error(depth, gt["depth"], valid)
     return out
 

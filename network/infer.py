@@ -19,6 +19,7 @@ import torch.nn.functional as F  # noqa: N812
 from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import sample as psample
+from pbrdf.data.capture import DEFAULT_DISTANCE_M
 from pbrdf.data.predictions import OUTPUT_CHANNELS
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.io.errors import NothingToReconstruct
@@ -30,7 +31,6 @@ from .model.dense import REFINE_DEG
 
 __all__ = [
     "RESOLUTIONS",
-    "DEFAULT_DISTANCE",
     "InferenceInput",
     "relief_depth",
     "load_input",
@@ -42,8 +42,6 @@ __all__ = [
 #: The shipped model (see models/small/MODEL_CARD.md).
 DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "models" / "small" / "model.pt"
 
-#: Object distance in m when a capture does not give one: the middle of the rig's 0.5 - 1.0 m.
-DEFAULT_DISTANCE = 0.75
 
 #: :func:`predict`'s decoding resolutions: the maps' own (default), or the network's input size.
 RESOLUTIONS = ("full", "network")
@@ -120,13 +118,13 @@ def relief_depth(pred: dict[str, np.ndarray], intrinsics: np.ndarray, distance: 
     """``(H, W, 1)`` depth in m of the predicted surface: its normals integrated over its mask.
 
     :func:`pbrdf.geometry.normal_integration.integrate_normals` (discontinuity-aware); the median
-    depth is ``distance`` (the capture's ``distance_m``; default :data:`DEFAULT_DISTANCE`, the
+    depth is ``distance`` (the capture's ``distance_m``; default :data:`pbrdf.data.capture.DEFAULT_DISTANCE_M`, the
     middle of the rig's 0.5-1.0 m working range). The Blender import builds a relief mesh from it.
     """
     from pbrdf.geometry.normal_integration import integrate_normals  # noqa: PLC0415
 
     mask = pred["mask"][..., 0] > 0
-    depth = integrate_normals(pred["normal"], mask, intrinsics, DEFAULT_DISTANCE if distance is None else distance)
+    depth = integrate_normals(pred["normal"], mask, intrinsics, DEFAULT_DISTANCE_M if distance is None else distance)
     return depth[..., None]
 
 

@@ -55,15 +55,16 @@ from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import dataset as pdataset
 from pbrdf.data import sample as psample
+from pbrdf.data.capture import DEFAULT_DISTANCE_M
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.sensor.projection import crop_intrinsics
 from pbrdf.sensor.rig import Rig
 
 from .data import INPUT_SCALES, input_radiance, normalize_maps
-from .infer import DEFAULT_DISTANCE, mask_bbox
+from .infer import mask_bbox
 from .rerender import DEFAULT_PATCHES, display_patches, points_from_depth
 
-__all__ = ["DEFAULT_DISTANCE", "RealDataset", "find_real_inputs", "load_real_input"]
+__all__ = ["RealDataset", "find_real_inputs", "load_real_input"]
 
 
 def _is_capture(path: Path) -> bool:
@@ -158,7 +159,7 @@ class RealDataset(Dataset):
         root: str | Path,
         size: int,
         *,
-        distance: float = DEFAULT_DISTANCE,
+        distance: float = DEFAULT_DISTANCE_M,
         use_depth: bool = True,
         patches: tuple[int, int] = DEFAULT_PATCHES,
         margin: float = 0.05,

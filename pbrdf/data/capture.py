@@ -76,6 +76,7 @@ from pbrdf.sensor.projection import crop_intrinsics, pinhole_intrinsics
 from pbrdf.sensor.rig import Rig
 
 __all__ = [
+    "DEFAULT_DISTANCE_M",
     "CAPTURE_FORMAT",
     "CAPTURE_JSON",
     "RADIOMETRY_MODES",
@@ -93,6 +94,8 @@ __all__ = [
 CAPTURE_FORMAT = "pdir-capture/1"
 #: Name of the sidecar inside a capture folder.
 CAPTURE_JSON = "capture.json"
+#: Object distance in m when a capture does not give one (``distance_m``): the middle of the rig's 0.5 - 1.0 m.
+DEFAULT_DISTANCE_M = 0.75
 #: Values of the optional ``"radiometry"`` key (the first is the default).
 RADIOMETRY_MODES = ("calibrated", "relative")
 #: Keys of ``capture.json`` written by :func:`save_capture`; ``extra`` may not use them.

@@ -46,6 +46,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pbrdf.data.capture import DEFAULT_DISTANCE_M
 from pbrdf.geometry.relief import dilate, extend_maps, relief_mesh
 from pbrdf.io.gltf import GlbCamera, GlbMaterial, GlbMesh, encode_png, write_glb
 
@@ -165,7 +166,7 @@ def _checked(pred: Mapping[str, NDArray], intrinsics: ArrayLike) -> tuple[NDArra
 
 
 def build_asset(
-    pred: Mapping[str, NDArray], intrinsics: ArrayLike, *, distance: float = 0.75, max_jump: float = 0.05
+    pred: Mapping[str, NDArray], intrinsics: ArrayLike, *, distance: float = DEFAULT_DISTANCE_M, max_jump: float = 0.05
 ) -> GltfAsset:
     """The glTF asset of a prediction (see the module docstring for what it holds).
 
@@ -279,8 +280,8 @@ def write_asset(path: str | os.PathLike, asset: GltfAsset, *, name: str = "recon
 
 
 def write_gltf_asset(
-    path: str | os.PathLike, pred: Mapping[str, NDArray], intrinsics: ArrayLike, *, distance: float = 0.75,
-    name: str = "reconstruction",
+    path: str | os.PathLike, pred: Mapping[str, NDArray], intrinsics: ArrayLike, *,
+    distance: float = DEFAULT_DISTANCE_M, name: str = "reconstruction",
 ) -> Path:  # fmt: skip
     """Build (:func:`build_asset`) and write (:func:`write_asset`) ``path`` (.glb) atomically; returns the path.
 
