@@ -66,15 +66,18 @@ _SUFFIX = {b"\x89PNG": ".png", b"\xff\xd8\xff": ".jpg", b"v/1\x01": ".exr"}
 def mapping_of(tex: TextureSpec) -> tuple[tuple[float, float], float, tuple[float, float]]:
     """A texture's ``KHR_texture_transform`` as a Point Mapping node's (location xy, rotation z, scale xy).
 
-    The Mapping node maps ``p -> L + R_z(rot) (S p)`` on Blender's UVs (OpenGL's, v up), which is
-    :meth:`~.core.textures.TextureSpec.uv_matrix`: its linear part is ``R(-rotation) S``.
+    The Mapping node maps ``p -> L + R_z(rot) (S p)`` on Blender's UVs (OpenGL's, v up): the node
+    is :meth:`~.core.textures.TextureSpec.uv_matrix` decomposed (``L`` its translation, ``S`` the
+    texture's scale, which flipping v leaves alone), so the two follow one convention by construction.
 
     Example:
         >>> mapping_of(TextureSpec("a.png", offset=(0.5, 0.25)))
         ((0.5, -0.25), 0.0, (1.0, 1.0))
     """
     m = tex.uv_matrix()
-    return (float(m[0, 2]) + 0.0, float(m[1, 2]) + 0.0), -tex.rotation + 0.0, tex.scale
+    sx = tex.scale[0] if tex.scale[0] != 0.0 else 1.0
+    rot = math.atan2(m[1, 0] / sx, m[0, 0] / sx)
+    return (float(m[0, 2]) + 0.0, float(m[1, 2]) + 0.0), rot + 0.0, tex.scale
 
 
 def transform_of(location, rotation: float, scale) -> dict[str, Any]:
@@ -84,14 +87,14 @@ def transform_of(location, rotation: float, scale) -> dict[str, Any]:
         >>> transform_of((0.5, -0.25), 0.0, (1.0, 1.0))
         {'offset': (0.5, 0.25), 'rotation': 0.0, 'scale': (1.0, 1.0)}
     """
-    th = -float(rotation)
-    c, s = math.cos(th), math.sin(th)
-    sx, sy = float(scale[0]), float(scale[1])
-    # uv_matrix = F T(o) R(th) S F (F: v -> 1 - v); translation t = D R S e + D o + e, D = diag(1, -1), e = (0, 1).
-    rse = np.array([-s * sy, c * sy])
-    t = np.array([float(location[0]), float(location[1])])
-    o = np.array([t[0], -(t[1] - 1.0)]) - rse
-    return {"offset": (float(o[0]) + 0.0, float(o[1]) + 0.0), "rotation": th + 0.0, "scale": (sx, sy)}
+    scale = (float(scale[0]), float(scale[1]))
+    # The sign uv_matrix gives a rotation (the mapping is linear in it), then the offset (affine in it).
+    turn = mapping_of(TextureSpec("probe.png", rotation=0.5))[1] / 0.5
+    rot = float(rotation) / turn
+    zero = mapping_of(TextureSpec("probe.png", rotation=rot, scale=scale))[0]
+    unit = mapping_of(TextureSpec("probe.png", offset=(1.0, 1.0)))[0]  # offset's effect: +-1 per axis
+    off = tuple((float(location[i]) - zero[i]) * (1.0 if unit[i] > 0 else -1.0) + 0.0 for i in range(2))
+    return {"offset": off, "rotation": rot + 0.0, "scale": scale}
 
 
 # --------------------------------------------------------------------------- spec -> nodes
@@ -319,6 +322,8 @@ def node_signature(bsdf: bpy.types.Node) -> dict:
 
 def _image_file(img: bpy.types.Image, texture_dir: Path) -> str:
     """A file holding the image: its own file, or the packed/generated pixels written once under their hash."""
+    if img.source == "FILE" and Path(bpy.path.abspath(img.filepath)).is_file():
+        return str(Path(bpy.path.abspath(img.filepath)).resolve())
     if img.packed_file is not None:
         data = bytes(img.packed_file.data)
         suffix = next((s for magic, s in _SUFFIX.items() if data.startswith(magic)), None)
@@ -326,10 +331,7 @@ def _image_file(img: bpy.types.Image, texture_dir: Path) -> str:
             raise ValueError(f"image {img.name!r}: packed {img.file_format} images are not exported (PNG, JPEG, EXR)")
         return str(_write_once(texture_dir, img.name, suffix, data, lambda p: p.write_bytes(data)))
     if img.source == "FILE":
-        path = Path(bpy.path.abspath(img.filepath))
-        if not path.is_file():
-            raise ValueError(f"image {img.name!r}: file {path} not found (and not packed)")
-        return str(path.resolve())
+        raise ValueError(f"image {img.name!r}: file {bpy.path.abspath(img.filepath)} not found (and not packed)")
     if img.source != "GENERATED":
         raise ValueError(f"image {img.name!r}: {img.source.lower()} images are not exported")
     px = np.empty(len(img.pixels), np.float32)
@@ -349,7 +351,7 @@ def _image_file(img: bpy.types.Image, texture_dir: Path) -> str:
 
 def _write_once(folder: Path, name: str, suffix: str, content: bytes, write) -> Path:
     """``folder/<name>-<hash><suffix>``, written by ``write(tmp)`` then renamed unless it exists."""
-    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in name)
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in Path(name).stem)
     path = folder / f"{safe}-{hashlib.sha1(content).hexdigest()[:12]}{suffix}"
     if not path.is_file():
         folder.mkdir(parents=True, exist_ok=True)
