@@ -143,7 +143,7 @@ class _Builder:
         img.image = _procedural_image(tex) if tex.procedural else _file_image(tex)
         uv = self.node("ShaderNodeUVMap", 6, uv_map=UV_LAYER)
         vector = uv.outputs["UV"]
-        if not tex.procedural and (tex.offset, tex.rotation, tex.scale) != ((0.0, 0.0), 0.0, (1.0, 1.0)):
+        if (tex.offset, tex.rotation, tex.scale) != ((0.0, 0.0), 0.0, (1.0, 1.0)):
             mapping = self.node("ShaderNodeMapping", 5, vector_type="POINT")
             loc, rot, scale = mapping_of(tex)
             mapping.inputs["Location"].default_value = (*loc, 0.0)

@@ -308,6 +308,10 @@ def test_texture_fraction_textures_drawn_materials(bpy, tmp_path):
     assert names and all(o.name.startswith("ball_") for o in objs)
     with pytest.raises(ValueError, match="texture_fraction"):
         scene_builder.build_scene(scene, folder, 1, seed=0, texture_fraction=1.5)
+    # The panel's settings mirror headless/render.py's flags (off by default: the scenes of earlier builds).
+    rna = scene.pdir_builder.bl_rna.properties
+    assert "--texture-fraction" in rna["texture_fraction"].description and scene.pdir_builder.texture_fraction == 0
+    assert "--asset-materials" in rna["asset_materials"].description and not scene.pdir_builder.asset_materials
 
 
 # --------------------------------------------------------------------------- Blender's own glTF importer
