@@ -79,6 +79,7 @@ ROLE_COLLECTION = "scene_objects"
 MATERIAL_KEY = "pdir_material"
 ASSET_KEY = "pdir_asset"
 SEED_KEY = "pdir_seed"
+_METADATA_KEY = "pdir_metadata"  # export_spec.METADATA_KEY (export_spec imports this module)
 # Data-blocks an importer may create; those left over after joining are removed.
 _IMPORT_DATA = ("objects", "meshes", "materials", "images", "textures", "cameras", "lights", "armatures", "actions")
 
@@ -415,6 +416,7 @@ def clear_scene_objects(scene: bpy.types.Scene) -> int:
     bpy.data.batch_remove(objs)
     bpy.data.batch_remove([m for m in meshes if m.users == 0])
     bpy.data.batch_remove([m for m in bpy.data.materials if MATERIAL_KEY in m and m.users == 0])
+    bpy.data.batch_remove([i for i in bpy.data.images if texture_nodes.IMAGE_KEY in i and i.users == 0])
     return len(objs)
 
 
@@ -543,6 +545,11 @@ def build_scene(
     finally:
         bpy.data.batch_remove([m for a in imported.values() for m in a.sources()])
     scene[SEED_KEY] = int(seed)
+    if asset_materials:  # the exported spec's metadata records what the assets' materials lost, as headless
+        meta = json.loads(scene.get(_METADATA_KEY, "{}"))
+        meta.pop("asset_notes", None)
+        found = {str(p): list(a.notes) for p, a in imported.items() if a.notes}
+        scene[_METADATA_KEY] = json.dumps({**meta, **({"asset_notes": found} if found else {})})
     return out
 
 

@@ -42,6 +42,7 @@ from .core.textures import MaterialTextures, TextureSpec, texture_array
 from .images import image_from_array
 
 __all__ = [
+    "IMAGE_KEY",
     "SIGNATURE_KEY",
     "UV_LAYER",
     "add_texture_nodes",
@@ -55,6 +56,8 @@ __all__ = [
 UV_LAYER = "UVMap"
 #: Material custom property: JSON of :func:`node_signature` right after :func:`add_texture_nodes`.
 SIGNATURE_KEY = "pdir_texture_nodes"
+#: Image custom property marking the images :func:`add_texture_nodes` made or loaded (removed with their materials).
+IMAGE_KEY = "pdir_texture"
 _INPUTS = {"albedo": "Base Color", "roughness": "Roughness", "metallic": "Metallic", "normal": "Normal"}
 _RGB = ("Red", "Green", "Blue")
 _SUFFIX = {b"\x89PNG": ".png", b"\xff\xd8\xff": ".jpg", b"v/1\x01": ".exr"}
@@ -108,7 +111,9 @@ def _procedural_image(tex: TextureSpec) -> bpy.types.Image:
     if img is not None:
         return img
     # Linear values as texture_array gives them (one channel: grey), packed as a float EXR.
-    return image_from_array(name, texture_array(tex), colorspace="Non-Color", pack=True)
+    img = image_from_array(name, texture_array(tex), colorspace="Non-Color", pack=True)
+    img[IMAGE_KEY] = True
+    return img
 
 
 def _file_image(tex: TextureSpec) -> bpy.types.Image:
@@ -121,6 +126,7 @@ def _file_image(tex: TextureSpec) -> bpy.types.Image:
         raise ValueError(f"{tex.source}: texture file not found")
     img = bpy.data.images.load(path, check_existing=False)
     img.colorspace_settings.name = space
+    img[IMAGE_KEY] = True
     return img
 
 
@@ -222,6 +228,7 @@ class _Found:
     factor: tuple[float, ...] | None
     transform: dict
     strength: float = 1.0
+    note: str = ""  # exported, but not exactly what Blender shows
 
     def signature(self) -> dict:
         img = self.image
@@ -307,7 +314,8 @@ def _walk(sock: bpy.types.NodeSocket, width: int) -> _Found | str | None:
     transform = _vector(node)
     if isinstance(transform, str):
         return transform
-    return _Found(node.image, channels, factor, transform, strength)
+    note = f"image extension {node.extension} is exported as REPEAT (the spec's UVs wrap)"
+    return _Found(node.image, channels, factor, transform, strength, "" if node.extension == "REPEAT" else note)
 
 
 def node_signature(bsdf: bpy.types.Node) -> dict:
@@ -386,6 +394,8 @@ def textures_from_nodes(
         if isinstance(found, str):
             warnings.append(f"{where}: input {name!r} is fed by {found}; its constant is exported")
             continue
+        if found.note:
+            warnings.append(f"{where}: input {name!r}: {found.note}")
         try:
             source = _image_file(found.image, Path(texture_dir))
         except ValueError as e:

@@ -230,6 +230,30 @@ def test_edited_texture_nodes_export_live_values(bpy, build_spec, export_spec, t
     assert got.textures.albedo.scale == pytest.approx((3.0, 1.0)) and got.textures.metallic is None
     assert any("edited" in w for w in warnings) and any("TEX_NOISE" in w for w in warnings)
     assert got.metallic == pytest.approx(0.3)  # the constant left on the input
+    tex_node.extension = "EXTEND"  # exported, with a warning: the spec's UVs wrap
+    warnings.clear()
+    again = export_spec.material_spec_from_blender(mat, warnings, tmp_path / "tex")
+    assert again.textures.metallic is None and again.textures.roughness is not None
+    assert any("EXTEND" in w for w in warnings)
+
+
+def test_missing_texture_file_is_one_line(bpy, build_spec, tmp_path):
+    spec = _textured_spec(tmp_path)
+    (tmp_path / "albedo.png").unlink()
+    with pytest.raises(ValueError, match=r"albedo\.png: texture file not found"):
+        build_spec.build_from_spec(bpy.context.scene, spec)
+
+
+def test_clearing_a_build_removes_its_images(bpy, tmp_path):
+    from blender_addon import scene_builder
+
+    folder = tmp_path / "assets"
+    folder.mkdir()
+    trimesh.creation.icosphere(subdivisions=1).export(folder / "ball.ply")
+    scene_builder.build_scene(bpy.context.scene, folder, 2, seed=1, texture_fraction=1.0)
+    assert any("pdir_texture" in i for i in bpy.data.images)
+    scene_builder.clear_scene_objects(bpy.context.scene)
+    assert not any("pdir_texture" in i for i in bpy.data.images)
 
 
 def test_mapping_conversion_inverts():
@@ -277,6 +301,7 @@ def test_gltf_asset_keeps_its_material_in_the_scene_builder(bpy, tmp_path):
     box = scene_builder.material_spec_of(bpy.data.objects["quad_00_part1"].material_slots[0].material)
     assert box.textures is None and box.albedo == pytest.approx((0.2, 0.3, 0.4))
     assert np.allclose(bpy.data.objects["quad_00_part1"].matrix_basis, obj.matrix_basis)  # one pose
+    assert "asset_notes" not in json.loads(bpy.context.scene["pdir_metadata"])  # nothing lost reading it
     np.testing.assert_allclose(_bake(obj, "Base Color", 8), _srgb_to_linear(alb / 255.0), atol=0.01)
     np.testing.assert_allclose(_bake(obj, "Roughness", 8)[..., 0], 0.6 * mr[..., 1] / 255.0, atol=0.005)
     np.testing.assert_allclose(_bake(obj, "Metallic", 8)[..., 0], mr[..., 2] / 255.0, atol=0.005)
