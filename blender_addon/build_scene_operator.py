@@ -15,6 +15,7 @@ from .scene_builder import build_scene
 
 __all__ = ["CLASSES", "PDIR_OT_build_scene"]
 
+
 class PDIR_OT_build_scene(bpy.types.Operator):
     """Import random assets from a folder at random poses in the camera's view, with pBRDF materials."""
 

@@ -545,12 +545,16 @@ def build_scene(
     finally:
         bpy.data.batch_remove([m for a in imported.values() for m in a.sources()])
     scene[SEED_KEY] = int(seed)
-    if asset_materials:  # the exported spec's metadata records what the assets' materials lost, as headless
-        meta = json.loads(scene.get(_METADATA_KEY, "{}"))
-        meta.pop("asset_notes", None)
-        found = {str(p): list(a.notes) for p, a in imported.items() if a.notes}
-        scene[_METADATA_KEY] = json.dumps({**meta, **({"asset_notes": found} if found else {})})
+    if asset_materials:
+        _record_notes(scene, {str(p): list(a.notes) for p, a in imported.items() if a.notes})
     return out
+
+
+def _record_notes(scene: bpy.types.Scene, notes: dict[str, list[str]]) -> None:
+    """Set the scene metadata's ``asset_notes`` (what the assets' materials lost), as the headless engine does."""
+    meta = json.loads(scene.get(_METADATA_KEY, "{}"))
+    meta.pop("asset_notes", None)
+    scene[_METADATA_KEY] = json.dumps({**meta, **({"asset_notes": notes} if notes else {})})
 
 
 def _draw_file(rng, files: list[Path], imported: dict, refused: dict[str, str], folder, asset_materials: bool) -> Path:
