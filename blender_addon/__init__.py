@@ -60,6 +60,7 @@ MODULES = (
     "ui",
     "rig_bpy",
     "scene_builder",
+    "build_scene_operator",
     "render_operator",
     "pbr_import",
     "reconstruct_operator",

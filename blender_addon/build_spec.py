@@ -113,7 +113,9 @@ def build_from_spec(scene: bpy.types.Scene, spec: SceneSpec) -> bpy.types.Object
 
     Objects are meshes built from their mesh reference (:func:`.core.assets.load_mesh`), children
     of the rig root with ``matrix_basis = to_world``, carrying the scene builder's material
-    (:func:`.scene_builder.material_from_spec`). Everything keeps its exact spec in custom
+    (:func:`.scene_builder.material_from_spec`, textured through :mod:`.texture_nodes`) and
+    the mesh's UVs (a textured material's mesh without UVs is unwrapped as the headless renderer
+    unwraps it, :func:`.core.assets.ensure_uv`). Everything keeps its exact spec in custom
     properties, so :func:`.export_spec.export_scene` gives the spec back while nothing is edited.
 
     Args:
@@ -134,9 +136,11 @@ def build_from_spec(scene: bpy.types.Scene, spec: SceneSpec) -> bpy.types.Object
     for i, o in enumerate(spec.objects):
         if o.material not in materials:
             raise ValueError(f"object {o.name!r} references unknown material {o.material!r}")
-        tm = assets.load_mesh(o.mesh)
-        mesh = scene_builder.blender_mesh(o.name, tm.vertices, tm.faces, tm.vertex_normals)
-        mesh.materials.append(scene_builder.material_from_spec(materials[o.material]))
+        material = materials[o.material]
+        # UVs as the headless renderer uses them: the file's, or an unwrap for a textured material.
+        tm, uv = scene_builder.mesh_uvs(assets.load_mesh(o.mesh), material.textures is not None)
+        mesh = scene_builder.blender_mesh(o.name, tm.vertices, tm.faces, tm.vertex_normals, uv)
+        mesh.materials.append(scene_builder.material_from_spec(material))
         obj = bpy.data.objects.new(o.name, mesh)
         obj[scene_builder.MATERIAL_KEY] = o.material
         obj[MESH_KEY] = o.mesh

@@ -15,12 +15,14 @@ Blender scene as a :class:`~.core.spec.SceneSpec`:
   (``builtin:...`` or a file) while their mesh data is unchanged (:func:`mesh_checksum`).
 - Materials: the :class:`~.core.spec.MaterialSpec` stored by the scene builder
   (:func:`.scene_builder.material_spec_of`) while the Principled BSDF still shows its Disney
-  parameters; otherwise one derived from the node tree (:func:`material_spec_from_blender`).
+  parameters and texture nodes; otherwise one derived from the node tree
+  (:func:`material_spec_from_blender`, textures by :mod:`.texture_nodes`; packed and generated
+  images written to ``textures/``).
 - Lights (point, spot, area, sun) and the world (background colour or an Environment
   Texture) in Blender's units: see :class:`~.core.spec.LightSpec` for the conversions to
   Mitsuba (area radiance ``energy / (pi A)``, point intensity ``energy / (4 pi)`` W/sr, sun
   irradiance ``strength`` W/m^2).
-- Output folder: ``scene.json`` (the spec), ``meshes/*.ply`` and, when mitsuba is importable,
+- Output folder: ``scene.json`` (the spec), ``meshes/*.ply``, ``textures/`` and, when mitsuba is importable,
   ``scene.xml``, the RGB preview scene of :func:`.core.mitsuba_preview.preview_scene_dict`.
 
 Convention (exactness):
@@ -48,7 +50,7 @@ from numpy.typing import NDArray
 
 from pbrdf.sensor.rig import CameraSpec, Rig
 
-from . import prefs, rig_bpy, scene_builder
+from . import prefs, rig_bpy, scene_builder, texture_nodes
 from .core.spec import EnvironmentSpec, LightSpec, MaterialSpec, ObjectSpec, SceneSpec
 
 __all__ = [
@@ -190,13 +192,15 @@ def camera_spec_from_blender(cam_obj: bpy.types.Object, scene: bpy.types.Scene) 
     return CameraSpec(sensor_width_px=w, sensor_height_px=h, pixel_pitch=pitch * 1e-3, focal_length=data.lens * 1e-3)
 
 
-def _principled_inputs(node: bpy.types.Node, warnings: list[str], where: str) -> dict[str, Any]:
+def _principled_inputs(
+    node: bpy.types.Node, warnings: list[str], where: str, textured: set[str] = frozenset()
+) -> dict[str, Any]:
     out = {}
     for name in ("Base Color", "Roughness", "Metallic", "IOR", "Specular IOR Level", "Color"):
         sock = node.inputs.get(name)
         if sock is None:
             continue
-        if sock.is_linked:
+        if sock.is_linked and name not in textured:
             warnings.append(f"{where}: input {name!r} is linked (texture); its default value is exported")
         out[name] = sock.default_value
     return out
@@ -213,16 +217,24 @@ def _surface_node(mat: bpy.types.Material) -> bpy.types.Node | None:
     return out.inputs["Surface"].links[0].from_node
 
 
-def material_spec_from_blender(mat: bpy.types.Material | None, warnings: list[str] | None = None) -> MaterialSpec:
-    """A :class:`MaterialSpec` derived from a material's surface shader (Disney parameters).
+def material_spec_from_blender(
+    mat: bpy.types.Material | None,
+    warnings: list[str] | None = None,
+    texture_dir: str | os.PathLike | None = None,
+) -> MaterialSpec:
+    """A :class:`MaterialSpec` derived from a material's surface shader (Disney parameters and textures).
 
     Principled BSDF: base colour -> albedo, roughness, metallic; metallic >= 0.5 gives a
     ``conductor`` reflecting the albedo at normal incidence (complex IOR ``1 - ik`` with
     ``k = 2 sqrt(R / (1 - R))``, since ``R0 = k^2 / (4 + k^2)`` at n = 1), ``Specular IOR Level``
-    0 a Lambertian ``diffuse``, otherwise ``pplastic`` with the node's IOR. Diffuse BSDF ->
-    ``diffuse``; Glossy BSDF -> ``conductor`` with its colour; anything else (or no material) a
-    ``diffuse`` with the viewport colour. Linked (textured) inputs export their default value
-    with a warning.
+    0 a Lambertian ``diffuse``, otherwise ``pplastic`` with the node's IOR. Image Texture nodes
+    on Base Color, Roughness, Metallic and Normal become the spec's textures
+    (:func:`.texture_nodes.textures_from_nodes`; packed and generated images are written to
+    ``texture_dir``, default a ``blender-images`` folder beside :func:`.core.asset_materials.image_cache_dir`),
+    and the textured constants their means; a textured metallic keeps the ``pplastic`` (metal
+    mixed in per texel). Diffuse BSDF -> ``diffuse``; Glossy BSDF -> ``conductor`` with its
+    colour; anything else (or no material) a ``diffuse`` with the viewport colour. Other linked
+    inputs export their default value with a warning.
     """
     warnings = warnings if warnings is not None else []
     if mat is None:
@@ -231,36 +243,75 @@ def material_spec_from_blender(mat: bpy.types.Material | None, warnings: list[st
     node = _surface_node(mat)
     kind = node.type if node is not None else None
     if kind in ("BSDF_PRINCIPLED", "BSDF_DIFFUSE", "BSDF_GLOSSY", "BSDF_ANISOTROPIC"):
-        vals = _principled_inputs(node, warnings, where)
+        textures, textured = None, set()
+        if kind == "BSDF_PRINCIPLED":
+            textures, textured = texture_nodes.textures_from_nodes(node, _texture_dir(texture_dir), warnings, where)
+        vals = _principled_inputs(node, warnings, where, textured)
         color = vals.get("Base Color", vals.get("Color"))
         albedo = tuple(float(np.clip(c, 0.0, 1.0)) for c in color[:3])
         rough = float(np.clip(vals.get("Roughness", 0.5), 0.0, 1.0))
         metal = float(np.clip(vals.get("Metallic", 1.0 if kind != "BSDF_DIFFUSE" else 0.0), 0.0, 1.0))
+        if textures is not None:
+            albedo, rough, metal = _texture_means(textures, (albedo, rough, metal), warnings, where)
         if kind == "BSDF_DIFFUSE":
             return MaterialSpec.diffuse(mat.name, albedo, rough)
-        if kind != "BSDF_PRINCIPLED" or metal >= 0.5:
+        if kind != "BSDF_PRINCIPLED" or (metal >= 0.5 and (textures is None or textures.metallic is None)):
             r = np.clip(np.asarray(albedo), 0.0, 0.999)
             k = tuple(float(v) for v in 2.0 * np.sqrt(r / (1.0 - r)))
-            return MaterialSpec(mat.name, "conductor", albedo, rough, metal, eta=(1.0, 1.0, 1.0), k=k)
+            return MaterialSpec(mat.name, "conductor", albedo, rough, metal, eta=(1.0, 1.0, 1.0), k=k,
+                                textures=textures)  # fmt: skip
         if vals.get("Specular IOR Level", 0.5) <= 1e-6:
-            return MaterialSpec(mat.name, "diffuse", albedo, rough, metal)
-        return MaterialSpec(mat.name, "pplastic", albedo, rough, metal, ior=float(max(vals.get("IOR", 1.5), 1.0001)))
+            return MaterialSpec(mat.name, "diffuse", albedo, rough, metal, textures=textures)
+        ior = float(max(vals.get("IOR", 1.5), 1.0001))
+        return MaterialSpec(mat.name, "pplastic", albedo, rough, metal, ior=ior, textures=textures)
     warnings.append(f"{where}: surface shader {kind or 'none'} is exported as a diffuse viewport colour")
     return MaterialSpec.diffuse(mat.name, tuple(float(np.clip(c, 0, 1)) for c in mat.diffuse_color[:3]), 0.5)
 
 
-def _material_spec(mat: bpy.types.Material | None, warnings: list[str]) -> MaterialSpec:
-    """The scene builder's stored spec while the node tree still shows it, else a derived one."""
+def _texture_dir(texture_dir: str | os.PathLike | None) -> Path:
+    if texture_dir is not None:
+        return Path(texture_dir)
+    from .core.asset_materials import image_cache_dir  # noqa: PLC0415 - needs trimesh
+
+    return image_cache_dir().parent / "blender-images"
+
+
+def _texture_means(textures, constants: tuple, warnings: list[str], where: str) -> tuple:
+    """``(albedo, roughness, metallic)``: the textured ones replaced by their textures' means."""
+    from .core.textures import texture_mean  # noqa: PLC0415
+
+    albedo, rough, metal = constants
+    try:
+        if textures.albedo is not None:
+            albedo = tuple(float(np.clip(c, 0.0, 1.0)) for c in texture_mean(textures.albedo))
+        if textures.roughness is not None:
+            rough = float(np.clip(texture_mean(textures.roughness)[0], 0.0, 1.0))
+        if textures.metallic is not None:
+            metal = float(np.clip(texture_mean(textures.metallic)[0], 0.0, 1.0))
+    except (ImportError, ValueError) as e:  # Blender's own Python lacks Pillow/OpenEXR
+        warnings.append(f"{where}: texture means not computed ({e}); the node's constants are exported")
+    return albedo, rough, metal
+
+
+def _material_spec(mat: bpy.types.Material | None, warnings: list[str], texture_dir: Path) -> MaterialSpec:
+    """The scene builder's stored spec while the node tree still shows it, else a derived one.
+
+    "Still shows it": the Principled constants and the texture nodes (:func:`.texture_nodes.node_signature`:
+    images, channels, factors, transforms) are those :func:`.scene_builder.material_from_spec` built.
+    """
     if mat is None or mat.get(scene_builder.MATERIAL_KEY) is None:
-        return material_spec_from_blender(mat, warnings)
+        return material_spec_from_blender(mat, warnings, texture_dir)
     stored = scene_builder.material_spec_of(mat)
     node = _surface_node(mat)
     if node is not None and node.type == "BSDF_PRINCIPLED":
         live = (*node.inputs["Base Color"].default_value[:3], node.inputs["Roughness"].default_value,
                 node.inputs["Metallic"].default_value)  # fmt: skip
-        if not _close(list(live), [*stored.albedo, stored.roughness, stored.metallic]):
+        built = json.loads(mat.get(texture_nodes.SIGNATURE_KEY, "{}"))
+        if not _close(list(live), [*stored.albedo, stored.roughness, stored.metallic]) or not _close(
+            texture_nodes.node_signature(node), built
+        ):
             warnings.append(f"material {mat.name!r} was edited: exported from its nodes, not its stored pBRDF")
-            return material_spec_from_blender(mat, warnings)
+            return material_spec_from_blender(mat, warnings, texture_dir)
     return stored
 
 
@@ -455,7 +506,7 @@ def export_scene(
     materials: dict[str, MaterialSpec] = {}
 
     def material_name(mat: bpy.types.Material | None) -> str:
-        spec = _material_spec(mat, warnings)
+        spec = _material_spec(mat, warnings, out / "textures")
         name = spec.name
         i = 1
         while name in materials and materials[name] != spec:

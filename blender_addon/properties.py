@@ -30,6 +30,15 @@ from . import rig_bpy
 __all__ = ["CLASSES", "PDIR_RigSettings", "PDIR_SceneBuilderSettings", "register_extra", "unregister_extra"]
 
 _DISPLAY = DisplaySpec()
+#: Tooltips of the scene builder's texture options (the panel's and ``pdir.build_scene``'s).
+ASSET_MATERIALS_TIP = (
+    "glTF and OBJ+MTL assets keep their own materials and textures: one object per material, "
+    "with its UVs (as headless/render.py --asset-materials); off: one object with a drawn material"
+)
+TEXTURE_FRACTION_TIP = (
+    "Share of drawn materials (not an asset's own) that get seeded procedural textures: varying base "
+    "colour and roughness, metal segments or wear, a normal map (as headless/render.py --texture-fraction)"
+)
 _CAMERA = CameraSpec()
 
 
@@ -203,6 +212,19 @@ class PDIR_SceneBuilderSettings(bpy.types.PropertyGroup):
         ),
         subtype="DIR_PATH",
         default="",
+    )
+    asset_materials: BoolProperty(
+        name="Keep Asset Materials",
+        description=ASSET_MATERIALS_TIP,
+        default=False,
+    )
+    texture_fraction: FloatProperty(
+        name="Texture Fraction",
+        description=TEXTURE_FRACTION_TIP,
+        default=0.0,
+        min=0.0,
+        max=1.0,
+        subtype="FACTOR",
     )
 
 

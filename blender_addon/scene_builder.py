@@ -37,26 +37,26 @@ from typing import TYPE_CHECKING
 
 import bpy
 import numpy as np
-from bpy.props import BoolProperty, IntProperty, StringProperty
 from mathutils import Matrix
 from numpy.typing import NDArray
 
 from pbrdf.sensor.rig import Rig
 
-from . import rig_bpy
+from . import rig_bpy, texture_nodes
 from .core.placement import place
 
 if TYPE_CHECKING:
     from .core.spec import MaterialSpec
 
 __all__ = [
-    "CLASSES",
     "IMPORTERS",
     "MAX_OVERLAP_TRIES",
     "blender_mesh",
     "build_scene",
     "triangle_corners",
     "import_asset",
+    "import_asset_parts",
+    "mesh_uvs",
     "list_asset_files",
 ]
 
@@ -79,6 +79,7 @@ ROLE_COLLECTION = "scene_objects"
 MATERIAL_KEY = "pdir_material"
 ASSET_KEY = "pdir_asset"
 SEED_KEY = "pdir_seed"
+_METADATA_KEY = "pdir_metadata"  # export_spec.METADATA_KEY (export_spec imports this module)
 # Data-blocks an importer may create; those left over after joining are removed.
 _IMPORT_DATA = ("objects", "meshes", "materials", "images", "textures", "cameras", "lights", "armatures", "actions")
 
@@ -209,7 +210,8 @@ def import_asset(path: str | os.PathLike, name: str | None = None) -> bpy.types.
     GLB/GLTF/OBJ/PLY/STL/OFF go through :func:`.core.assets.load_mesh`, FBX through Blender's
     importer and then :func:`.core.assets.build_render_mesh`: the same accepted files, cleaning,
     outward orientation and shading normals as the headless renderer (authored normals kept,
-    crease-angle normals otherwise), stored as custom split normals on a mesh welded by position.
+    crease-angle normals otherwise), stored as custom split normals on a mesh welded by position,
+    with the file's UVs when the pipeline keeps them (:data:`.texture_nodes.UV_LAYER`).
     Normalised: centred on its axis-aligned bounding box, scaled to a unit bounding-box diagonal.
 
     Raises:
@@ -217,21 +219,72 @@ def import_asset(path: str | os.PathLike, name: str | None = None) -> bpy.types.
             pipeline refuses (no triangles, flat, NaN coordinates, ...).
     """
     path = Path(path)
+    return _to_blender(name or path.stem, _normalised(_import_core(path)))
+
+
+def _import_core(path: Path):
+    """The asset's render mesh (a trimesh) as the shared pipeline reads it, not normalised."""
     suffix = path.suffix.lower()
     if suffix not in IMPORTERS:
         raise ValueError(f"{path}: unsupported asset type; supported: {sorted(IMPORTERS)}")
     assets = _core()[0]
     if suffix in assets.MESH_SUFFIXES:
-        tm = assets.load_mesh(path)
-    else:
-        tm = assets.build_render_mesh(_blender_import_parts(path), str(path))
-    v = np.asarray(tm.vertices, dtype=np.float64)
-    lo, hi = v.min(axis=0), v.max(axis=0)
-    v = (v - (lo + hi) / 2) / float(np.linalg.norm(hi - lo))
-    return blender_mesh(name or path.stem, v, np.asarray(tm.faces), np.asarray(tm.vertex_normals))
+        return assets.load_mesh(path)
+    return assets.build_render_mesh(_blender_import_parts(path), str(path))
 
 
-def blender_mesh(name: str, vertices: NDArray, faces: NDArray, normals: NDArray) -> bpy.types.Mesh:
+def _normalised(tm, box=None):
+    """``tm`` centred on ``box``'s (default its own) bounding box, scaled to a unit bounding-box diagonal."""
+    import trimesh  # noqa: PLC0415 - the core's dependency
+
+    box = np.asarray(tm.vertices if box is None else box, dtype=np.float64)
+    lo, hi = box.min(axis=0), box.max(axis=0)
+    v = (np.asarray(tm.vertices, dtype=np.float64) - (lo + hi) / 2) / float(np.linalg.norm(hi - lo))
+    out = trimesh.Trimesh(v, np.asarray(tm.faces), vertex_normals=np.asarray(tm.vertex_normals), process=False)
+    out.visual = tm.visual.copy()
+    out.metadata.update(tm.metadata)
+    return out
+
+
+def _to_blender(name: str, tm, *, textured: bool = False) -> bpy.types.Mesh:
+    tm, uv = mesh_uvs(tm, textured)
+    return blender_mesh(name, np.asarray(tm.vertices), np.asarray(tm.faces), np.asarray(tm.vertex_normals), uv)
+
+
+def import_asset_parts(
+    path: str | os.PathLike, name: str | None = None
+) -> tuple[list[tuple[bpy.types.Mesh, MaterialSpec | None]], tuple[str, ...]] | None:
+    """A glTF/OBJ file as one mesh per material with its UVs and its :class:`~.core.spec.MaterialSpec`.
+
+    The parts are :func:`.core.asset_materials.asset_parts` (``"<file>#material=<K>"``, the
+    headless engine's objects), normalised together as :func:`import_asset` normalises the file.
+
+    Returns:
+        ``([(mesh, material or None), ...], notes)``, or None for a file without materials.
+
+    Raises:
+        ValueError: one line naming the file (unreadable materials or textures, a refused mesh).
+    """
+    from .core.asset_materials import asset_parts  # noqa: PLC0415 - needs trimesh
+
+    path = Path(path)
+    if path.suffix.lower() not in (".glb", ".gltf", ".obj"):
+        return None
+    own = asset_parts(path)
+    if own is None:
+        return None
+    assets = _core()[0]
+    box = assets.load_mesh(path).vertices
+    meshes = [
+        (_to_blender(f"{name or path.stem}_part{j}", _normalised(assets.load_mesh(part.mesh), box)), part.material)
+        for j, part in enumerate(own.parts)
+    ]
+    return meshes, own.notes
+
+
+def blender_mesh(
+    name: str, vertices: NDArray, faces: NDArray, normals: NDArray, uvs: NDArray | None = None
+) -> bpy.types.Mesh:
     """A Blender mesh from a render mesh: vertices welded by position, the normals as custom split normals.
 
     Args:
@@ -239,10 +292,12 @@ def blender_mesh(name: str, vertices: NDArray, faces: NDArray, normals: NDArray)
         vertices: ``(N, 3)`` render-mesh positions (split at hard edges and seams).
         faces: ``(F, 3)`` triangles.
         normals: ``(N, 3)`` shading normals per render vertex.
+        uvs: ``(N, 2)`` OpenGL UVs per render vertex (Blender's convention), or None.
 
     Returns:
-        The new mesh: connected where the render mesh was split, smooth-shaded, and with corner
-        normals equal to ``normals`` (so Blender shades what Mitsuba renders).
+        The new mesh: connected where the render mesh was split, smooth-shaded, with corner
+        normals equal to ``normals`` (so Blender shades what Mitsuba renders) and the UVs per
+        corner in the UV layer :data:`.texture_nodes.UV_LAYER`.
     """
     v = np.asarray(vertices, dtype=np.float64)
     f = np.asarray(faces, dtype=np.int64)
@@ -260,8 +315,32 @@ def blender_mesh(name: str, vertices: NDArray, faces: NDArray, normals: NDArray)
     mesh.polygons.foreach_set("use_smooth", np.ones(len(f), dtype=bool))
     # Loop k is corner k of the faces (loop_start above), so the corner normals line up.
     mesh.normals_split_custom_set(n[f.ravel()].tolist())
+    if uvs is not None:
+        layer = mesh.uv_layers.new(name=texture_nodes.UV_LAYER)
+        layer.data.foreach_set("uv", np.asarray(uvs, dtype=np.float32)[f.ravel()].ravel())
     mesh.update()
     return mesh
+
+
+def mesh_uvs(tm, textured: bool) -> tuple:
+    """A render mesh (trimesh) with its per-vertex UVs.
+
+    Args:
+        tm: the mesh.
+        textured: unwrap a mesh without UVs (:func:`.core.assets.ensure_uv`), as the headless
+            renderer does for a textured material.
+
+    Returns:
+        ``(mesh, uvs (N, 2) or None)``.
+    """
+    assets = _core()[0]
+    if textured:
+        unwrapped = assets.ensure_uv(tm)
+        if unwrapped is not tm:
+            unwrapped.metadata.update(tm.metadata)
+        tm = unwrapped
+    uv = getattr(tm.visual, "uv", None)
+    return tm, (None if uv is None or len(uv) != len(tm.vertices) else np.asarray(uv, dtype=np.float64))
 
 
 def _bbox_corners(mesh: bpy.types.Mesh) -> NDArray[np.float64]:
@@ -273,7 +352,12 @@ def _bbox_corners(mesh: bpy.types.Mesh) -> NDArray[np.float64]:
 
 
 def material_from_spec(spec: MaterialSpec) -> bpy.types.Material:
-    """A Principled BSDF material previewing ``spec``'s Disney parameters (reused if identical)."""
+    """A Principled BSDF material previewing ``spec``'s Disney parameters (reused if identical).
+
+    A textured spec gets Image Texture nodes on Base Color, Roughness, Metallic and Normal
+    (:func:`.texture_nodes.add_texture_nodes`); the meshes need the UV layer
+    :data:`.texture_nodes.UV_LAYER` (:func:`blender_mesh` with ``uvs``).
+    """
     payload = json.dumps(spec.to_dict(), sort_keys=True)
     for mat in bpy.data.materials:
         if mat.get(MATERIAL_KEY) == payload:
@@ -290,8 +374,12 @@ def material_from_spec(spec: MaterialSpec) -> bpy.types.Material:
     bsdf.inputs["Base Color"].default_value = (*spec.albedo, 1.0)  # linear RGB, as the spec
     bsdf.inputs["Roughness"].default_value = spec.roughness
     bsdf.inputs["Metallic"].default_value = spec.metallic
+    if spec.kind == "pplastic":
+        bsdf.inputs["IOR"].default_value = spec.ior
     mat.diffuse_color = (*spec.albedo, 1.0)  # solid-mode viewport colour
     mat.roughness, mat.metallic = spec.roughness, spec.metallic
+    if spec.textures is not None:  # image nodes on the inputs; the constants above are the textures' means
+        texture_nodes.add_texture_nodes(mat, bsdf, spec.textures)
     return mat
 
 
@@ -328,11 +416,35 @@ def clear_scene_objects(scene: bpy.types.Scene) -> int:
     bpy.data.batch_remove(objs)
     bpy.data.batch_remove([m for m in meshes if m.users == 0])
     bpy.data.batch_remove([m for m in bpy.data.materials if MATERIAL_KEY in m and m.users == 0])
+    bpy.data.batch_remove([i for i in bpy.data.images if texture_nodes.IMAGE_KEY in i and i.users == 0])
     return len(objs)
 
 
 def _overlaps(centre: NDArray, radius: float, placed: list[tuple[NDArray, float]]) -> bool:
     return any(np.linalg.norm(centre - c) < radius + r for c, r in placed)
+
+
+class _Asset:
+    """One asset file imported for a build: a normalised trimesh, or its parts with their materials."""
+
+    def __init__(self, path: Path, asset_materials: bool) -> None:
+        own = import_asset_parts(path, name=f"PDIR source {path.stem}") if asset_materials else None
+        self.tm = None if own is not None else _normalised(_import_core(path))
+        self.parts, self.notes = own if own is not None else ([], ())
+        self._plain: dict[bool, bpy.types.Mesh] = {}
+
+    def bbox(self) -> NDArray[np.float64]:
+        """Corners of the bounding boxes of its parts (or of the whole), ``(8 k, 3)``."""
+        return np.concatenate([_bbox_corners(m) for m in ([p for p, _ in self.parts] or [self.mesh(False)])])
+
+    def mesh(self, textured: bool) -> bpy.types.Mesh:
+        """The whole file as a mesh; with ``textured``, unwrapped when it has no UVs."""
+        if textured not in self._plain:
+            self._plain[textured] = _to_blender(f"PDIR source {textured}", self.tm, textured=textured)
+        return self._plain[textured]
+
+    def sources(self) -> list[bpy.types.Mesh]:
+        return [m for m, _ in self.parts] + list(self._plain.values())
 
 
 def build_scene(
@@ -346,6 +458,9 @@ def build_scene(
     size: tuple[float, float] = (0.15, 0.35),
     replace: bool = True,
     skipped: dict[str, str] | None = None,
+    asset_materials: bool = False,
+    texture_fraction: float = 0.0,
+    notes: dict[str, list[str]] | None = None,
 ) -> list[bpy.types.Object]:
     """Place ``count`` random assets from ``folder`` in front of the rig's camera (see the module docstring).
 
@@ -361,12 +476,21 @@ def build_scene(
         replace: remove the objects of the previous build first.
         skipped: if given, filled with ``{file: reason}`` for asset files the pipeline refused;
             a refused file is dropped from the draw and another drawn in its place.
+        asset_materials: a glTF/OBJ file with materials becomes one object per material
+            (``<stem>_<i>_part<j>``) with its UVs and the file's own material
+            (:func:`import_asset_parts`; parts without one get a random analytic material), as
+            :func:`.core.scenegen.random_scene` with ``asset_materials``.
+        texture_fraction: probability that a drawn material (not an asset's own) gets seeded
+            procedural textures (:func:`.core.random_textures.textured_material`); drawn after
+            the material, only when above 0, so 0 keeps the scenes of earlier builds.
+        notes: if given, filled with ``{file: [note, ...]}``: what an asset's materials lost.
 
     Returns:
         The new objects, in draw order.
 
     Raises:
-        ValueError: bad count or seed, every asset file refused, an asset that cannot fit in view.
+        ValueError: bad count, seed or texture fraction, every asset file refused, an asset that
+            cannot fit in view.
         FileNotFoundError: missing asset folder, no assets, missing library or tables.
         RuntimeError: a Python package the core needs is missing (the message says which).
     """
@@ -374,7 +498,9 @@ def build_scene(
         raise ValueError(f"count must be a positive integer, got {count!r}")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
-    assets, scenegen = _core()
+    if not 0.0 <= texture_fraction <= 1.0:
+        raise ValueError(f"texture_fraction must be in [0, 1], got {texture_fraction}")
+    _, scenegen = _core()
     files = list_asset_files(folder)
     materials = scenegen.load_material_library(library) if library else None
     root = rig_bpy.find_rig_root(scene) or rig_bpy.add_rig(scene)
@@ -383,100 +509,83 @@ def build_scene(
         clear_scene_objects(scene)
     coll = _objects_collection(scene)
     rng = np.random.default_rng(seed)
-    meshes: dict[Path, bpy.types.Mesh] = {}  # one import per file; objects get copies
+    imported: dict[Path, _Asset] = {}  # one import per file; objects get copies
     placed: list[tuple[NDArray, float]] = []
-    out = []
+    out: list[bpy.types.Object] = []
+    refused: dict[str, str] = {} if skipped is None else skipped
     try:
-        refused: dict[str, str] = {} if skipped is None else skipped
         for i in range(count):
-            while True:
-                good = [p for p in files if str(p) not in refused]
-                if not good:
-                    first = next(iter(refused.values()))
-                    raise ValueError(f"{folder}: every asset file was refused ({len(refused)}; first: {first})")
-                path = good[int(rng.integers(len(good)))]
-                if path in meshes:
-                    break
-                try:
-                    meshes[path] = import_asset(path, name=f"PDIR source {path.stem}")
-                    break
-                except ValueError as e:  # one bad file does not abort the build
-                    refused[str(path)] = str(e)
-            corners = SimpleNamespace(vertices=_bbox_corners(meshes[path]))
+            path = _draw_file(rng, files, imported, refused, folder, asset_materials)
+            asset = imported[path]
+            if asset.notes and notes is not None:
+                notes[str(path)] = list(asset.notes)
+            corners = SimpleNamespace(vertices=asset.bbox())
             for _ in range(MAX_OVERLAP_TRIES):
                 pose = place(corners, rig, rng, distance=distance, size=size)
                 centre, radius = pose[:3, 3], float(np.cbrt(abs(np.linalg.det(pose[:3, :3])))) / 2
                 if not _overlaps(centre, radius, placed):
                     break
             placed.append((centre, radius))
+            if asset.parts:
+                for j, (source, own) in enumerate(asset.parts):
+                    spec = own if own is not None else scenegen.random_material(rng, name=f"obj{i:02d}_part{j}")
+                    out.append(_add_object(source, f"{path.stem}_{i:02d}_part{j}", spec, path, pose, coll, root))
+                continue
             spec = (
                 materials[int(rng.integers(len(materials)))]
                 if materials
                 else scenegen.random_material(rng, name=f"obj{i:02d}")
             )
-            mesh = meshes[path].copy()
-            mesh.name = f"{path.stem}_{i:02d}"
-            mesh.materials.append(material_from_spec(spec))
-            obj = bpy.data.objects.new(mesh.name, mesh)
-            obj[rig_bpy.ROLE_KEY] = ROLE_OBJECT
-            obj[MATERIAL_KEY] = spec.name
-            obj[ASSET_KEY] = str(path)
-            coll.objects.link(obj)
-            obj.parent = root
-            obj.matrix_parent_inverse = Matrix.Identity(4)
-            obj.matrix_basis = Matrix(pose.tolist())
-            out.append(obj)
+            if texture_fraction > 0 and rng.random() < texture_fraction:
+                from .core.random_textures import textured_material  # noqa: PLC0415
+
+                spec = textured_material(rng, spec, materials or ())
+            source = asset.mesh(spec.textures is not None)
+            out.append(_add_object(source, f"{path.stem}_{i:02d}", spec, path, pose, coll, root))
     finally:
-        bpy.data.batch_remove(list(meshes.values()))
+        bpy.data.batch_remove([m for a in imported.values() for m in a.sources()])
     scene[SEED_KEY] = int(seed)
+    if asset_materials:
+        _record_notes(scene, {str(p): list(a.notes) for p, a in imported.items() if a.notes})
     return out
 
 
-class PDIR_OT_build_scene(bpy.types.Operator):
-    """Import random assets from a folder at random poses in the camera's view, with pBRDF materials."""
+def _record_notes(scene: bpy.types.Scene, notes: dict[str, list[str]]) -> None:
+    """Set the scene metadata's ``asset_notes`` (what the assets' materials lost), as the headless engine does."""
+    meta = json.loads(scene.get(_METADATA_KEY, "{}"))
+    meta.pop("asset_notes", None)
+    scene[_METADATA_KEY] = json.dumps({**meta, **({"asset_notes": notes} if notes else {})})
 
-    bl_idname = "pdir.build_scene"
-    bl_label = "Build Scene"
-    bl_options = {"REGISTER", "UNDO"}
 
-    folder: StringProperty(
-        name="Assets", description="Folder of GLB/GLTF/OBJ/PLY/FBX/STL assets", subtype="DIR_PATH", default=""
-    )
-    count: IntProperty(name="Objects", description="How many objects to place", default=3, min=1, max=100)
-    seed: IntProperty(name="Seed", description="Random seed of the scene", default=0, min=0)
-    library: StringProperty(
-        name="pBRDF Library",
-        description="Folder with materials.json (empty: random analytic materials)",
-        subtype="DIR_PATH",
-        default="",
-    )
-    replace: BoolProperty(name="Replace", description="Remove the objects of the previous build first", default=True)
-
-    def execute(self, context: bpy.types.Context) -> set[str]:
-        """Build the scene and report what was placed."""
-        if not self.folder.strip():
-            self.report({"ERROR"}, "Choose an asset folder")
-            return {"CANCELLED"}
-        library = bpy.path.abspath(self.library.strip()) if self.library.strip() else None
-        skipped: dict[str, str] = {}
+def _draw_file(rng, files: list[Path], imported: dict, refused: dict[str, str], folder, asset_materials: bool) -> Path:
+    """Draw an asset file, importing it on its first draw; a refused file is dropped and another drawn."""
+    while True:
+        good = [p for p in files if str(p) not in refused]
+        if not good:
+            first = next(iter(refused.values()))
+            raise ValueError(f"{folder}: every asset file was refused ({len(refused)}; first: {first})")
+        path = good[int(rng.integers(len(good)))]
+        if path in imported:
+            return path
         try:
-            objs = build_scene(
-                context.scene,
-                bpy.path.abspath(self.folder.strip()),
-                self.count,
-                self.seed,
-                library,
-                replace=self.replace,
-                skipped=skipped,
-            )
-        except (ValueError, OSError, RuntimeError) as e:
-            self.report({"ERROR"}, str(e))
-            return {"CANCELLED"}
-        for reason in skipped.values():
-            self.report({"WARNING"}, f"skipped {reason}")
-        source = "pBRDF library" if library else "random analytic materials"
-        self.report({"INFO"}, f"Placed {len(objs)} objects (seed {self.seed}, {source}; {len(skipped)} files skipped)")
-        return {"FINISHED"}
+            imported[path] = _Asset(path, asset_materials)
+            return path
+        except ValueError as e:  # one bad file does not abort the build
+            refused[str(path)] = str(e)
 
 
-CLASSES = (PDIR_OT_build_scene,)
+def _add_object(source, name: str, spec, path: Path, pose: NDArray, coll, root) -> bpy.types.Object:
+    """A copy of ``source`` as a scene object with ``spec``'s material at ``pose`` under the rig root."""
+    mesh = source.copy()
+    mesh.name = name
+    mesh.materials.clear()
+    mesh.materials.append(material_from_spec(spec))
+    obj = bpy.data.objects.new(mesh.name, mesh)
+    obj[rig_bpy.ROLE_KEY] = ROLE_OBJECT
+    obj[MATERIAL_KEY] = spec.name
+    obj[ASSET_KEY] = str(path)
+    coll.objects.link(obj)
+    obj.parent = root
+    obj.matrix_parent_inverse = Matrix.Identity(4)
+    obj.matrix_basis = Matrix(pose.tolist())
+    return obj

@@ -119,10 +119,13 @@ class PDIR_PT_scene_builder(SidebarPanel, bpy.types.Panel):
         layout.prop(s, "library")
         layout.prop(s, "count")
         layout.prop(s, "seed")
+        layout.prop(s, "asset_materials")
+        layout.prop(s, "texture_fraction")
         row = layout.row()
         row.enabled = bool(s.folder.strip())
         op = row.operator("pdir.build_scene", icon="SCENE_DATA")
         op.folder, op.count, op.seed, op.library = s.folder, s.count, s.seed, s.library
+        op.asset_materials, op.texture_fraction = s.asset_materials, s.texture_fraction
 
 
 CLASSES = (PDIR_PT_main, PDIR_PT_rig, PDIR_PT_scene_builder)
