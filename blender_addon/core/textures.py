@@ -12,7 +12,9 @@ Conventions:
       image, ``v`` up. Image arrays have row 0 at the top, so texel ``(u, v)`` is at column
       ``u W`` and row ``(1 - v) H``; UVs wrap (glTF's default ``REPEAT``).
     * ``KHR_texture_transform`` is defined in glTF's UV space (``v`` down):
-      ``uv' = T(offset) R(rotation) S(scale) uv``. :meth:`TextureSpec.uv_matrix` gives the same
+      ``uv' = T(offset) R(rotation) S(scale) uv`` with ``R = [[cos, sin], [-sin, cos]]``, the
+      sign Blender's importer, three.js and Babylon use (the extension README's GLSL listing is
+      transposed: KhronosGroup/glTF issue #1563). :meth:`TextureSpec.uv_matrix` gives the same
       map in OpenGL UVs.
     * Values: colour images are decoded from sRGB to linear when ``colorspace`` is ``"srgb"``;
       data (roughness, metallic, normals, weights) is read as stored (``"linear"``). The value of
@@ -148,7 +150,7 @@ class TextureSpec:
         """
         c, s = math.cos(self.rotation), math.sin(self.rotation)
         gltf = np.array([[1, 0, self.offset[0]], [0, 1, self.offset[1]], [0, 0, 1]], np.float64)
-        gltf = gltf @ np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]], np.float64)  # the spec's column-major mat3
+        gltf = gltf @ np.array([[c, s, 0], [-s, c, 0], [0, 0, 1]], np.float64)  # glTF issue #1563
         gltf = gltf @ np.diag([self.scale[0], self.scale[1], 1.0])
         flip = np.array([[1, 0, 0], [0, -1, 1], [0, 0, 1]], np.float64)  # v -> 1 - v, its own inverse
         return flip @ gltf @ flip

