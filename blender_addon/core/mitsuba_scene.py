@@ -393,6 +393,13 @@ def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = No
             display, the ``direct`` integrator): a table BSDF skips its Mueller matrix's last column.
     """
 
+    if material.textures is not None:  # bitmaps per colour channel (:mod:`.textured_bsdf`)
+        from . import textured_bsdf as tb  # noqa: PLC0415
+
+        if channel is not None and tb.has_textures(material):
+            return tb.bsdf_dict(material, channel, linear_light=linear_light)
+        material = tb.spectral_fallback(material) if tb.has_textures(material) else material
+
     def value(rgb: tuple[float, float, float], kind: str) -> Any:
         return float(rgb[channel]) if channel is not None else spectrum(rgb, kind)
 
@@ -516,6 +523,10 @@ def channel_updates(
     Table materials rendered with :mod:`.table_bsdf` switch by replacing its data.
     """
     bsdf = f"{name}.bsdf.brdf_0" if two_sided else f"{name}.bsdf"
+    if material.textures is not None and material.textures.slots():
+        from . import textured_bsdf  # noqa: PLC0415
+
+        return textured_bsdf.channel_updates(material, channel, bsdf)
     if material.kind == "pplastic":
         return {f"{bsdf}.diffuse_reflectance.value": float(material.albedo[channel])}
     if material.kind == "conductor":
@@ -537,9 +548,9 @@ def channel_updates(
 
 def mesh_object(
     name: str, vertices_world: NDArray, faces: NDArray, normals_world: NDArray | None, bsdf: dict,
-    *, two_sided: bool = False,
+    *, two_sided: bool = False, uvs: NDArray | None = None,
 ):  # fmt: skip
-    """A Mitsuba mesh built from arrays (no temporary files) carrying ``bsdf``.
+    """A Mitsuba mesh built from arrays (no temporary files) carrying ``bsdf``, with OpenGL ``uvs`` if given.
 
     ``two_sided`` wraps the BSDF in Mitsuba's ``twosided`` (it keeps polarization): an open mesh
     seen from the back is then shaded like its front instead of black.
@@ -548,7 +559,7 @@ def mesh_object(
 
     if two_sided:
         bsdf = {"type": "twosided", "bsdf": bsdf}
-    return mesh_from_arrays(name, vertices_world, faces, {"bsdf": mi.load_dict(bsdf)}, normals=normals_world)
+    return mesh_from_arrays(name, vertices_world, faces, {"bsdf": mi.load_dict(bsdf)}, normals=normals_world, uvs=uvs)
 
 
 def integrator_dict(integrator: str, max_depth: int, *, aovs: bool = True) -> dict:

@@ -39,6 +39,7 @@ from .passes import (
     world_meshes,
 )
 from .spectral import render_stokes_spectral
+from .texture_truth import mapped_normals, needs_truth_pass, truth_pass
 
 if TYPE_CHECKING:
     from .spec import SceneSpec
@@ -84,7 +85,8 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
     settings = settings or RenderSettings()
     variant = settings.variant or choose_variant()
     mi = set_variant(variant)
-    meshes = world_meshes(spec)
+    textured = needs_truth_pass(spec)
+    meshes = world_meshes(spec, uvs=textured)
     rig = spec.rig
     spectral = "spectral" in variant
     polarized_emitter = settings.display == "emitter" and not spectral and ms.polarized_emitter_possible(rig.display)
@@ -101,9 +103,15 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
     window = render_window(spec, settings, meshes)
     scenes = _ChannelScenes(spec, meshes, window, settings, max_depth, integrator, polarized_emitter)
     stokes, aovs, seconds = _render_channels(mi, scenes)
+    truth = None
+    if textured:  # the material maps of what was rendered (:mod:`.texture_truth`)
+        seed = (int(spec.seed) * 3) % 2**32  # the first colour pass's: its sample positions
+        truth, truth_aovs, _, seconds["truth"] = truth_pass(spec, meshes, window, settings, scenes.names, seed)
+        mask = aovs["coverage"] >= 0.5
+        aovs["normal"] = mapped_normals(spec, truth_aovs, aovs["object_index"], aovs["normal"], mask)
     return RenderResult(
         stokes=stokes, window=window, variant=variant, seconds=seconds, max_depth=max_depth,
-        integrator=integrator, display="emitter" if polarized_emitter else "sheet", **aovs,
+        integrator=integrator, display="emitter" if polarized_emitter else "sheet", truth=truth, **aovs,
     )  # fmt: skip
 
 
@@ -131,10 +139,11 @@ class _ChannelScenes:
 
         objs = {
             name: ms.mesh_object(
-                name, v, f, n, ms.bsdf_dict(self.materials[obj.material], channel, linear_light=self.linear_light),
-                two_sided=two,
+                name, m[0], m[1], m[2],
+                ms.bsdf_dict(self.materials[obj.material], channel, linear_light=self.linear_light),
+                two_sided=m[3], uvs=m[4] if len(m) > 4 else None,
             )
-            for name, obj, (v, f, n, two) in zip(self.names, self.spec.objects, self.meshes, strict=True)
+            for name, obj, m in zip(self.names, self.spec.objects, self.meshes, strict=True)
         }  # fmt: skip
         s = self.settings
         return mi.load_dict(
@@ -150,7 +159,7 @@ class _ChannelScenes:
         updates = ms.display_updates(self.spec.rig.display, channel, params)
         for name, obj, mesh in zip(self.names, self.spec.objects, self.meshes, strict=True):
             u = ms.channel_updates(name, self.materials[obj.material], channel, two_sided=mesh[3])
-            if u is None or updates is None:
+            if u is None or updates is None or not all(k in params for k in u):
                 return None
             updates.update(u)
         return updates
@@ -245,7 +254,13 @@ class _CompileTimer:
 
 
 def ground_truth(spec: SceneSpec, result: RenderResult) -> dict[str, NDArray]:
-    """Material maps from the per-object Disney parameters: albedo (H,W,3), roughness, metallic."""
+    """Material maps: albedo (H,W,3), roughness, metallic.
+
+    Textured scenes: the truth pass's maps (``result.truth``, the textures at the rendered hits,
+    filtered over each pixel as the image is); others: the per-object Disney parameters.
+    """
+    if result.truth is not None:
+        return {k: np.asarray(v, np.float32) for k, v in result.truth.items()}
     materials = {m.name: m for m in spec.materials}
     h, w = result.object_index.shape
     albedo = np.zeros((h, w, 3), np.float32)
