@@ -392,7 +392,6 @@ def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = No
         linear_light: all light reaching the material has ``S3 = 0`` (direct light from the
             display, the ``direct`` integrator): a table BSDF skips its Mueller matrix's last column.
     """
-
     if material.textures is not None:  # bitmaps per colour channel (:mod:`.textured_bsdf`)
         from . import textured_bsdf as tb  # noqa: PLC0415
 

@@ -260,7 +260,7 @@ def ground_truth(spec: SceneSpec, result: RenderResult) -> dict[str, NDArray]:
     filtered over each pixel as the image is); others: the per-object Disney parameters.
     """
     if result.truth is not None:
-        return {k: np.asarray(v, np.float32) for k, v in result.truth.items()}
+        return {k: np.asarray(result.truth[k], np.float32) for k in ("albedo", "roughness", "metallic")}
     materials = {m.name: m for m in spec.materials}
     h, w = result.object_index.shape
     albedo = np.zeros((h, w, 3), np.float32)

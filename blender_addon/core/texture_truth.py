@@ -91,7 +91,7 @@ def truth_pass(
 
     Returns:
         ``(truth, aovs, coverage, seconds)``: ``truth`` with ``albedo (H, W, 3)``, ``roughness``,
-        ``metallic`` (0 where no sample hit); ``aovs (H, W, 8)`` the pixel means of UV, ``dp_du``
+        ``metallic`` (0 where no sample hit) and ``uv (H, W, 2)`` (the pixel's mean UV); ``aovs (H, W, 8)`` the pixel means of UV, ``dp_du``
         and the shading normal (world), for :func:`mapped_normals`; the coverage.
     """
     import time  # noqa: PLC0415
@@ -105,8 +105,8 @@ def truth_pass(
         refl = bitmap(planes[..., 0], to_uv) if planes is not None else float(consts[0])
         v, f, n = mesh[:3]
         uv = mesh[4] if len(mesh) > 4 else None
-        objects[name] = ms.mesh_from_arrays(name, v, f, {"bsdf": mi.load_dict({"type": "diffuse", "reflectance": refl})},
-                                            normals=n, uvs=uv)  # fmt: skip
+        bsdf = mi.load_dict({"type": "diffuse", "reflectance": refl})
+        objects[name] = ms.mesh_from_arrays(name, v, f, {"bsdf": bsdf}, normals=n, uvs=uv)
     sensor = ms.sensor_dict(spec.rig.camera, window, settings.spp, sampler=settings.sampler)
     sensor["film"]["pixel_format"] = "luminance_alpha"
     scene = mi.load_dict({"type": "scene", "sensor": sensor, **objects})
@@ -133,7 +133,7 @@ def truth_pass(
     safe = np.where(coverage > 0, coverage, 1.0)
     values /= safe[..., None]
     aovs /= safe[..., None]
-    truth = {"albedo": values[..., :3], "roughness": values[..., 3], "metallic": values[..., 4]}
+    truth = {"albedo": values[..., :3], "roughness": values[..., 3], "metallic": values[..., 4], "uv": aovs[..., :2]}
     return truth, aovs, coverage, time.perf_counter() - t0
 
 

@@ -184,18 +184,24 @@ def _tables(t: _Tree, key: str, material: MaterialSpec, *, linear_light: bool) -
         parts.append((lambda k: {"type": "diffuse", "reflectance": 0.0},
                       lambda c: np.clip(1.0 - sum(f(c) for f in comps), 0.0, 1.0)))  # fmt: skip
     else:
-        comps = [(lambda i: lambda c: weights[..., i])(i) for i in range(len(grid.tables))]
+        comps = [_plane_of(weights, i) for i in range(len(grid.tables))]
 
     def table(path: str) -> Callable[[str], dict]:
         def build(k: str) -> dict:
             t.data(f"{k}.data", lambda c: table_bsdf.channel_matrices(path, ms.CHANNEL_WAVELENGTHS_NM[c])[0])
-            return {"type": table_bsdf.PLUGIN, "filename": str(path), "wavelength": ms.CHANNEL_WAVELENGTHS_NM[t.channel],
-                    "alpha_sample": max(alpha, ms.ALPHA_SAMPLE_LEVELS[0]), "linear_light": bool(linear_light)}  # fmt: skip
+            return {
+                "type": table_bsdf.PLUGIN, "filename": str(path), "wavelength": ms.CHANNEL_WAVELENGTHS_NM[t.channel],
+                "alpha_sample": max(alpha, ms.ALPHA_SAMPLE_LEVELS[0]), "linear_light": bool(linear_light),
+            }  # fmt: skip
 
         return build
 
     parts += [(table(p), comps[i]) for i, p in enumerate(grid.tables)]
     return _mixture(t, key, parts)
+
+
+def _plane_of(weights: NDArray, i: int) -> _Value:
+    return lambda c: weights[..., i]
 
 
 def _mixture(t: _Tree, key: str, parts: list[tuple[Callable[[str], dict], _Value]]) -> dict:
