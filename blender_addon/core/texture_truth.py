@@ -91,8 +91,9 @@ def truth_pass(
 
     Returns:
         ``(truth, aovs, coverage, seconds)``: ``truth`` with ``albedo (H, W, 3)``, ``roughness``,
-        ``metallic`` (0 where no sample hit) and ``uv (H, W, 2)`` (the pixel's mean UV); ``aovs (H, W, 8)`` the pixel means of UV, ``dp_du``
-        and the shading normal (world), for :func:`mapped_normals`; the coverage.
+        ``metallic`` (0 where no sample hit) and ``uv (H, W, 2)`` (the pixel's mean UV);
+        ``aovs (H, W, 8)`` the pixel means of UV, ``dp_du`` and the shading normal (world), for
+        :func:`mapped_normals`; the coverage; the seconds spent.
     """
     import time  # noqa: PLC0415
 

@@ -16,11 +16,12 @@ pytestmark = pytest.mark.mitsuba
 mi = pytest.importorskip("mitsuba")
 trimesh = pytest.importorskip("trimesh")
 
-from blender_addon.core import assets, passes, render  # noqa: E402
+from blender_addon.core import passes, render  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
 from blender_addon.core.textures import MaterialTextures, TextureSpec  # noqa: E402
 from pbrdf.brdf import seeds, table  # noqa: E402
 from pbrdf.sensor.rig import DisplaySpec, Rig  # noqa: E402
+from tests.blender_addon.core.textured_helpers import halves, png, pose, uv_slab_file  # noqa: E402
 
 SETTINGS = render.RenderSettings(resolution=32, spp=32)
 WHITE = Rig(display=DisplaySpec(pattern="white"))
@@ -36,52 +37,12 @@ def mono():
 
 @pytest.fixture(scope="module")
 def uv_slab(tmp_path_factory):
-    """A 0.3 m slab facing +z with planar UVs: u = (x + 0.15) / 0.3, v = (y + 0.15) / 0.3."""
-    box = trimesh.creation.box(extents=(0.3, 0.3, 0.01))
-    for _ in range(4):
-        box = box.subdivide()
-    v = np.asarray(box.vertices)
-    path = tmp_path_factory.mktemp("mesh") / "uv_slab.ply"
-    assets.write_ply_arrays(path, v, np.asarray(box.faces), uvs=(v[:, :2] + 0.15) / 0.3)
-    return str(path)
-
-
-def png(folder, name, top, bottom, *, size=32, left=None):
-    """A ``size`` x ``size`` 8-bit image: ``top`` over ``bottom`` (RGB or grey levels 0..255),
-    or with ``left`` given, ``left`` | ``bottom`` side by side."""
-    from PIL import Image
-
-    img = np.zeros((size, size, 3), np.uint8)
-    if left is None:
-        img[: size // 2], img[size // 2 :] = top, bottom
-    else:
-        img[:, : size // 2], img[:, size // 2 :] = left, bottom
-    path = folder / name
-    Image.fromarray(img).save(path)
-    return str(path)
-
-
-def pose(tilt_deg=0.0):
-    c, s = math.cos(math.radians(tilt_deg)), math.sin(math.radians(tilt_deg))
-    m = np.array([[c, 0, s, 0], [0, 1, 0, 0], [-s, 0, c, -0.6], [0, 0, 0, 1]])
-    return tuple(map(tuple, m))
+    return uv_slab_file(tmp_path_factory.mktemp("mesh"))
 
 
 def render_one(slab, material, rig=WHITE, settings=SETTINGS, tilt=0.0):
     spec = SceneSpec(rig=rig, objects=(ObjectSpec("slab", slab, pose(tilt), material.name),), materials=(material,))
     return render.render_stokes(spec, settings)
-
-
-def halves(res, margin=0.2):
-    """Inner pixels of the object's top and bottom halves."""
-    rows, cols = np.nonzero(res.mask)
-    r0, r1, c0, c1 = rows.min(), rows.max(), cols.min(), cols.max()
-    h, w = r1 - r0, c1 - c0
-    rr, cc = np.mgrid[: res.mask.shape[0], : res.mask.shape[1]]
-    inner = res.mask & (cc > c0 + margin * w) & (cc < c1 - margin * w)
-    top = inner & (rr > r0 + margin * h / 2) & (rr < r0 + h / 2 - margin * h / 2)
-    bottom = inner & (rr > r0 + h / 2 + margin * h / 2) & (rr < r1 - margin * h / 2)
-    return top, bottom
 
 
 def assert_same_region(a, b, region, rel=0.04):
@@ -122,9 +83,10 @@ def test_textured_pplastic_equals_the_plain_plastics_it_holds(mono, uv_slab, tmp
         assert_same_region(res, plain, region)
     # and differs from the other half's constants (the test can fail)
     other = render_one(uv_slab, MaterialSpec.plastic("t", (51 / 255, 153 / 255, 230 / 255), 179 / 255))
-    assert np.abs(res.stokes[top].mean(0)[:, 0] - other.stokes[top].mean(0)[:, 0]).max() > 0.2 * res.stokes[top][
-        ..., 0
-    ].mean()
+    assert (
+        np.abs(res.stokes[top].mean(0)[:, 0] - other.stokes[top].mean(0)[:, 0]).max()
+        > 0.2 * res.stokes[top][..., 0].mean()
+    )
 
 
 def test_metallic_texture_blends_the_dielectric_and_a_metal_of_that_reflectance(mono, uv_slab, tmp_path):
