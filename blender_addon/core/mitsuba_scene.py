@@ -381,7 +381,9 @@ def sensor_dict(camera: CameraSpec, window: CropWindow, spp: int, *, sampler: st
 
 
 def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = None, linear_light: bool = False) -> dict:
-    """Polarization-aware Mitsuba BSDF of a material, for one colour channel or spectral.
+    """Polarization-aware Mitsuba BSDF of a material's constants, for one colour channel or spectral.
+
+    Textures are :mod:`.textured_bsdf`'s (the mono passes of :mod:`.render`).
 
     Args:
         material: the material spec.
@@ -392,12 +394,6 @@ def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = No
         linear_light: all light reaching the material has ``S3 = 0`` (direct light from the
             display, the ``direct`` integrator): a table BSDF skips its Mueller matrix's last column.
     """
-    if material.textures is not None:  # bitmaps per colour channel (:mod:`.textured_bsdf`)
-        from . import textured_bsdf as tb  # noqa: PLC0415
-
-        if channel is not None and tb.has_textures(material):
-            return tb.bsdf_dict(material, channel, linear_light=linear_light)
-        material = tb.spectral_fallback(material) if tb.has_textures(material) else material
 
     def value(rgb: tuple[float, float, float], kind: str) -> Any:
         return float(rgb[channel]) if channel is not None else spectrum(rgb, kind)
@@ -522,10 +518,6 @@ def channel_updates(
     Table materials rendered with :mod:`.table_bsdf` switch by replacing its data.
     """
     bsdf = f"{name}.bsdf.brdf_0" if two_sided else f"{name}.bsdf"
-    if material.textures is not None and material.textures.slots():
-        from . import textured_bsdf  # noqa: PLC0415
-
-        return textured_bsdf.channel_updates(material, channel, bsdf)
     if material.kind == "pplastic":
         return {f"{bsdf}.diffuse_reflectance.value": float(material.albedo[channel])}
     if material.kind == "conductor":

@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from pbrdf.sensor import camera as pcamera
 from pbrdf.sensor import decode as pdecode
 
-from . import mitsuba_preview
+from . import mitsuba_preview, textured_bsdf
 from . import mitsuba_scene as ms
 from .passes import (
     RenderResult,
@@ -97,6 +97,8 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
         max_depth = ms.auto_max_depth(meshes, settings.integrator_for(sheet) if sheet else "path", sheet=sheet)
     integrator = settings.integrator_for(sheet, max_depth)
     if spectral:  # the fallback without LLVM, and cross-checks
+        if textured:
+            log.warning("textures are rendered in the mono-polarized variants only; %s renders constants", variant)
         result = render_stokes_spectral(spec, dataclasses.replace(settings, max_depth=max_depth), variant=variant)
         result.max_depth = max_depth
         return result
@@ -140,7 +142,7 @@ class _ChannelScenes:
         objs = {
             name: ms.mesh_object(
                 name, m[0], m[1], m[2],
-                ms.bsdf_dict(self.materials[obj.material], channel, linear_light=self.linear_light),
+                _bsdf_dict(self.materials[obj.material], channel, self.linear_light),
                 two_sided=m[3], uvs=m[4] if len(m) > 4 else None,
             )
             for name, obj, m in zip(self.names, self.spec.objects, self.meshes, strict=True)
@@ -158,11 +160,22 @@ class _ChannelScenes:
         """Parameter updates that switch the scene of ``params`` (``mi.traverse``) to ``channel``; None if none can."""
         updates = ms.display_updates(self.spec.rig.display, channel, params)
         for name, obj, mesh in zip(self.names, self.spec.objects, self.meshes, strict=True):
-            u = ms.channel_updates(name, self.materials[obj.material], channel, two_sided=mesh[3])
+            mat = self.materials[obj.material]
+            if textured_bsdf.has_textures(mat):
+                u = textured_bsdf.channel_updates(mat, channel, f"{name}.bsdf.brdf_0" if mesh[3] else f"{name}.bsdf")
+            else:
+                u = ms.channel_updates(name, mat, channel, two_sided=mesh[3])
             if u is None or updates is None or not all(k in params for k in u):
                 return None
             updates.update(u)
         return updates
+
+
+def _bsdf_dict(material, channel: int, linear_light: bool) -> dict:
+    """The material's BSDF for one colour channel: :mod:`.textured_bsdf` with textures, else its constants."""
+    if textured_bsdf.has_textures(material):
+        return textured_bsdf.bsdf_dict(material, channel, linear_light=linear_light)
+    return ms.bsdf_dict(material, channel, linear_light=linear_light)
 
 
 def _render_channels(mi, scenes: _ChannelScenes) -> tuple[NDArray[np.float32], dict[str, NDArray], dict[str, float]]:

@@ -30,7 +30,6 @@ Between colour channels only bitmap data, constants and table data change
 from __future__ import annotations
 
 import functools
-import warnings
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
@@ -263,16 +262,3 @@ def channel_updates(material: MaterialSpec, channel: int, prefix: str) -> dict[s
             v = float(v)
         out[f"{prefix}.{key}"] = v
     return out
-
-
-def spectral_fallback(material: MaterialSpec) -> MaterialSpec:
-    """The material without its textures (its constants), with a warning: spectral variants do not render textures."""
-    import dataclasses  # noqa: PLC0415
-
-    warnings.warn(
-        f"material {material.name!r}: textures are rendered in the mono-polarized variants only; "
-        "the spectral variant renders its constant values",
-        RuntimeWarning,
-        stacklevel=2,
-    )
-    return dataclasses.replace(material, textures=None)
