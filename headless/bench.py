@@ -37,7 +37,7 @@ from pbrdf.io.strict_json import dumps_strict  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The render benchmark's scenes (:func:`render_scenes`).
-RENDER_SCENES = ("analytic", "table")
+RENDER_SCENES = ("analytic", "table", "textured", "table_textured")
 #: Seed material (:mod:`pbrdf.brdf.seeds`) tabulated for the table scene when no --table is given.
 TABLE_SEED = "pom"
 #: Sizes of --quick (a smoke test), per benchmark.
@@ -54,7 +54,9 @@ def render_scenes(names: list[str], table: Path | None, folder: Path) -> dict[st
 
     ``analytic`` is :func:`blender_addon.core.scenegen.benchmark_scene`; ``table`` the same blob
     with a pBRDF table: ``table``, or the :data:`TABLE_SEED` seed material tabulated into
-    ``folder``.
+    ``folder``. ``textured``: the analytic blob with albedo, roughness and metallic textures (a
+    dielectric-metal mix); ``table_textured``: the table mixed per texel with the ``gold`` seed
+    and darkened by an albedo texture (textures written into ``folder``).
     """
     import dataclasses  # noqa: PLC0415
 
@@ -67,7 +69,7 @@ def render_scenes(names: list[str], table: Path | None, folder: Path) -> dict[st
     out: dict[str, tuple] = {}
     if "analytic" in names:
         out["analytic"] = (spec, "blob, pplastic albedo (0.6, 0.4, 0.2), roughness 0.3, 0.7 m")
-    if "table" in names:
+    if "table" in names or "table_textured" in names:
         seed = next(m for m in seeds.SEED_MATERIALS if m.name == TABLE_SEED)
         if table is None:
             table = folder / f"{TABLE_SEED}.pbsdf"
@@ -79,7 +81,49 @@ def render_scenes(names: list[str], table: Path | None, folder: Path) -> dict[st
         name = spec.objects[0].material
         mat = MaterialSpec.measured(name, str(table), albedo, roughness=seed.roughness, metallic=0.0)
         out["table"] = (dataclasses.replace(spec, materials=(mat,)), f"blob, pBRDF table ({what}), 0.7 m")
-    return out
+    if "textured" in names or "table_textured" in names:
+        from blender_addon.core.textures import MaterialTextures  # noqa: PLC0415
+
+        albedo, rough, metal = _bench_textures(folder)
+        plastic = spec.materials[0]
+        tex = MaterialTextures(albedo=albedo, roughness=rough, metallic=metal)
+        out["textured"] = (
+            dataclasses.replace(spec, materials=(dataclasses.replace(plastic, textures=tex),)),
+            "blob, pplastic with 256 px albedo, roughness, metallic textures (metal mix), 0.7 m",
+        )
+        if "table" in out:
+            gold = folder / "gold.pbsdf"
+            tables.save_table(
+                gold, seeds.seed_table(next(m for m in seeds.SEED_MATERIALS if m.name == "gold")), for_mitsuba=True
+            )
+            tex = MaterialTextures(albedo=albedo, tables=(str(gold),), weights=metal)
+            own = out["table"][0].materials[0]
+            out["table_textured"] = (
+                dataclasses.replace(spec, materials=(dataclasses.replace(own, textures=tex),)),
+                "blob, the table and gold mixed by a 256 px mask, albedo texture, 0.7 m",
+            )
+    return {k: v for k, v in out.items() if k in names}
+
+
+def _bench_textures(folder: Path) -> tuple:
+    """Albedo (smooth bands, sRGB), roughness (stripes 0.2 / 0.8) and metallic (a 4 x 4 checker) PNGs in ``folder``."""
+    import numpy as np  # noqa: PLC0415
+    from PIL import Image  # noqa: PLC0415
+
+    from blender_addon.core.textures import TextureSpec  # noqa: PLC0415
+
+    y, x = np.mgrid[:256, :256] / 256.0
+    noise = 0.5 + 0.25 * np.sin(9 * x + 4 * np.sin(7 * y)) * np.cos(5 * y)
+    images = {
+        "albedo": np.stack([noise, 0.8 * noise, 0.5 * (1 - noise)], -1),
+        "rough": np.repeat((0.2 + 0.6 * (np.sin(40 * x) > 0))[..., None], 3, -1),
+        "metal": np.repeat(((np.floor(4 * x) + np.floor(4 * y)) % 2)[..., None], 3, -1),
+    }
+    for name, img in images.items():
+        Image.fromarray((np.clip(img, 0, 1) * 255).astype(np.uint8)).save(folder / f"{name}.png")
+    return (TextureSpec(str(folder / "albedo.png"), colorspace="srgb"),
+            TextureSpec(str(folder / "rough.png"), channels=(1,), factor=(1.0,)),
+            TextureSpec(str(folder / "metal.png"), channels=(2,), factor=(1.0,)))  # fmt: skip
 
 
 def _default_checkpoint() -> Path | None:
@@ -120,7 +164,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--ref-spp", type=int, default=1024, help="reference samples per pixel (default 1024)")
     r.add_argument("--spp", type=int, nargs="+", default=[4, 8, 16, 32, 64], help="spp values to time")
     r.add_argument("--scenes", nargs="+", choices=list(RENDER_SCENES), default=list(RENDER_SCENES),
-                   help="scenes to render (default: both)")  # fmt: skip
+                   help="scenes to render (default: all)")  # fmt: skip
     r.add_argument("--table", type=Path, help=f"pBRDF tensor file of the table scene (default: the {TABLE_SEED!r} "
                    "seed material tabulated on the seeds' grid)")  # fmt: skip
     r.add_argument("--variant", default="llvm", help="Mitsuba variant or alias: llvm (default), cuda, auto "
