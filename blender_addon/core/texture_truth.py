@@ -2,13 +2,15 @@
 
 The truth pass renders a stand-in of the scene: the same meshes (with their UVs), the same
 sensor, crop, film filter (box), sampler, ``spp`` and seed as the first colour pass, so the same
-pixel sample positions, with every object's BSDF a ``diffuse`` whose reflectance is one
-quantity of :func:`.texel_grid.realized` as a bitmap on the material's grid (the arrays the
-render looked up) or a constant for untextured materials. Mitsuba's ``aov`` integrator reports
-that reflectance (``ab:albedo``) at each sample's hit and the film averages it over the pixel, as
-it averages the Stokes images; dividing by the pixel's coverage (the film's alpha) gives the
-mean over the samples that hit an object. One pass per scalar quantity (albedo R, G, B,
-roughness, metallic), switched by parameter updates, compiled once per process and texture size.
+pixel sample positions (tested: the coverage is the same, sample for sample), with every
+object's BSDF a ``diffuse`` whose reflectance is a bitmap of :func:`.texel_grid.realized` on the
+material's grid (the arrays the render looked up), or a constant for untextured materials.
+Mitsuba's ``aov`` integrator reports that reflectance (``ab:albedo``) at each sample's hit and
+the film averages it over the pixel, as it averages the Stokes images. It runs in the RGB variant
+of the same backend (:func:`rgb_variant`), three quantities per pass: the albedo, then
+roughness, metallic and a constant 1 whose pixel mean is the coverage; the mean over the samples
+that hit an object is the ratio. Two passes, switched by parameter updates, compiled once per
+process and texture size.
 
 The normal-mapped shading normal: the first pass also averages the hit's UV, ``dp_du`` and
 shading normal over the pixel; the tangent-space normal map is looked up at the mean UV and
@@ -32,10 +34,10 @@ if TYPE_CHECKING:
     from .passes import RenderSettings
     from .spec import SceneSpec
 
-__all__ = ["QUANTITIES", "needs_truth_pass", "truth_pass"]
+__all__ = ["PASSES", "mapped_normals", "needs_truth_pass", "rgb_variant", "truth_pass"]
 
-#: The scalar quantities of the truth pass, in pass order.
-QUANTITIES = ("albedo_r", "albedo_g", "albedo_b", "roughness", "metallic")
+#: The two passes: an RGB albedo pass, and roughness, metallic and a constant 1 (the coverage).
+PASSES = (("albedo_r", "albedo_g", "albedo_b"), ("roughness", "metallic", "coverage"))
 _FULL_AOVS = "ab:albedo,uv:uv,du:dp_du,nn:sh_normal"
 _INTEGRATORS: dict[tuple[str, str], object] = {}
 
@@ -46,33 +48,44 @@ def needs_truth_pass(spec: SceneSpec) -> bool:
     return any(has_textures(materials[o.material]) for o in spec.objects)
 
 
+def rgb_variant(variant: str) -> str:
+    """The RGB variant of the truth pass beside a mono-polarized one (same backend).
+
+    >>> rgb_variant("llvm_ad_mono_polarized"), rgb_variant("cuda_ad_mono_polarized")
+    ('llvm_ad_rgb', 'cuda_ad_rgb')
+    """
+    return variant.replace("mono_polarized", "rgb")
+
+
 def _integrator(aovs: str):
-    """The ``aov`` integrator around a path of depth 1 (its alpha is the coverage), one per variant."""
+    """The ``aov`` integrator, one per variant and AOV list (its kernels are reused)."""
     import mitsuba as mi  # noqa: PLC0415
 
     key = (mi.variant(), aovs)
     if key not in _INTEGRATORS:
-        _INTEGRATORS[key] = mi.load_dict({"type": "aov", "aovs": aovs, "integrator": {"type": "path", "max_depth": 1}})
+        _INTEGRATORS[key] = mi.load_dict({"type": "aov", "aovs": aovs})
     return _INTEGRATORS[key]
 
 
 def _stacks(spec: SceneSpec) -> list[tuple[NDArray | None, NDArray | None, NDArray]]:
-    """Per object: the ``(H, W, 5)`` quantity planes and the grid's ``to_uv`` (textured), else None, and 5 constants."""
+    """Per object: ``(H, W, 6)`` planes (albedo RGB, roughness, metallic, 1) and ``to_uv`` (textured), and constants."""
     materials = {m.name: m for m in spec.materials}
     out = []
     for obj in spec.objects:
         m = materials[obj.material]
-        consts = np.array([*m.albedo, m.roughness, m.metallic], np.float32)
+        consts = np.array([*m.albedo, m.roughness, m.metallic, 1.0], np.float32)
         if not has_textures(m):
             out.append((None, None, consts))
             continue
         grid = tg.material_grid(m)
         real = tg.realized(m, grid)
         h, w = grid.shape
-        albedo = np.broadcast_to(np.asarray(real["albedo"], np.float32), (h, w, 3))
-        planes = [albedo[..., c] for c in range(3)]
-        planes += [np.broadcast_to(np.asarray(real[k], np.float32), (h, w)) for k in ("roughness", "metallic")]
-        out.append((np.stack(planes, axis=-1), grid.to_uv, consts))
+        planes = np.empty((h, w, 6), np.float32)
+        planes[..., :3] = np.asarray(real["albedo"], np.float32)
+        planes[..., 3] = np.asarray(real["roughness"], np.float32)
+        planes[..., 4] = np.asarray(real["metallic"], np.float32)
+        planes[..., 5] = 1.0
+        out.append((planes, grid.to_uv, consts))
     return out
 
 
@@ -80,6 +93,9 @@ def truth_pass(
     spec: SceneSpec, meshes: list, window: ms.CropWindow, settings: RenderSettings, names: list[str], seed: int
 ) -> tuple[dict[str, NDArray[np.float32]], NDArray[np.float32], NDArray[np.float32], float]:
     """Render the material maps of a textured scene (see the module docstring).
+
+    Renders in the RGB variant of the current mono-polarized one (:func:`rgb_variant`: three
+    quantities per pass) and switches back.
 
     Args:
         spec: the scene.
@@ -91,7 +107,8 @@ def truth_pass(
 
     Returns:
         ``(truth, aovs, coverage, seconds)``: ``truth`` with ``albedo (H, W, 3)``, ``roughness``,
-        ``metallic`` (0 where no sample hit) and ``uv (H, W, 2)`` (the pixel's mean UV);
+        ``metallic`` (0 where no sample hit), ``uv (H, W, 2)`` (the pixel's mean UV) and
+        ``coverage``;
         ``aovs (H, W, 8)`` the pixel means of UV, ``dp_du`` and the shading normal (world), for
         :func:`mapped_normals`; the coverage; the seconds spent.
     """
@@ -100,42 +117,49 @@ def truth_pass(
     import mitsuba as mi  # noqa: PLC0415
 
     t0 = time.perf_counter()
+    variant = mi.variant()
+    mi.set_variant(rgb_variant(variant))
+    try:
+        images = _render_passes(mi, spec, meshes, window, settings, names, seed)
+    finally:
+        mi.set_variant(variant)
+    first, second = images
+    coverage = second[..., 2].copy()
+    safe = np.where(coverage > 0, coverage, 1.0)[..., None]
+    values = np.concatenate([first[..., :3], second[..., :2]], axis=-1) / safe
+    aovs = first[..., 3:11] / safe
+    truth = {"albedo": values[..., :3], "roughness": values[..., 3], "metallic": values[..., 4], "uv": aovs[..., :2],
+             "coverage": coverage}  # fmt: skip
+    return truth, aovs, coverage, time.perf_counter() - t0
+
+
+def _render_passes(mi, spec, meshes, window, settings, names, seed) -> list[NDArray[np.float32]]:
+    """The two stand-in renders (:data:`PASSES`), each ``(H, W, C)`` of pixel sums over samples / spp."""
     stacks = _stacks(spec)
     objects = {}
     for name, mesh, (planes, to_uv, consts) in zip(names, meshes, stacks, strict=True):
-        refl = bitmap(planes[..., 0], to_uv) if planes is not None else float(consts[0])
-        v, f, n = mesh[:3]
+        refl = bitmap(planes[..., :3], to_uv) if planes is not None else {"type": "rgb", "value": consts[:3].tolist()}
         uv = mesh[4] if len(mesh) > 4 else None
         bsdf = mi.load_dict({"type": "diffuse", "reflectance": refl})
-        objects[name] = ms.mesh_from_arrays(name, v, f, {"bsdf": bsdf}, normals=n, uvs=uv)
+        objects[name] = ms.mesh_from_arrays(name, mesh[0], mesh[1], {"bsdf": bsdf}, normals=mesh[2], uvs=uv)
     sensor = ms.sensor_dict(spec.rig.camera, window, settings.spp, sampler=settings.sampler)
-    sensor["film"]["pixel_format"] = "luminance_alpha"
+    sensor["film"]["pixel_format"] = "rgb"
     scene = mi.load_dict({"type": "scene", "sensor": sensor, **objects})
     params = mi.traverse(scene)
-    w, h = window.size
-    values = np.zeros((h, w, len(QUANTITIES)), np.float32)
-    for q in range(len(QUANTITIES)):
-        if q > 0:
+    out = []
+    for p in range(len(PASSES)):
+        if p > 0:
             updates = {}
             for name, (planes, _, consts) in zip(names, stacks, strict=True):
                 if planes is None:
-                    updates[f"{name}.bsdf.reflectance.value"] = float(consts[q])
+                    updates[f"{name}.bsdf.reflectance.value"] = mi.Color3f(*consts[3 * p : 3 * p + 3].tolist())
                 else:
-                    data = np.ascontiguousarray(np.flipud(planes[..., q])[..., None], dtype=np.float32)
+                    data = np.ascontiguousarray(np.flipud(planes[..., 3 * p : 3 * p + 3]), dtype=np.float32)
                     updates[f"{name}.bsdf.reflectance.data"] = mi.TensorXf(data)
             params.update(updates)
-        integ = _integrator(_FULL_AOVS if q == 0 else "ab:albedo")
-        img = np.asarray(mi.render(scene, integrator=integ, seed=seed, spp=settings.spp))
-        # Layout: [Y, A, albedo x3 (equal in mono), (uv x2, dp_du x3, sh_normal x3 in the first pass)].
-        if q == 0:
-            coverage = img[..., 1].copy()
-            aovs = img[..., 5:13].copy()
-        values[..., q] = img[..., 2]
-    safe = np.where(coverage > 0, coverage, 1.0)
-    values /= safe[..., None]
-    aovs /= safe[..., None]
-    truth = {"albedo": values[..., :3], "roughness": values[..., 3], "metallic": values[..., 4], "uv": aovs[..., :2]}
-    return truth, aovs, coverage, time.perf_counter() - t0
+        integ = _integrator(_FULL_AOVS if p == 0 else "ab:albedo")
+        out.append(np.asarray(mi.render(scene, integrator=integ, seed=seed, spp=settings.spp), dtype=np.float32))
+    return out
 
 
 def mapped_normals(

@@ -70,6 +70,8 @@ def test_checker_truth_equals_the_texture_at_the_rendered_uvs(mono, uv_slab, tmp
     spec = SceneSpec(rig=Rig(), objects=(ObjectSpec("o", uv_slab, tuple(map(tuple, m)), "c"),), materials=(mat,))
     res = render.render_stokes(spec, render.RenderSettings(resolution=96, spp=16))
     gt = render.ground_truth(spec, res)
+    # the same pixel sample positions as the first colour pass: the same coverage, sample by sample
+    np.testing.assert_allclose(res.truth["coverage"], res.coverage, atol=1e-6)
     uv = res.truth["uv"]
     inside = res.coverage > 0.999
     du = np.abs(np.gradient(uv, axis=0)) + np.abs(np.gradient(uv, axis=1))  # the pixel's UV footprint
