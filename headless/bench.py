@@ -40,6 +40,8 @@ ROOT = Path(__file__).resolve().parents[1]
 RENDER_SCENES = ("analytic", "table", "textured", "table_textured")
 #: Seed material (:mod:`pbrdf.brdf.seeds`) tabulated for the table scene when no --table is given.
 TABLE_SEED = "pom"
+#: Seed material mixed with the table in the textured table scene (a dielectric, as ``pom``).
+TEXTURED_TABLE_SEED = "peek"
 #: Sizes of --quick (a smoke test), per benchmark.
 QUICK = {
     "decode": {"height": 128, "width": 160, "repeat": 2},
@@ -54,9 +56,10 @@ def render_scenes(names: list[str], table: Path | None, folder: Path) -> dict[st
 
     ``analytic`` is :func:`blender_addon.core.scenegen.benchmark_scene`; ``table`` the same blob
     with a pBRDF table: ``table``, or the :data:`TABLE_SEED` seed material tabulated into
-    ``folder``. ``textured``: the analytic blob with albedo, roughness and metallic textures (a
-    dielectric-metal mix); ``table_textured``: the table mixed per texel with the ``gold`` seed
-    and darkened by an albedo texture (textures written into ``folder``).
+    ``folder``. ``textured``: the analytic blob with albedo and roughness textures;
+    ``table_textured``: the table mixed per texel with :data:`TEXTURED_TABLE_SEED` and darkened by
+    an albedo texture (textures written into ``folder``). Like for like: the textures vary what the
+    plain rows hold constant, so the rows show what texturing costs.
     """
     import dataclasses  # noqa: PLC0415
 
@@ -84,29 +87,27 @@ def render_scenes(names: list[str], table: Path | None, folder: Path) -> dict[st
     if "textured" in names or "table_textured" in names:
         from blender_addon.core.textures import MaterialTextures  # noqa: PLC0415
 
-        albedo, rough, metal = _bench_textures(folder)
+        albedo, rough, mask = _bench_textures(folder)
         plastic = spec.materials[0]
-        tex = MaterialTextures(albedo=albedo, roughness=rough, metallic=metal)
+        tex = MaterialTextures(albedo=albedo, roughness=rough)
         out["textured"] = (
             dataclasses.replace(spec, materials=(dataclasses.replace(plastic, textures=tex),)),
-            "blob, pplastic with 256 px albedo, roughness, metallic textures (metal mix), 0.7 m",
+            "blob, pplastic with 256 px albedo and roughness (0.2 / 0.4 stripes) textures, 0.7 m",
         )
         if "table" in out:
-            gold = folder / "gold.pbsdf"
-            tables.save_table(
-                gold, seeds.seed_table(next(m for m in seeds.SEED_MATERIALS if m.name == "gold")), for_mitsuba=True
-            )
-            tex = MaterialTextures(albedo=albedo, tables=(str(gold),), weights=metal)
+            other = folder / f"{TEXTURED_TABLE_SEED}.pbsdf"
+            seed = next(m for m in seeds.SEED_MATERIALS if m.name == TEXTURED_TABLE_SEED)
+            tables.save_table(other, seeds.seed_table(seed), for_mitsuba=True)
+            tex = MaterialTextures(albedo=albedo, tables=(str(other),), weights=mask)
             own = out["table"][0].materials[0]
-            out["table_textured"] = (
-                dataclasses.replace(spec, materials=(dataclasses.replace(own, textures=tex),)),
-                "blob, the table and gold mixed by a 256 px mask, albedo texture, 0.7 m",
-            )
+            out["table_textured"] = (dataclasses.replace(spec, materials=(dataclasses.replace(own, textures=tex),)),
+                                     f"blob, the table and {TEXTURED_TABLE_SEED!r} mixed by a 256 px checker, "
+                                     "darkened by an albedo texture, 0.7 m")  # fmt: skip
     return {k: v for k, v in out.items() if k in names}
 
 
 def _bench_textures(folder: Path) -> tuple:
-    """Albedo (smooth bands, sRGB), roughness (stripes 0.2 / 0.8) and metallic (a 4 x 4 checker) PNGs in ``folder``."""
+    """Albedo (smooth bands, sRGB), roughness (stripes 0.2 / 0.4) and a mask (a 4 x 4 checker) PNGs in ``folder``."""
     import numpy as np  # noqa: PLC0415
     from PIL import Image  # noqa: PLC0415
 
@@ -116,14 +117,14 @@ def _bench_textures(folder: Path) -> tuple:
     noise = 0.5 + 0.25 * np.sin(9 * x + 4 * np.sin(7 * y)) * np.cos(5 * y)
     images = {
         "albedo": np.stack([noise, 0.8 * noise, 0.5 * (1 - noise)], -1),
-        "rough": np.repeat((0.2 + 0.6 * (np.sin(40 * x) > 0))[..., None], 3, -1),
-        "metal": np.repeat(((np.floor(4 * x) + np.floor(4 * y)) % 2)[..., None], 3, -1),
+        "rough": np.repeat((0.2 + 0.2 * (np.sin(40 * x) > 0))[..., None], 3, -1),
+        "mask": np.repeat(((np.floor(4 * x) + np.floor(4 * y)) % 2)[..., None], 3, -1),
     }
     for name, img in images.items():
         Image.fromarray((np.clip(img, 0, 1) * 255).astype(np.uint8)).save(folder / f"{name}.png")
     return (TextureSpec(str(folder / "albedo.png"), colorspace="srgb"),
             TextureSpec(str(folder / "rough.png"), channels=(1,), factor=(1.0,)),
-            TextureSpec(str(folder / "metal.png"), channels=(2,), factor=(1.0,)))  # fmt: skip
+            TextureSpec(str(folder / "mask.png"), channels=(2,), factor=(1.0,)))  # fmt: skip
 
 
 def _default_checkpoint() -> Path | None:
@@ -217,7 +218,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
             scenes = render_scenes(args.scenes, args.table, Path(tmp))
             return render.run(
                 renderer, scenes, resolution=args.resolution, ref_spp=args.ref_spp, spp=tuple(args.spp),
-                naive=["analytic"] if args.quick else None, variant=args.variant, **common,
+                naive=["analytic"] if args.quick else ["analytic", "table"], variant=args.variant, **common,
             )  # fmt: skip
     if args.what == "pbrdf":
         from network.bench import expansion  # noqa: PLC0415
