@@ -109,7 +109,7 @@ def k_from_r0(r0: NDArray | float, n: NDArray | float) -> tuple[NDArray[np.float
     return np.sqrt(np.maximum(k2, 0.0)), r
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)  # compared and hashed by identity (one per material and file version)
 class MaterialGrid:
     """A textured material's textures on one grid (row 0 at the top); a slot is None where it is constant.
 

@@ -242,8 +242,13 @@ def bsdf_dict(material: MaterialSpec, channel: int, *, linear_light: bool = Fals
     return _tree(material, channel, linear_light=linear_light)[0]
 
 
-@functools.lru_cache(maxsize=16)
 def _varying(material: MaterialSpec) -> list[tuple[str, _Value]]:
+    """The parameters that change with the channel, cached per material and texture file version."""
+    return _varying_cached(material, tg.material_grid(material))
+
+
+@functools.lru_cache(maxsize=16)
+def _varying_cached(material: MaterialSpec, grid: tg.MaterialGrid) -> list[tuple[str, _Value]]:
     return _tree(material, 0, linear_light=False)[1]
 
 

@@ -40,8 +40,9 @@ def uv_slab(tmp_path_factory):
     return uv_slab_file(tmp_path_factory.mktemp("mesh"))
 
 
-def render_one(slab, material, rig=WHITE, settings=SETTINGS, tilt=0.0):
-    spec = SceneSpec(rig=rig, objects=(ObjectSpec("slab", slab, pose(tilt), material.name),), materials=(material,))
+def render_one(slab, material, rig=WHITE, settings=SETTINGS, tilt=0.0, toward="x"):
+    obj = ObjectSpec("slab", slab, pose(tilt, toward), material.name)
+    spec = SceneSpec(rig=rig, objects=(obj,), materials=(material,))
     return render.render_stokes(spec, settings)
 
 
@@ -155,7 +156,7 @@ def test_table_albedo_texture_scales_the_mueller_matrix(mono, uv_slab, two_table
     np.testing.assert_allclose(a / b[:, :1], b / b[:, :1], atol=0.04)
 
 
-def test_flat_normal_map_changes_nothing_and_a_tilted_one_tilts_the_surface(mono, uv_slab, tmp_path):
+def test_flat_normal_map_changes_nothing(mono, uv_slab, tmp_path):
     mat = MaterialSpec.plastic("p", (0.6, 0.5, 0.4), 0.4)
     rig = Rig()  # the rgb_halves display: LP and intensity depend on the surface's tilt
     plain = render_one(uv_slab, mat, rig=rig)
@@ -163,15 +164,22 @@ def test_flat_normal_map_changes_nothing_and_a_tilted_one_tilts_the_surface(mono
     res = render_one(uv_slab, dataclasses.replace(mat, textures=MaterialTextures(normal=TextureSpec(flat))), rig=rig)
     top, bottom = halves(res)
     assert_same_region(res, plain, top | bottom, rel=0.03)
-    # A constant map tilted by 12 degrees toward +u (= +x): as the slab turned about +y by 12 degrees.
+
+
+@pytest.mark.parametrize("toward", ["x", "y"])
+def test_tilted_normal_map_renders_as_the_tilted_surface(mono, uv_slab, tmp_path, toward):
+    """A constant map tilted by 12 degrees toward +u (= +x) or +v (= +y, glTF's +y): as the slab turned so."""
+    mat = MaterialSpec.plastic("p", (0.6, 0.5, 0.4), 0.4)
+    rig = Rig()  # the rgb_halves display: LP and intensity depend on the surface's tilt
     theta = math.radians(12)
-    enc = tuple(int(round(255 * (c + 1) / 2)) for c in (math.sin(theta), 0.0, math.cos(theta)))
+    n = (math.sin(theta), 0.0, math.cos(theta)) if toward == "x" else (0.0, math.sin(theta), math.cos(theta))
+    enc = tuple(int(round(255 * (c + 1) / 2)) for c in n)
     tilted = dataclasses.replace(mat, textures=MaterialTextures(normal=TextureSpec(png(tmp_path, "t.png", enc, enc))))
     res = render_one(uv_slab, tilted, rig=rig)
-    turned = render_one(uv_slab, mat, rig=rig, tilt=12.0)
-    away = render_one(uv_slab, mat, rig=rig, tilt=-12.0)
+    turned = render_one(uv_slab, mat, rig=rig, tilt=12.0, toward=toward)
+    away = render_one(uv_slab, mat, rig=rig, tilt=-12.0, toward=toward)
     region = halves(res, margin=0.3)[0] | halves(res, margin=0.3)[1]
-    centre = region & halves(turned, margin=0.3)[0] | region & halves(turned, margin=0.3)[1]
+    centre = region & (halves(turned, margin=0.3)[0] | halves(turned, margin=0.3)[1])
     err = np.abs(res.stokes[centre].mean(0) - turned.stokes[centre].mean(0)).max()
     err_away = np.abs(res.stokes[centre].mean(0) - away.stokes[centre].mean(0)).max()
     s0 = res.stokes[centre].mean(0)[:, 0].max()

@@ -35,9 +35,13 @@ def png(folder, name, top, bottom, *, size=32, left=None):
     return str(path)
 
 
-def pose(tilt_deg=0.0):
+def pose(tilt_deg=0.0, toward="x"):
+    """The slab 0.6 m in front of the camera, its normal tilted by ``tilt_deg`` toward +x or +y."""
     c, s = math.cos(math.radians(tilt_deg)), math.sin(math.radians(tilt_deg))
-    m = np.array([[c, 0, s, 0], [0, 1, 0, 0], [-s, 0, c, -0.6], [0, 0, 0, 1]])
+    if toward == "x":
+        m = np.array([[c, 0, s, 0], [0, 1, 0, 0], [-s, 0, c, -0.6], [0, 0, 0, 1]])
+    else:
+        m = np.array([[1, 0, 0, 0], [0, c, s, 0], [0, -s, c, -0.6], [0, 0, 0, 1]])
     return tuple(map(tuple, m))
 
 
