@@ -168,6 +168,10 @@ def _tables(t: _Tree, key: str, material: MaterialSpec, *, linear_light: bool) -
     from . import table_bsdf  # noqa: PLC0415
 
     grid = t.grid
+    for path in grid.tables:
+        if not table_bsdf.uniform_axes(path):
+            raise ValueError(f"{path}: a textured table material needs uniform angle grids (table_bsdf); "
+                             "this table is not on one")  # fmt: skip
     table_bsdf.register()
     weights = grid.weights if grid.weights is not None else np.ones((*grid.shape, 1), np.float32)
     alpha = max(material.roughness**2, ms.MIN_ALPHA)

@@ -16,7 +16,7 @@ pytestmark = pytest.mark.mitsuba
 mi = pytest.importorskip("mitsuba")
 trimesh = pytest.importorskip("trimesh")
 
-from blender_addon.core import passes, render  # noqa: E402
+from blender_addon.core import passes, render, textured_bsdf  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
 from blender_addon.core.textures import MaterialTextures, TextureSpec  # noqa: E402
 from pbrdf.brdf import seeds, table  # noqa: E402
@@ -184,3 +184,15 @@ def test_tilted_normal_map_renders_as_the_tilted_surface(mono, uv_slab, tmp_path
     err_away = np.abs(res.stokes[centre].mean(0) - away.stokes[centre].mean(0)).max()
     s0 = res.stokes[centre].mean(0)[:, 0].max()
     assert err < 0.05 * s0 and err_away > 2 * err
+
+
+def test_textured_table_on_a_non_uniform_grid_is_one_clear_error(mono, two_tables, tmp_path):
+    t = table.load_table(two_tables[0], mmap=False)
+    theta_h = t.theta_h.copy()
+    theta_h[1:-1] = np.sqrt(theta_h[1:-1] / theta_h[-1]) * theta_h[-1]
+    path = tmp_path / "uneven.pbsdf"
+    table.save_table(path, table.PBRDFTable(t.phi_d, t.theta_d, theta_h, t.wavelengths, t.M), for_mitsuba=True)
+    albedo = TextureSpec(png(tmp_path, "a.png", 128, 128))
+    mat = MaterialSpec.measured("u", str(path), (0.5,) * 3, 0.3, 1.0)
+    with pytest.raises(ValueError, match="uneven.pbsdf: a textured table material needs uniform"):
+        textured_bsdf.bsdf_dict(dataclasses.replace(mat, textures=MaterialTextures(albedo=albedo)), 0)
