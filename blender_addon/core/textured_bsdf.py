@@ -15,7 +15,8 @@ whose textures are ``bitmap`` lookups of :mod:`.texel_grid`'s arrays (one channe
 * ``measured``: the tables (the material's and ``textures.tables``) mixed per texel by nested
   ``blendbsdf`` (each level's weight is the rest's share), each table as :mod:`.table_bsdf`; an
   albedo texture adds a zero BSDF to the mixture, with weight ``1 - sum_i w_i s_i``, which
-  scales table ``i`` by ``s_i = min(1, albedo / a_i)``. Roughness and metallic textures do not
+  scales table ``i`` by ``s_i = min(1, albedo / a_i)``. Tables on non-uniform grids are
+  ``measured_polarized`` instead (the scene is then rebuilt per channel). Roughness and metallic textures do not
   change a table (its reflectance is measured); they are not rendered.
 * ``diffuse``: ``diffuse`` with a ``reflectance`` bitmap (depolarizing, as untextured).
 
@@ -46,6 +47,8 @@ __all__ = ["DIELECTRIC_IOR", "bsdf_dict", "channel_updates", "has_textures", "bi
 #: IOR of the dielectric a ``metallic`` texture mixes into a ``conductor`` material (which has none).
 DIELECTRIC_IOR = 1.5
 
+#: Marks a tree that changes with the channel only by a rebuild (``measured_polarized`` has no parameters).
+REBUILD = "<rebuild>"
 #: Per-channel value of a parameter: a float, or an ``(H, W)`` plane on the material's grid.
 _Value = Callable[[int], Any]
 
@@ -168,10 +171,6 @@ def _tables(t: _Tree, key: str, material: MaterialSpec, *, linear_light: bool) -
     from . import table_bsdf  # noqa: PLC0415
 
     grid = t.grid
-    for path in grid.tables:
-        if not table_bsdf.uniform_axes(path):
-            raise ValueError(f"{path}: a textured table material needs uniform angle grids (table_bsdf); "
-                             "this table is not on one")  # fmt: skip
     table_bsdf.register()
     weights = grid.weights if grid.weights is not None else np.ones((*grid.shape, 1), np.float32)
     alpha = max(material.roughness**2, ms.MIN_ALPHA)
@@ -191,9 +190,14 @@ def _tables(t: _Tree, key: str, material: MaterialSpec, *, linear_light: bool) -
 
     def table(path: str) -> Callable[[str], dict]:
         def build(k: str) -> dict:
+            wavelength = ms.CHANNEL_WAVELENGTHS_NM[t.channel]
+            if not table_bsdf.uniform_axes(path):  # the plugin, rebuilt per channel (no parameters)
+                t.data(REBUILD, lambda c: None)
+                return {"type": "measured_polarized", "filename": str(path), "wavelength": wavelength,
+                        "alpha_sample": ms.alpha_sample(alpha)}  # fmt: skip
             t.data(f"{k}.data", lambda c: table_bsdf.channel_matrices(path, ms.CHANNEL_WAVELENGTHS_NM[c])[0])
             return {
-                "type": table_bsdf.PLUGIN, "filename": str(path), "wavelength": ms.CHANNEL_WAVELENGTHS_NM[t.channel],
+                "type": table_bsdf.PLUGIN, "filename": str(path), "wavelength": wavelength,
                 "alpha_sample": max(alpha, ms.ALPHA_SAMPLE_LEVELS[0]), "linear_light": bool(linear_light),
             }  # fmt: skip
 
@@ -256,12 +260,18 @@ def _varying_cached(material: MaterialSpec, grid: tg.MaterialGrid) -> list[tuple
     return _tree(material, 0, linear_light=False)[1]
 
 
-def channel_updates(material: MaterialSpec, channel: int, prefix: str) -> dict[str, Any]:
-    """Scene-parameter updates (keys under ``prefix``, the BSDF's key) that switch the BSDF to ``channel``."""
+def channel_updates(material: MaterialSpec, channel: int, prefix: str) -> dict[str, Any] | None:
+    """Scene-parameter updates (keys under ``prefix``, the BSDF's key) that switch the BSDF to ``channel``.
+
+    None where the scene must be rebuilt: a table on a non-uniform grid (``measured_polarized``).
+    """
     import mitsuba as mi  # noqa: PLC0415
 
     out: dict[str, Any] = {}
-    for key, value in _varying(material):
+    varying = _varying(material)
+    if any(key == REBUILD for key, _ in varying):
+        return None
+    for key, value in varying:
         v = value(channel)
         if key.endswith(".data") and isinstance(v, np.ndarray) and v.ndim == 2:
             v = mi.TensorXf(np.ascontiguousarray(np.flipud(v)[..., None], dtype=np.float32))

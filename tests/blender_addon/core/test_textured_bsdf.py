@@ -186,13 +186,20 @@ def test_tilted_normal_map_renders_as_the_tilted_surface(mono, uv_slab, tmp_path
     assert err < 0.05 * s0 and err_away > 2 * err
 
 
-def test_textured_table_on_a_non_uniform_grid_is_one_clear_error(mono, two_tables, tmp_path):
+@pytest.mark.slow  # measured_polarized compiles its kernels (about 20 s)
+def test_textured_table_on_a_non_uniform_grid_uses_the_plugin_and_rebuilds(mono, uv_slab, two_tables, tmp_path):
     t = table.load_table(two_tables[0], mmap=False)
     theta_h = t.theta_h.copy()
     theta_h[1:-1] = np.sqrt(theta_h[1:-1] / theta_h[-1]) * theta_h[-1]
     path = tmp_path / "uneven.pbsdf"
     table.save_table(path, table.PBRDFTable(t.phi_d, t.theta_d, theta_h, t.wavelengths, t.M), for_mitsuba=True)
-    albedo = TextureSpec(png(tmp_path, "a.png", 128, 128))
-    mat = MaterialSpec.measured("u", str(path), (0.5,) * 3, 0.3, 1.0)
-    with pytest.raises(ValueError, match="uneven.pbsdf: a textured table material needs uniform"):
-        textured_bsdf.bsdf_dict(dataclasses.replace(mat, textures=MaterialTextures(albedo=albedo)), 0)
+    half = TextureSpec(png(tmp_path, "h.png", (102, 77, 51), (102, 77, 51)))
+    own = MaterialSpec.measured("u", str(path), (0.8, 0.6, 0.4), 0.3, 1.0)
+    mat = dataclasses.replace(own, textures=MaterialTextures(albedo=half))
+    assert "measured_polarized" in str(textured_bsdf.bsdf_dict(mat, 0))
+    assert textured_bsdf.channel_updates(mat, 1, "obj.bsdf") is None  # rebuilt per channel
+    res, ref = render_one(uv_slab, mat), render_one(uv_slab, own)
+    region = halves(res)[0] | halves(res)[1]
+    scale = np.array([102 / 255 / 0.8, 77 / 255 / 0.6, 51 / 255 / 0.4])
+    a, b = res.stokes[region].mean(0), ref.stokes[region].mean(0) * scale[:, None]
+    np.testing.assert_allclose(a / b[:, :1], b / b[:, :1], atol=0.04)
