@@ -37,9 +37,11 @@ from pbrdf.io.strict_json import dumps_strict  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 #: The render benchmark's scenes (:func:`render_scenes`).
-RENDER_SCENES = ("analytic", "table")
+RENDER_SCENES = ("analytic", "table", "textured", "table_textured")
 #: Seed material (:mod:`pbrdf.brdf.seeds`) tabulated for the table scene when no --table is given.
 TABLE_SEED = "pom"
+#: Seed material mixed with the table in the textured table scene (a dielectric, as ``pom``).
+TEXTURED_TABLE_SEED = "peek"
 #: Sizes of --quick (a smoke test), per benchmark.
 QUICK = {
     "decode": {"height": 128, "width": 160, "repeat": 2},
@@ -54,7 +56,10 @@ def render_scenes(names: list[str], table: Path | None, folder: Path) -> dict[st
 
     ``analytic`` is :func:`blender_addon.core.scenegen.benchmark_scene`; ``table`` the same blob
     with a pBRDF table: ``table``, or the :data:`TABLE_SEED` seed material tabulated into
-    ``folder``.
+    ``folder``. ``textured``: the analytic blob with albedo and roughness textures;
+    ``table_textured``: the table mixed per texel with :data:`TEXTURED_TABLE_SEED` and darkened by
+    an albedo texture (textures written into ``folder``). Like for like: the textures vary what the
+    plain rows hold constant, so the rows show what texturing costs.
     """
     import dataclasses  # noqa: PLC0415
 
@@ -67,7 +72,7 @@ def render_scenes(names: list[str], table: Path | None, folder: Path) -> dict[st
     out: dict[str, tuple] = {}
     if "analytic" in names:
         out["analytic"] = (spec, "blob, pplastic albedo (0.6, 0.4, 0.2), roughness 0.3, 0.7 m")
-    if "table" in names:
+    if "table" in names or "table_textured" in names:
         seed = next(m for m in seeds.SEED_MATERIALS if m.name == TABLE_SEED)
         if table is None:
             table = folder / f"{TABLE_SEED}.pbsdf"
@@ -79,7 +84,47 @@ def render_scenes(names: list[str], table: Path | None, folder: Path) -> dict[st
         name = spec.objects[0].material
         mat = MaterialSpec.measured(name, str(table), albedo, roughness=seed.roughness, metallic=0.0)
         out["table"] = (dataclasses.replace(spec, materials=(mat,)), f"blob, pBRDF table ({what}), 0.7 m")
-    return out
+    if "textured" in names or "table_textured" in names:
+        from blender_addon.core.textures import MaterialTextures  # noqa: PLC0415
+
+        albedo, rough, mask = _bench_textures(folder)
+        plastic = spec.materials[0]
+        tex = MaterialTextures(albedo=albedo, roughness=rough)
+        out["textured"] = (
+            dataclasses.replace(spec, materials=(dataclasses.replace(plastic, textures=tex),)),
+            "blob, pplastic with 256 px albedo and roughness (0.2 / 0.4 stripes) textures, 0.7 m",
+        )
+        if "table" in out:
+            other = folder / f"{TEXTURED_TABLE_SEED}.pbsdf"
+            seed = next(m for m in seeds.SEED_MATERIALS if m.name == TEXTURED_TABLE_SEED)
+            tables.save_table(other, seeds.seed_table(seed), for_mitsuba=True)
+            tex = MaterialTextures(albedo=albedo, tables=(str(other),), weights=mask)
+            own = out["table"][0].materials[0]
+            out["table_textured"] = (dataclasses.replace(spec, materials=(dataclasses.replace(own, textures=tex),)),
+                                     f"blob, the table and {TEXTURED_TABLE_SEED!r} mixed by a 256 px checker, "
+                                     "darkened by an albedo texture, 0.7 m")  # fmt: skip
+    return {k: v for k, v in out.items() if k in names}
+
+
+def _bench_textures(folder: Path) -> tuple:
+    """Albedo (smooth bands, sRGB), roughness (stripes 0.2 / 0.4) and a mask (a 4 x 4 checker) PNGs in ``folder``."""
+    import numpy as np  # noqa: PLC0415
+    from PIL import Image  # noqa: PLC0415
+
+    from blender_addon.core.textures import TextureSpec  # noqa: PLC0415
+
+    y, x = np.mgrid[:256, :256] / 256.0
+    noise = 0.5 + 0.25 * np.sin(9 * x + 4 * np.sin(7 * y)) * np.cos(5 * y)
+    images = {
+        "albedo": np.stack([noise, 0.8 * noise, 0.5 * (1 - noise)], -1),
+        "rough": np.repeat((0.2 + 0.2 * (np.sin(40 * x) > 0))[..., None], 3, -1),
+        "mask": np.repeat(((np.floor(4 * x) + np.floor(4 * y)) % 2)[..., None], 3, -1),
+    }
+    for name, img in images.items():
+        Image.fromarray((np.clip(img, 0, 1) * 255).astype(np.uint8)).save(folder / f"{name}.png")
+    return (TextureSpec(str(folder / "albedo.png"), colorspace="srgb"),
+            TextureSpec(str(folder / "rough.png"), channels=(1,), factor=(1.0,)),
+            TextureSpec(str(folder / "mask.png"), channels=(2,), factor=(1.0,)))  # fmt: skip
 
 
 def _default_checkpoint() -> Path | None:
@@ -120,7 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--ref-spp", type=int, default=1024, help="reference samples per pixel (default 1024)")
     r.add_argument("--spp", type=int, nargs="+", default=[4, 8, 16, 32, 64], help="spp values to time")
     r.add_argument("--scenes", nargs="+", choices=list(RENDER_SCENES), default=list(RENDER_SCENES),
-                   help="scenes to render (default: both)")  # fmt: skip
+                   help="scenes to render (default: all)")  # fmt: skip
     r.add_argument("--table", type=Path, help=f"pBRDF tensor file of the table scene (default: the {TABLE_SEED!r} "
                    "seed material tabulated on the seeds' grid)")  # fmt: skip
     r.add_argument("--variant", default="llvm", help="Mitsuba variant or alias: llvm (default), cuda, auto "
@@ -173,7 +218,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
             scenes = render_scenes(args.scenes, args.table, Path(tmp))
             return render.run(
                 renderer, scenes, resolution=args.resolution, ref_spp=args.ref_spp, spp=tuple(args.spp),
-                naive=["analytic"] if args.quick else None, variant=args.variant, **common,
+                naive=["analytic"] if args.quick else ["analytic", "table"], variant=args.variant, **common,
             )  # fmt: skip
     if args.what == "pbrdf":
         from network.bench import expansion  # noqa: PLC0415

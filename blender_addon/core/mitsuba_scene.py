@@ -381,7 +381,9 @@ def sensor_dict(camera: CameraSpec, window: CropWindow, spp: int, *, sampler: st
 
 
 def bsdf_dict(material: MaterialSpec, channel: int | None, *, spectrum: Any = None, linear_light: bool = False) -> dict:
-    """Polarization-aware Mitsuba BSDF of a material, for one colour channel or spectral.
+    """Polarization-aware Mitsuba BSDF of a material's constants, for one colour channel or spectral.
+
+    Textures are :mod:`.textured_bsdf`'s (the mono passes of :mod:`.render`).
 
     Args:
         material: the material spec.
@@ -537,9 +539,9 @@ def channel_updates(
 
 def mesh_object(
     name: str, vertices_world: NDArray, faces: NDArray, normals_world: NDArray | None, bsdf: dict,
-    *, two_sided: bool = False,
+    *, two_sided: bool = False, uvs: NDArray | None = None,
 ):  # fmt: skip
-    """A Mitsuba mesh built from arrays (no temporary files) carrying ``bsdf``.
+    """A Mitsuba mesh built from arrays (no temporary files) carrying ``bsdf``, with OpenGL ``uvs`` if given.
 
     ``two_sided`` wraps the BSDF in Mitsuba's ``twosided`` (it keeps polarization): an open mesh
     seen from the back is then shaded like its front instead of black.
@@ -548,7 +550,7 @@ def mesh_object(
 
     if two_sided:
         bsdf = {"type": "twosided", "bsdf": bsdf}
-    return mesh_from_arrays(name, vertices_world, faces, {"bsdf": mi.load_dict(bsdf)}, normals=normals_world)
+    return mesh_from_arrays(name, vertices_world, faces, {"bsdf": mi.load_dict(bsdf)}, normals=normals_world, uvs=uvs)
 
 
 def integrator_dict(integrator: str, max_depth: int, *, aovs: bool = True) -> dict:

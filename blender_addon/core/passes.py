@@ -125,6 +125,9 @@ class RenderResult:
         integrator: the integrator rendered with (``path`` or ``volpath``).
         display: the display model rendered with: ``"emitter"`` (:mod:`.polarized_display`)
             or ``"sheet"``.
+        truth: with textured materials, the material maps of what was rendered
+            (:func:`.texture_truth.truth_pass`: ``albedo (H, W, 3)``, ``roughness``, ``metallic``
+            filtered over each pixel as the image is); None for per-object constants.
     """
 
     stokes: NDArray[np.float32]
@@ -138,6 +141,7 @@ class RenderResult:
     max_depth: int | None = None
     integrator: str = ""
     display: str = ""
+    truth: dict | None = None
 
     @property
     def mask(self) -> NDArray[np.bool_]:
@@ -226,17 +230,26 @@ def set_variant(variant: str):
     return mi
 
 
-def world_meshes(spec: SceneSpec) -> list[tuple[NDArray, NDArray, NDArray, bool]]:
-    """(vertices, faces, shading normals, two-sided) of every object, in world coordinates.
+def world_meshes(spec: SceneSpec, *, uvs: bool = False) -> list[tuple]:
+    """(vertices, faces, shading normals, two-sided[, uvs]) of every object, in world coordinates.
 
     The meshes come from :func:`.assets.load_mesh` (its normals are the shading normals the
-    ground truth reports); two-sided marks open meshes, whose back faces may be seen.
+    ground truth reports); two-sided marks open meshes, whose back faces may be seen. With
+    ``uvs``, a fifth element: OpenGL UVs ``(N, 2)`` for objects whose material has textures
+    (meshes without UVs are unwrapped by :func:`.assets.ensure_uv`), None for the others, whose
+    meshes stay as they are.
     """
     from . import assets  # noqa: PLC0415
 
+    materials = {m.name: m for m in spec.materials}
     out = []
     for obj in spec.objects:
         mesh = assets.load_mesh(obj.mesh)
+        mat = materials.get(obj.material)
+        uv = None
+        if uvs and mat is not None and mat.textures is not None and mat.textures.slots():
+            mesh = _with_uv(mesh)
+            uv = np.asarray(mesh.visual.uv, dtype=np.float64)
         m = np.asarray(obj.to_world, dtype=np.float64)
         v = np.asarray(mesh.vertices) @ m[:3, :3].T + m[:3, 3]
         n = np.asarray(mesh.vertex_normals) @ np.linalg.inv(m[:3, :3])  # inverse-transpose, row vectors
@@ -244,7 +257,27 @@ def world_meshes(spec: SceneSpec) -> list[tuple[NDArray, NDArray, NDArray, bool]
         faces = np.asarray(mesh.faces)
         if np.linalg.det(m[:3, :3]) < 0:  # a mirroring pose turns the winding around
             faces = faces[:, ::-1]
-        out.append((v, faces, n, bool(mesh.metadata.get("two_sided", False))))
+        two = bool(mesh.metadata.get("two_sided", False))
+        out.append((v, faces, n, two, uv) if uvs else (v, faces, n, two))
+    return out
+
+
+_UV_MESHES: dict[int, tuple] = {}
+
+
+def _with_uv(mesh):
+    """The mesh with UVs (:func:`.assets.ensure_uv`, its metadata kept), unwrapped once per cached mesh."""
+    from . import assets  # noqa: PLC0415
+
+    hit = _UV_MESHES.get(id(mesh))
+    if hit is not None and hit[0] is mesh:
+        return hit[1]
+    out = assets.ensure_uv(mesh)
+    if out is not mesh:
+        out.metadata.update(mesh.metadata)
+    if len(_UV_MESHES) >= 32:
+        _UV_MESHES.pop(next(iter(_UV_MESHES)))
+    _UV_MESHES[id(mesh)] = (mesh, out)
     return out
 
 

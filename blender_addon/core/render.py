@@ -26,7 +26,7 @@ from numpy.typing import NDArray
 from pbrdf.sensor import camera as pcamera
 from pbrdf.sensor import decode as pdecode
 
-from . import mitsuba_preview
+from . import mitsuba_preview, textured_bsdf
 from . import mitsuba_scene as ms
 from .passes import (
     RenderResult,
@@ -39,6 +39,7 @@ from .passes import (
     world_meshes,
 )
 from .spectral import render_stokes_spectral
+from .texture_truth import mapped_normals, needs_truth_pass, truth_pass
 
 if TYPE_CHECKING:
     from .spec import SceneSpec
@@ -84,7 +85,8 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
     settings = settings or RenderSettings()
     variant = settings.variant or choose_variant()
     mi = set_variant(variant)
-    meshes = world_meshes(spec)
+    textured = needs_truth_pass(spec)
+    meshes = world_meshes(spec, uvs=textured)
     rig = spec.rig
     spectral = "spectral" in variant
     polarized_emitter = settings.display == "emitter" and not spectral and ms.polarized_emitter_possible(rig.display)
@@ -95,15 +97,23 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
         max_depth = ms.auto_max_depth(meshes, settings.integrator_for(sheet) if sheet else "path", sheet=sheet)
     integrator = settings.integrator_for(sheet, max_depth)
     if spectral:  # the fallback without LLVM, and cross-checks
+        if textured:
+            log.warning("textures are rendered in the mono-polarized variants only; %s renders constants", variant)
         result = render_stokes_spectral(spec, dataclasses.replace(settings, max_depth=max_depth), variant=variant)
         result.max_depth = max_depth
         return result
     window = render_window(spec, settings, meshes)
     scenes = _ChannelScenes(spec, meshes, window, settings, max_depth, integrator, polarized_emitter)
     stokes, aovs, seconds = _render_channels(mi, scenes)
+    truth = None
+    if textured:  # the material maps of what was rendered (:mod:`.texture_truth`)
+        seed = (int(spec.seed) * 3) % 2**32  # the first colour pass's: its sample positions
+        truth, truth_aovs, _, seconds["truth"] = truth_pass(spec, meshes, window, settings, scenes.names, seed)
+        mask = aovs["coverage"] >= 0.5
+        aovs["normal"] = mapped_normals(spec, truth_aovs, aovs["object_index"], aovs["normal"], mask)
     return RenderResult(
         stokes=stokes, window=window, variant=variant, seconds=seconds, max_depth=max_depth,
-        integrator=integrator, display="emitter" if polarized_emitter else "sheet", **aovs,
+        integrator=integrator, display="emitter" if polarized_emitter else "sheet", truth=truth, **aovs,
     )  # fmt: skip
 
 
@@ -131,10 +141,11 @@ class _ChannelScenes:
 
         objs = {
             name: ms.mesh_object(
-                name, v, f, n, ms.bsdf_dict(self.materials[obj.material], channel, linear_light=self.linear_light),
-                two_sided=two,
+                name, m[0], m[1], m[2],
+                _bsdf_dict(self.materials[obj.material], channel, self.linear_light),
+                two_sided=m[3], uvs=m[4] if len(m) > 4 else None,
             )
-            for name, obj, (v, f, n, two) in zip(self.names, self.spec.objects, self.meshes, strict=True)
+            for name, obj, m in zip(self.names, self.spec.objects, self.meshes, strict=True)
         }  # fmt: skip
         s = self.settings
         return mi.load_dict(
@@ -149,11 +160,22 @@ class _ChannelScenes:
         """Parameter updates that switch the scene of ``params`` (``mi.traverse``) to ``channel``; None if none can."""
         updates = ms.display_updates(self.spec.rig.display, channel, params)
         for name, obj, mesh in zip(self.names, self.spec.objects, self.meshes, strict=True):
-            u = ms.channel_updates(name, self.materials[obj.material], channel, two_sided=mesh[3])
-            if u is None or updates is None:
+            mat = self.materials[obj.material]
+            if textured_bsdf.has_textures(mat):
+                u = textured_bsdf.channel_updates(mat, channel, f"{name}.bsdf.brdf_0" if mesh[3] else f"{name}.bsdf")
+            else:
+                u = ms.channel_updates(name, mat, channel, two_sided=mesh[3])
+            if u is None or updates is None or not all(k in params for k in u):
                 return None
             updates.update(u)
         return updates
+
+
+def _bsdf_dict(material, channel: int, linear_light: bool) -> dict:
+    """The material's BSDF for one colour channel: :mod:`.textured_bsdf` with textures, else its constants."""
+    if textured_bsdf.has_textures(material):
+        return textured_bsdf.bsdf_dict(material, channel, linear_light=linear_light)
+    return ms.bsdf_dict(material, channel, linear_light=linear_light)
 
 
 def _render_channels(mi, scenes: _ChannelScenes) -> tuple[NDArray[np.float32], dict[str, NDArray], dict[str, float]]:
@@ -245,7 +267,13 @@ class _CompileTimer:
 
 
 def ground_truth(spec: SceneSpec, result: RenderResult) -> dict[str, NDArray]:
-    """Material maps from the per-object Disney parameters: albedo (H,W,3), roughness, metallic."""
+    """Material maps: albedo (H,W,3), roughness, metallic.
+
+    Textured scenes: the truth pass's maps (``result.truth``, the textures at the rendered hits,
+    filtered over each pixel as the image is); others: the per-object Disney parameters.
+    """
+    if result.truth is not None:
+        return {k: np.asarray(result.truth[k], np.float32) for k in ("albedo", "roughness", "metallic")}
     materials = {m.name: m for m in spec.materials}
     h, w = result.object_index.shape
     albedo = np.zeros((h, w, 3), np.float32)

@@ -96,6 +96,11 @@ def test_bench_render_scenes_and_argument_checks(tmp_path):
     assert mat.kind == "measured" and load_table(mat.table).M.shape[3] == 5 and TABLE_SEED in scenes["table"][1]
     assert table.objects == analytic.objects and analytic.materials[0].kind == "pplastic"
     assert list(render_scenes(["table"], tmp_path / f"{TABLE_SEED}.pbsdf", tmp_path)) == ["table"]
+    textured = render_scenes(["textured", "table_textured"], None, tmp_path)
+    assert list(textured) == ["textured", "table_textured"]
+    for spec, _ in textured.values():
+        assert SceneSpec.from_dict(spec.to_dict()) == spec and spec.materials[0].textures.slots()
+    assert textured["table_textured"][0].materials[0].textures.tables
     for bad in (["--spp", "16", "4"], ["--spp", "4", "--ref-spp", "2"]):
         proc = _run("headless/bench.py", "render", *bad)
         assert proc.returncode == 2 and "--spp must be ascending" in proc.stderr
