@@ -16,7 +16,7 @@ Convention (glTF 2.0, section 3.9):
     * Kind: ``pplastic`` (the dielectric) with ``textures.metallic`` when a metallic texture
       mixes in metal per texel; without a metallic texture a ``metallicFactor`` of 1 is a
       ``conductor`` whose complex index gives the base colour at normal incidence
-      (:func:`conductor_ior`); a factor strictly between 0 and 1 is rounded to 0 or 1 (noted).
+      (:func:`_metal`); a factor strictly between 0 and 1 is rounded to 0 or 1 (noted).
     * MTL: ``Kd`` is the (linear) base-colour factor, ``map_Kd`` its sRGB texture (the two
       multiply, as the MTL format says), ``-o``/``-s`` become a texture transform, ``Pr``/``Pm``
       set roughness/metallic (default 0.5/0); ``Ka``, ``illum``, ``Tf`` and ``sharpness`` are
@@ -47,10 +47,11 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
+from numpy.typing import NDArray
 
 from pbrdf.io.atomic import atomic_write_bytes
 from pbrdf.io.errors import one_line
+from pbrdf.polar.fresnel import METAL_N, conductor_extinction
 
 from . import asset_io, assets
 from .spec import MaterialSpec
@@ -58,12 +59,10 @@ from .textures import MaterialTextures, TextureSpec, texture_array
 
 __all__ = [
     "ACCEPTED_EXTENSIONS",
-    "CONDUCTOR_ETA",
     "AssetMaterials",
     "AssetPart",
     "AssetParts",
     "asset_parts",
-    "conductor_ior",
     "image_cache_dir",
     "read_materials",
     "usable_textured_assets",
@@ -71,8 +70,6 @@ __all__ = [
 
 #: glTF extensions read (or harmless to leave out) and therefore accepted in ``extensionsRequired``.
 ACCEPTED_EXTENSIONS = ("KHR_texture_transform", "KHR_materials_emissive_strength", "KHR_materials_ior")
-#: Real part of the complex index :func:`conductor_ior` gives a metal (aluminium's is about 1.45 at 630 nm).
-CONDUCTOR_ETA = 1.5
 _REPEAT = 10497
 _WRAP_NAMES = {33071: "CLAMP_TO_EDGE", 33648: "MIRRORED_REPEAT"}
 
@@ -90,38 +87,6 @@ class AssetMaterials:
     file: str
     materials: tuple[MaterialSpec, ...]
     notes: tuple[str, ...] = ()
-
-
-def conductor_ior(
-    base_colour: ArrayLike, eta: float = CONDUCTOR_ETA
-) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """A complex index ``n - ik`` per channel whose normal-incidence reflectance is the base colour.
-
-    With :math:`R_0 = ((n-1)^2 + k^2) / ((n+1)^2 + k^2)` (:meth:`.spec.MaterialSpec.metal`) and a
-    fixed ``n`` the extinction is :math:`k = \\sqrt{(R_0 (n+1)^2 - (n-1)^2) / (1 - R_0)}`; a
-    reflectance below :math:`((n-1)/(n+1))^2` (0.04 for n = 1.5) needs no absorption: then
-    ``k = 0`` and :math:`n = (1 + \\sqrt{R_0}) / (1 - \\sqrt{R_0})`. ``R0`` is clipped to
-    [0, 0.999] (a perfect mirror needs an infinite k). With n = 1.5, R0 = 0.91 gives k = 7.8
-    (aluminium: n 1.45, k 7.6 at 630 nm).
-
-    Args:
-        base_colour: ``(..., 3)`` linear reflectance at normal incidence in [0, 1].
-        eta: the real part n used where the reflectance allows it.
-
-    Returns:
-        ``(eta, k)``, each shaped like ``base_colour``.
-
-    Example:
-        >>> n, k = conductor_ior([0.91, 0.5, 0.04])
-        >>> n.round(3).tolist(), k.round(2).tolist()
-        ([1.5, 1.5, 1.5], [7.77, 2.4, 0.0])
-    """
-    r0 = np.clip(np.asarray(base_colour, dtype=np.float64), 0.0, 0.999)
-    floor = ((eta - 1) / (eta + 1)) ** 2
-    k = np.sqrt(np.maximum(r0 * (eta + 1) ** 2 - (eta - 1) ** 2, 0.0) / (1 - r0))
-    s = np.sqrt(r0)
-    n = np.where(r0 >= floor, eta, (1 + s) / (1 - s))
-    return np.maximum(n, 1e-6), np.where(r0 >= floor, k, 0.0)
 
 
 def image_cache_dir() -> Path:
@@ -249,8 +214,7 @@ def _gltf_material(r: _Reader, k: int, m: dict, texcoord: int) -> MaterialSpec:
     albedo = tuple(float(a) for a in np.clip(albedo, 0, 1))
     rough = min(max(rough, 0.0), 1.0)
     if "metallic" not in slots and metal == 1.0:
-        eta, kk = conductor_ior(albedo)
-        return MaterialSpec(name, "conductor", albedo, rough, 1.0, eta=tuple(eta), k=tuple(kk), textures=textures)
+        return _metal(name, albedo, rough, textures)
     ior = (m.get("extensions") or {}).get("KHR_materials_ior", {}).get("ior", 1.5)
     ior = float(ior) if isinstance(ior, (int, float)) and ior > 0 else 1.5
     return MaterialSpec(name, "pplastic", albedo, rough, min(max(metal, 0.0), 1.0), ior=ior, textures=textures)
@@ -364,9 +328,7 @@ def _mtl_materials(obj: Path, name: str) -> AssetMaterials | None:
         albedo = tuple(float(a) for a in np.clip(albedo, 0, 1))
         mat_name = f"{obj.stem}_{k}_{mname}"
         if metal == 1.0:
-            eta, kk = conductor_ior(albedo)
-            out.append(MaterialSpec(mat_name, "conductor", albedo, rough, 1.0, eta=tuple(eta), k=tuple(kk),
-                                    textures=textures))  # fmt: skip
+            out.append(_metal(mat_name, albedo, rough, textures))
         else:
             out.append(MaterialSpec(mat_name, "pplastic", albedo, rough, 0.0, textures=textures))
     return AssetMaterials(name, tuple(out), r.notes.lines())
@@ -484,3 +446,13 @@ def usable_textured_assets(files: list[str | os.PathLike]) -> tuple[list[Path], 
             refused[str(f)] = one_line(e)
             ok.remove(f)
     return ok, refused
+
+
+def _metal(name: str, albedo: tuple[float, ...], roughness: float, textures: MaterialTextures | None) -> MaterialSpec:
+    """A conductor whose normal-incidence reflectance is the base colour: index ``METAL_N - ik`` per channel.
+
+    The same metal a ``metallic`` texture mixes in (:func:`pbrdf.polar.fresnel.conductor_extinction`).
+    """
+    k, _ = conductor_extinction(np.asarray(albedo, np.float64))
+    return MaterialSpec(name, "conductor", albedo, roughness, 1.0, eta=(METAL_N,) * 3, k=tuple(float(x) for x in k),
+                        textures=textures)  # fmt: skip

@@ -22,7 +22,6 @@ image's bottom-left corner; lookups are bilinear with wrap-around (Mitsuba's bit
 from __future__ import annotations
 
 import functools
-import json
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,28 +30,20 @@ from typing import TYPE_CHECKING
 import numpy as np
 from numpy.typing import NDArray
 
+from pbrdf.polar.fresnel import METAL_N, conductor_extinction
+
 from .textures import TextureSpec, texture_array
 
 if TYPE_CHECKING:
     from .spec import MaterialSpec
 
 __all__ = [
-    "METAL_ETA",
-    "MAX_R0",
     "MaterialGrid",
-    "k_from_r0",
     "material_grid",
     "realized",
     "sample_bilinear",
     "table_parameters",
 ]
-
-#: Real index ``n`` of the metal that a ``metallic`` texture mixes into a dielectric: with
-#: ``n = 1`` every ``R0`` in ``[0, 1)`` is reached by a real extinction ``k``
-#: (:func:`k_from_r0`), ``R0 = k^2 / (4 + k^2)``.
-METAL_ETA = 1.0
-#: Largest normal-incidence reflectance a metal texel gets (``k`` grows without bound toward 1).
-MAX_R0 = 0.999
 
 
 def sample_bilinear(image: NDArray, uv: NDArray) -> NDArray[np.float32]:
@@ -87,26 +78,6 @@ def sample_bilinear(image: NDArray, uv: NDArray) -> NDArray[np.float32]:
     ya, yb = np.mod(y0, h), np.mod(y0 + 1, h)
     out = (img[ya, xa] * (1 - fx) + img[ya, xb] * fx) * (1 - fy) + (img[yb, xa] * (1 - fx) + img[yb, xb] * fx) * fy
     return (out[..., 0] if flat else out).astype(np.float32)
-
-
-def k_from_r0(r0: NDArray | float, n: NDArray | float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Extinction ``k`` of a metal with real index ``n`` and normal-incidence reflectance ``r0``.
-
-    From ``R0 = ((n - 1)^2 + k^2) / ((n + 1)^2 + k^2)``: ``k^2 = (R0 (n + 1)^2 - (n - 1)^2) / (1 - R0)``.
-    ``r0`` is clipped to what ``n`` reaches, ``[((n - 1) / (n + 1))^2, MAX_R0]``.
-
-    Returns:
-        ``(k, r0_clipped)``.
-
-    >>> k, r = k_from_r0(0.5, 1.0)
-    >>> float(k), float(r)  # R0 = k^2 / (4 + k^2) at n = 1
-    (2.0, 0.5)
-    """
-    n = np.asarray(n, dtype=np.float64)
-    lo = ((n - 1) / (n + 1)) ** 2
-    r = np.clip(np.asarray(r0, dtype=np.float64), lo, MAX_R0)
-    k2 = (r * (n + 1) ** 2 - (n - 1) ** 2) / (1 - r)
-    return np.sqrt(np.maximum(k2, 0.0)), r
 
 
 @dataclass(frozen=True, eq=False)  # compared and hashed by identity (one per material and file version)
@@ -235,20 +206,19 @@ def table_parameters(material: MaterialSpec, table: str) -> tuple[NDArray[np.flo
     entry = _library_entry(os.path.realpath(table))
     if entry is None:
         return own
-    return np.asarray(entry["albedo"], np.float64), float(entry["roughness"]), float(entry["metallic"])
+    return np.asarray(entry.albedo, np.float64), float(entry.roughness), float(entry.metallic)
 
 
 @functools.lru_cache(maxsize=64)
-def _library_entry(table: str) -> dict | None:
-    index = Path(table).parent / "materials.json"
+def _library_entry(table: str) -> MaterialSpec | None:
+    """The entry of ``table`` in the pBRDF library beside it (:func:`.scenegen.load_material_library`), or None."""
+    from .scenegen import load_material_library  # noqa: PLC0415 - the library's one reader
+
     try:
-        entries = json.loads(index.read_text())
-    except (OSError, ValueError):
+        entries = load_material_library(Path(table).parent)
+    except (OSError, ValueError, KeyError, TypeError):
         return None
-    for e in entries if isinstance(entries, list) else []:
-        if isinstance(e, dict) and os.path.realpath(str(index.parent / str(e.get("table", "")))) == table:
-            return e
-    return None
+    return next((e for e in entries if os.path.realpath(str(e.table)) == table), None)
 
 
 def realized(material: MaterialSpec, grid: MaterialGrid) -> dict[str, NDArray[np.float32] | float]:
@@ -263,10 +233,10 @@ def realized(material: MaterialSpec, grid: MaterialGrid) -> dict[str, NDArray[np
     if material.kind == "measured":
         return _realized_tables(material, grid)
     if material.kind == "conductor" and grid.albedo is not None:
-        r0 = k_from_r0(albedo, np.asarray(material.eta))[1].astype(np.float32)
+        r0 = conductor_extinction(albedo, np.asarray(material.eta))[1].astype(np.float32)
         albedo = r0 if grid.metallic is None else (metal[..., None] * r0 + (1 - metal[..., None]) * albedo)
     elif material.kind == "pplastic" and grid.metallic is not None:
-        r0 = k_from_r0(albedo, METAL_ETA)[1].astype(np.float32)
+        r0 = conductor_extinction(albedo, METAL_N)[1].astype(np.float32)
         albedo = metal[..., None] * r0 + (1 - metal[..., None]) * albedo
     elif material.kind == "pplastic":
         metal = material.metallic  # an untextured pplastic renders no metal

@@ -8,8 +8,8 @@ whose textures are ``bitmap`` lookups of :mod:`.texel_grid`'s arrays (one channe
 * ``pplastic``: ``pplastic`` with a ``diffuse_reflectance`` bitmap (the base colour) and an
   ``alpha`` bitmap (``max(roughness^2, MIN_ALPHA)``). With a ``metallic`` texture it is the
   ``blendbsdf`` of that dielectric and a ``roughconductor`` whose real index is
-  :data:`.texel_grid.METAL_ETA` and whose extinction ``k`` is solved per texel and channel so that
-  its normal-incidence reflectance is the base colour (:func:`.texel_grid.k_from_r0`).
+  :data:`pbrdf.polar.fresnel.METAL_N` and whose extinction ``k`` is solved per texel and channel so that
+  its normal-incidence reflectance is the base colour (:func:`pbrdf.polar.fresnel.conductor_extinction`).
 * ``conductor``: ``roughconductor`` with the material's ``eta`` and, with an albedo texture, ``k``
   solved per texel from it; with a ``metallic`` texture blended with a ``pplastic`` (IOR 1.5).
 * ``measured``: the tables (the material's and ``textures.tables``) mixed per texel by nested
@@ -36,6 +36,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
+
+from pbrdf.polar.fresnel import METAL_N, conductor_extinction
 
 from . import texel_grid as tg
 
@@ -130,7 +132,7 @@ def _metal_k(albedo: _Value, eta: _Value) -> _Value:
 
     def k(c: int):
         a, n = albedo(c), eta(c)
-        out = tg.k_from_r0(a, n)[0].astype(np.float32)
+        out = conductor_extinction(a, n)[0].astype(np.float32)
         return out if np.ndim(a) >= 2 else float(out)
 
     return k
@@ -150,7 +152,7 @@ def _analytic(t: _Tree, key: str, material: MaterialSpec) -> dict:
     if material.kind == "diffuse":
         return {"type": "diffuse", "reflectance": t.leaf(f"{key}.reflectance", albedo, varies=True)}
     if material.kind == "pplastic":
-        eta = _channel_plane(None, tg.METAL_ETA)
+        eta = _channel_plane(None, METAL_N)
         k = _metal_k(albedo, eta)
         ior = float(material.ior)
     else:

@@ -33,6 +33,9 @@ from pbrdf.polar.mueller import _grid
 __all__ = [
     "ETA_MIN",
     "ETA_MAX",
+    "MAX_METAL_R0",
+    "METAL_N",
+    "conductor_extinction",
     "fresnel_amplitudes",
     "fresnel_reflectance",
     "reflection_mueller",
@@ -44,6 +47,37 @@ __all__ = [
 ETA_MIN = 1e-6
 #: Largest accepted modulus of the relative IOR.
 ETA_MAX = 1e6
+#: Real index of a metal known only by its normal-incidence reflectance (a base colour, a glTF
+#: metal): with ``n = 1`` every ``R0`` in ``[0, 1)`` is reached by a real extinction,
+#: ``R0 = k^2 / (4 + k^2)``.
+METAL_N = 1.0
+#: Largest normal-incidence reflectance given to such a metal (``k`` grows without bound toward 1).
+MAX_METAL_R0 = 0.999
+
+
+def conductor_extinction(r0: ArrayLike, n: ArrayLike = METAL_N) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Extinction ``k`` of a metal with real index ``n`` whose normal-incidence reflectance is ``r0``.
+
+    From ``R0 = ((n - 1)^2 + k^2) / ((n + 1)^2 + k^2)``: ``k^2 = (R0 (n + 1)^2 - (n - 1)^2) / (1 - R0)``.
+    ``r0`` is clipped to what ``n`` reaches, ``[((n - 1) / (n + 1))^2, MAX_METAL_R0]``.
+
+    Args:
+        r0: normal-incidence reflectance (e.g. a base colour per channel), any shape.
+        n: the real part of the index, broadcast against ``r0``.
+
+    Returns:
+        ``(k, r0_reached)``, broadcast shapes.
+
+    Example:
+        >>> k, r = conductor_extinction(0.5)
+        >>> float(k), float(r)  # R0 = k^2 / (4 + k^2) at n = 1
+        (2.0, 0.5)
+    """
+    n = np.asarray(n, dtype=np.float64)
+    lo = ((n - 1) / (n + 1)) ** 2
+    r = np.clip(np.asarray(r0, dtype=np.float64), lo, MAX_METAL_R0)
+    k2 = (r * (n + 1) ** 2 - (n - 1) ** 2) / (1 - r)
+    return np.sqrt(np.maximum(k2, 0.0)), r
 
 
 def _eta(eta: ArrayLike) -> NDArray[np.complexfloating]:

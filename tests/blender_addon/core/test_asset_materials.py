@@ -453,10 +453,11 @@ def test_obj_mtl_map_kd_and_kd(tmp_path, rng):
         am.read_materials(tmp_path / "box.obj")
 
 
-def test_conductor_ior_reflects_the_base_colour():
-    colour = np.array([0.0, 0.01, 0.04, 0.3, 0.91, 1.0])
-    n, k = am.conductor_ior(colour)
-    r0 = np.abs(((n - 1j * k) - 1) / ((n - 1j * k) + 1)) ** 2  # complex Fresnel at normal incidence
-    np.testing.assert_allclose(r0, np.clip(colour, 0, 0.999), atol=1e-12)
-    assert np.all(n > 0) and np.all(k >= 0) and np.all(k[colour <= 0.04] == 0)
-    np.testing.assert_allclose(n[colour >= 0.04], 1.5, atol=1e-12)
+def test_a_factor_only_metal_reflects_its_base_colour(tmp_path):
+    """metallicFactor 1 without a texture: a conductor whose normal-incidence Fresnel reflectance is the base colour."""
+    colour = [0.91, 0.5, 0.04]
+    m = am._metal("m", tuple(colour), 0.3, None)
+    eta = np.asarray(m.eta) - 1j * np.asarray(m.k)
+    r0 = np.abs((eta - 1) / (eta + 1)) ** 2  # complex Fresnel at normal incidence, an independent formula
+    np.testing.assert_allclose(r0, colour, atol=1e-12)
+    assert m.kind == "conductor" and m.metallic == 1.0

@@ -8,7 +8,6 @@ import pytest
 from blender_addon.core import texel_grid as tg
 from blender_addon.core.spec import MaterialSpec
 from blender_addon.core.textures import MaterialTextures, TextureSpec
-from pbrdf.polar import fresnel
 
 
 def _png(path, img):
@@ -16,18 +15,6 @@ def _png(path, img):
 
     Image.fromarray(np.asarray(img, np.uint8)).save(path)
     return str(path)
-
-
-@pytest.mark.parametrize("n", [1.0, 0.16, 2.5])
-def test_k_from_r0_gives_that_normal_incidence_reflectance(n):
-    r_min = ((n - 1) / (n + 1)) ** 2
-    for r0 in np.linspace(r_min + 1e-3, 0.99, 7):
-        k, r = tg.k_from_r0(r0, n)
-        assert float(r) == pytest.approx(r0)
-        # the complex Fresnel reflectance of n - ik at normal incidence (an independent formula)
-        assert float(fresnel.fresnel_reflectance(1.0, complex(n, -float(k)))) == pytest.approx(r0, rel=1e-6)
-    k, r = tg.k_from_r0(0.0, 2.5)  # below what n = 2.5 reaches: clipped, k = 0
-    assert float(k) == 0.0 and float(r) == pytest.approx(r_min if n == 2.5 else ((2.5 - 1) / 3.5) ** 2)
 
 
 def test_sample_bilinear_wraps_and_puts_row_0_at_the_top():

@@ -398,3 +398,15 @@ class TestFresnelRange:
         eta = 10.0 ** rng.uniform(-5.8, 5.8, 20000) - 1j * 10.0 ** rng.uniform(-6, 5.8, 20000)
         r = fresnel.fresnel_reflectance(c, eta)
         assert np.all((r >= 0) & (r <= 1))
+
+
+@pytest.mark.parametrize("n", [1.0, 0.16, 2.5])
+def test_conductor_extinction_gives_that_normal_incidence_reflectance(n):
+    r_min = ((n - 1) / (n + 1)) ** 2
+    for r0 in np.linspace(r_min + 1e-3, 0.99, 7):
+        k, r = fresnel.conductor_extinction(r0, n)
+        assert float(r) == pytest.approx(r0)
+        # the complex Fresnel reflectance of n - ik at normal incidence
+        assert float(fresnel.fresnel_reflectance(1.0, complex(n, -float(k)))) == pytest.approx(r0, rel=1e-6)
+    k, r = fresnel.conductor_extinction(0.0, 2.5)  # below what n = 2.5 reaches: clipped, k = 0
+    assert float(k) == 0.0 and float(r) == pytest.approx((1.5 / 3.5) ** 2)
