@@ -38,6 +38,7 @@ if TYPE_CHECKING:
     from .spec import MaterialSpec
 
 __all__ = [
+    "MAX_TEXTURE_SIZE",
     "MaterialGrid",
     "material_grid",
     "realized",
@@ -143,11 +144,17 @@ def material_grid(material: MaterialSpec) -> MaterialGrid:
     return _material_grid(material, keys)
 
 
+#: Longest texture side a render uses: larger images are area-averaged down on reading. What a
+#: 512 px render can show (:func:`.textures.texture_size_for`); it bounds memory (48 MB for four
+#: slots) and keeps the number of texture sizes, each compiled once, small.
+MAX_TEXTURE_SIZE = 1024
+
+
 @functools.lru_cache(maxsize=16)
 def _material_grid(material: MaterialSpec, _file_keys: tuple) -> MaterialGrid:
     tex = material.textures
     slots = tex.slots()
-    images = {s: texture_array(t) for s, t in slots.items()}
+    images = {s: texture_array(t, max_size=MAX_TEXTURE_SIZE) for s, t in slots.items()}
     if not images:
         return MaterialGrid(to_uv=np.eye(3))
     finest = max(images, key=lambda s: images[s].shape[0] * images[s].shape[1])

@@ -64,3 +64,16 @@ def dataclasses_replace(mat, tex):
     import dataclasses
 
     return dataclasses.replace(mat, textures=tex)
+
+
+def test_textures_larger_than_a_render_can_show_are_averaged_down(tmp_path, monkeypatch):
+    """A 64-texel checker with a cap of 32: the grid is 32 a side and keeps the checker's mean."""
+    from blender_addon.core.spec import MaterialSpec
+    from blender_addon.core.textures import MaterialTextures, TextureSpec
+
+    monkeypatch.setattr(tg, "MAX_TEXTURE_SIZE", 32)
+    tex = TextureSpec("procedural:checker", channels=(0,), params={"seed": 0, "size": 64, "cells": 4})
+    m = MaterialSpec("m", "pplastic", (0.5, 0.5, 0.5), 0.5, 0.0, textures=MaterialTextures(roughness=tex))
+    grid = tg.material_grid(m)
+    assert grid.shape == (32, 32)
+    assert float(grid.roughness.mean()) == pytest.approx(0.5, abs=0.02)
