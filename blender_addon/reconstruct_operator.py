@@ -134,8 +134,8 @@ def _finish(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context, job) ->
     return {"FINISHED"}
 
 
-class PDIR_ReconstructSettings(bpy.types.PropertyGroup):
-    """The panel's reconstruction settings (``scene.pdir_reconstruct``), passed to the operator."""
+class _ReconstructProperties:
+    """The reconstruction's settings, declared once for the panel's property group and the operator."""
 
     capture_dir: StringProperty(
         name="Capture", description="Capture folder: raw HDR brackets plus capture.json", subtype="DIR_PATH"
@@ -151,25 +151,16 @@ class PDIR_ReconstructSettings(bpy.types.PropertyGroup):
     )
 
 
-class PDIR_OT_reconstruct_capture(bpy.types.Operator):
+class PDIR_ReconstructSettings(_ReconstructProperties, bpy.types.PropertyGroup):
+    """The panel's reconstruction settings (``scene.pdir_reconstruct``), passed to the operator."""
+
+
+class PDIR_OT_reconstruct_capture(_ReconstructProperties, bpy.types.Operator):
     """Predict normal, albedo, roughness, metallic and depth from a capture folder and import them as an asset."""
 
     bl_idname = "pdir.reconstruct_capture"
     bl_label = "Reconstruct Capture"
     bl_options = {"REGISTER", "UNDO"}
-
-    capture_dir: StringProperty(
-        name="Capture", description="Capture folder: raw HDR brackets plus capture.json", subtype="DIR_PATH"
-    )
-    output_dir: StringProperty(
-        name="Output",
-        description="Folder for the predicted maps (empty: '<capture>_reconstruction' beside the capture folder)",
-        subtype="DIR_PATH",
-    )
-    mesh: EnumProperty(name="Mesh", description="What the maps are imported as", items=_MESH_ITEMS, default="RELIEF")
-    checkpoint: StringProperty(
-        name="Model", description="A model.pt checkpoint (empty: the shipped model)", subtype="FILE_PATH"
-    )
 
     _timer = None
 
