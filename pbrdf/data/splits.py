@@ -23,7 +23,7 @@ Example:
     >>> SPLITS["test-procedural"].role, SPLITS["test-procedural"].count
     ('test', 48)
     >>> sorted(s.name for s in test_splits())
-    ['test-meshes', 'test-pbrdf', 'test-procedural', 'test-scenes']
+    ['test-meshes', 'test-pbrdf', 'test-procedural', 'test-scenes', 'test-textured']
 """
 
 from __future__ import annotations

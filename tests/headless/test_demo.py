@@ -171,7 +171,7 @@ def test_every_json_the_demo_writes_is_strict(demo_out):
     for path in files:
         loads_strict(path.read_text())  # raises on NaN / Infinity
     summary = loads_strict((Path(out) / "metrics.json").read_text())
-    assert set(summary["methods"]) == {"ours", "baseline", "constant"}
+    assert set(summary["methods"]) == {"ours", "baseline", "constant", "object_mean"}
     ours = summary["methods"]["ours"]["normal_mae"]
     assert ours["ci"][0] <= ours["mean"] <= ours["ci"][1]
     assert 0.5 <= summary["mask_iou"]["mean"] <= 1.0
