@@ -374,16 +374,6 @@ def test_auto_max_depth_is_direct_light_only_where_that_changes_nothing(shape, a
         assert s0[2] / s0[3] < 0.98
 
 
-@pytest.fixture(scope="module")
-def gold_table(tmp_path_factory):
-    from pbrdf.brdf import seeds, table
-
-    gold = next(m for m in seeds.SEED_MATERIALS if m.name == "gold")
-    path = tmp_path_factory.mktemp("tables") / "gold.pbsdf"
-    table.save_table(path, seeds.seed_table(gold, (9, 7, 16)), for_mitsuba=True)
-    return path
-
-
 def test_table_material_switches_channels_by_parameters_as_a_rebuild_with_the_plugin(gold_table, monkeypatch):
     """Table materials render with table_bsdf and switch channels by a parameter update; the same
     scene rebuilt per channel with measured_polarized (the previous route) gives the same images

@@ -7,27 +7,9 @@ pytestmark = pytest.mark.mitsuba
 mi = pytest.importorskip("mitsuba")
 
 from blender_addon.core import mitsuba_scene as ms  # noqa: E402
-from blender_addon.core import passes, table_bsdf  # noqa: E402
+from blender_addon.core import table_bsdf  # noqa: E402
 from blender_addon.core.spec import MaterialSpec  # noqa: E402
-from pbrdf.brdf import seeds, table  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def gold_table(tmp_path_factory):
-    """A small conductor table (strong linear and circular terms) on uniform axes."""
-    gold = next(m for m in seeds.SEED_MATERIALS if m.name == "gold")
-    path = tmp_path_factory.mktemp("tables") / "gold.pbsdf"
-    table.save_table(path, seeds.seed_table(gold, (9, 7, 16)), for_mitsuba=True)
-    return path
-
-
-@pytest.fixture(scope="module")
-def mono():
-    passes.set_variant(passes.choose_variant())
-    if not mi.variant().endswith("_mono_polarized") or mi.variant().startswith("scalar"):
-        pytest.skip("needs a *_mono_polarized JIT variant (Dr.Jit's LLVM backend)")
-    table_bsdf.register()
-    return mi
+from pbrdf.brdf import table  # noqa: E402
 
 
 def _directions(n, seed):

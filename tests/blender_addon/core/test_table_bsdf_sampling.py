@@ -13,8 +13,8 @@ pytestmark = pytest.mark.mitsuba
 mi = pytest.importorskip("mitsuba")
 stats = pytest.importorskip("scipy.stats")
 
-from blender_addon.core import passes, table_bsdf  # noqa: E402
-from pbrdf.brdf import seeds, table  # noqa: E402
+from blender_addon.core import table_bsdf  # noqa: E402
+from pbrdf.brdf import table  # noqa: E402
 
 #: Samples per histogram: a cell holding 1e5 of them resolves the pdf's integral to 0.3 %.
 N_SAMPLES = 1_000_000
@@ -27,23 +27,6 @@ SIGNIFICANCE = 0.01
 #: Pooled cells of fewer expected samples than this (the usual validity rule for chi-square).
 MIN_EXPECTED = 5.0
 CASES = [(alpha, theta_i) for alpha in (0.1, 0.5) for theta_i in (5.0, 40.0, 75.0)]
-
-
-@pytest.fixture(scope="module")
-def mono():
-    passes.set_variant(passes.choose_variant())
-    if not mi.variant().endswith("_mono_polarized") or mi.variant().startswith("scalar"):
-        pytest.skip("needs a *_mono_polarized JIT variant (Dr.Jit's LLVM backend)")
-    table_bsdf.register()
-    return mi
-
-
-@pytest.fixture(scope="module")
-def gold_table(tmp_path_factory):
-    gold = next(m for m in seeds.SEED_MATERIALS if m.name == "gold")
-    path = tmp_path_factory.mktemp("tables") / "gold.pbsdf"
-    table.save_table(path, seeds.seed_table(gold, (9, 7, 16)), for_mitsuba=True)
-    return path
 
 
 def _context(wi):

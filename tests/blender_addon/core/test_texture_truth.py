@@ -11,7 +11,7 @@ pytestmark = pytest.mark.mitsuba
 mi = pytest.importorskip("mitsuba")
 trimesh = pytest.importorskip("trimesh")
 
-from blender_addon.core import passes, render  # noqa: E402
+from blender_addon.core import render  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
 from blender_addon.core.textures import MaterialTextures, TextureSpec  # noqa: E402
 from pbrdf.brdf import seeds, table  # noqa: E402
@@ -25,14 +25,6 @@ SIZE = 64  # texture pixels across
 @pytest.fixture(scope="module")
 def uv_slab(tmp_path_factory):
     return uv_slab_file(tmp_path_factory.mktemp("mesh"))
-
-
-@pytest.fixture(scope="module")
-def mono():
-    passes.set_variant(passes.choose_variant())
-    if not mi.variant().endswith("_mono_polarized") or mi.variant().startswith("scalar"):
-        pytest.skip("needs a *_mono_polarized JIT variant (Dr.Jit's LLVM backend)")
-    return mi
 
 
 def checker(folder, name, a, b, *, cells=CELLS):

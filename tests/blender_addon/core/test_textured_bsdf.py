@@ -16,7 +16,7 @@ pytestmark = pytest.mark.mitsuba
 mi = pytest.importorskip("mitsuba")
 trimesh = pytest.importorskip("trimesh")
 
-from blender_addon.core import passes, render, textured_bsdf  # noqa: E402
+from blender_addon.core import render, textured_bsdf  # noqa: E402
 from blender_addon.core.spec import MaterialSpec, ObjectSpec, SceneSpec  # noqa: E402
 from blender_addon.core.textures import MaterialTextures, TextureSpec  # noqa: E402
 from pbrdf.brdf import seeds, table  # noqa: E402
@@ -25,14 +25,6 @@ from tests.blender_addon.core.textured_helpers import halves, png, pose, uv_slab
 
 SETTINGS = render.RenderSettings(resolution=32, spp=32)
 WHITE = Rig(display=DisplaySpec(pattern="white"))
-
-
-@pytest.fixture(scope="module")
-def mono():
-    passes.set_variant(passes.choose_variant())
-    if not mi.variant().endswith("_mono_polarized") or mi.variant().startswith("scalar"):
-        pytest.skip("needs a *_mono_polarized JIT variant (Dr.Jit's LLVM backend)")
-    return mi
 
 
 @pytest.fixture(scope="module")
