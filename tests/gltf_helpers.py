@@ -189,3 +189,18 @@ def sphere_prediction(rng, k, h, w, *, bumps=True, centre=(0.03, -0.02, -0.9), r
         "mask": m.astype(np.float32),
         "depth": np.where(m, -p[..., 2:], 0).astype(np.float32),
     }
+
+
+def normal_map_error(doc: dict, blob: bytes, normal: np.ndarray, mask: np.ndarray) -> tuple[float, float]:
+    """How well the .glb's shading normals reproduce ``normal (H, W, 3)`` on ``mask (H, W)`` (capture grid).
+
+    Returns:
+        ``(covered, p99)``: the fraction of the mask's texels that a triangle covers, and the 99th
+        percentile of the angle (deg) between the exported and the given normals there.
+    """
+    y0, x0, y1, x1 = doc["asset"]["extras"]["texture_box_rows_cols"]
+    inside = np.asarray(mask, bool)[y0:y1, x0:x1]
+    covered, n = shading_normals(doc, blob)
+    on = inside & covered
+    err = np.degrees(np.arccos(np.clip((n[on] * np.asarray(normal)[y0:y1, x0:x1][on]).sum(-1), -1, 1)))
+    return float(on.sum() / max(inside.sum(), 1)), float(np.percentile(err, 99))
