@@ -257,7 +257,10 @@ def train(cfg: TrainConfig, *, progress: bool = True, stats: dict | None = None)
     dd, device = init_distributed(device)
     stats.update(rank=dd.rank, world_size=dd.world)
     try:
-        return Trainer(cfg, stats, dd, device).run(progress)
+        result = Trainer(cfg, stats, dd, device).run(progress)
+        if dd.owned and dist.is_initialized():
+            dist.barrier()  # every rank done before any tears its connections down (gloo aborts otherwise)
+        return result
     finally:
         if dd.owned and dist.is_initialized():
             dist.destroy_process_group()
