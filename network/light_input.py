@@ -30,6 +30,7 @@ import functools
 import math
 import warnings
 from collections.abc import Mapping
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -43,6 +44,9 @@ from pbrdf.sensor.patches import constant_patches
 
 __all__ = [
     "DISTANCE_RANGE_M",
+    "LightGeometry",
+    "crop_light",
+    "sidecar_rig",
     "LIGHT_CHANNELS",
     "LIGHT_GAIN",
     "LIGHT_GRID",
@@ -200,6 +204,52 @@ def per_map_light(light: torch.Tensor, colors: tuple[int, ...]) -> torch.Tensor:
     return light.index_select(1, index).reshape(b, len(colors), 3, h, w)
 
 
+@dataclass(frozen=True)
+class LightGeometry:
+    """What the light input of one capture needs: the rig, the maps' intrinsics and the object distance.
+
+    Attributes:
+        rig: :class:`pbrdf.sensor.rig.Rig`.
+        intrinsics: ``K (3, 3)`` of the full maps' grid.
+        distance_m: the object distance used, m (checked: :func:`check_distance`).
+        measured: whether ``distance_m`` was given (capture.json, ``--distance``, a sample's depth) or
+            the :data:`pbrdf.data.capture.DEFAULT_DISTANCE_M` fallback.
+        source: where the distance came from, for the output's sidecar (e.g. ``"capture.json"``).
+    """
+
+    rig: Any
+    intrinsics: NDArray[np.float64]
+    distance_m: float
+    measured: bool = True
+    source: str = "given"
+
+    @classmethod
+    def resolve(cls, rig, intrinsics: ArrayLike, distance: float | None, source: str, where: str) -> LightGeometry:
+        """The geometry with ``distance`` checked, or the default distance with a warning when it is None."""
+        d, measured = resolve_distance(distance, where)
+        return cls(rig, np.asarray(intrinsics, dtype=np.float64), d, measured, source if measured else "default")
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON record of the distance used: ``{"distance_m", "measured", "source"}``."""
+        return {"distance_m": self.distance_m, "measured": self.measured, "source": self.source}
+
+
+def crop_light(geometry: LightGeometry, box: tuple[int, int, int, int], size: tuple[int, int]) -> torch.Tensor:
+    """``(1, 9, *size)`` light input of the crop ``box`` ``(y0, x0, y1, x1)`` of the maps, resized to ``size``."""
+    k = projection.crop_intrinsics(geometry.intrinsics, box, size)
+    return light_tensor(geometry.rig, k, size, geometry.distance_m)[None]
+
+
+def sidecar_rig(meta: Mapping[str, Any], where: str):
+    """The rig of a sample's sidecar (or a capture's metadata): its ``"rig"``, else the default rig."""
+    from pbrdf.sensor.rig import Rig  # noqa: PLC0415
+
+    try:
+        return Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{where}: invalid rig: {exc}") from None
+
+
 def sample_light(meta: Mapping[str, Any], depth: ArrayLike, mask: ArrayLike, shape: tuple[int, int], where: str):
     """A rendered sample's light input ``(9, *shape)`` and its distance, from its sidecar, depth and mask.
 
@@ -207,13 +257,8 @@ def sample_light(meta: Mapping[str, Any], depth: ArrayLike, mask: ArrayLike, sha
     rendered grid, rescaled to ``shape``); the distance is :func:`sample_distance`.
     """
     from pbrdf.data.sample import sample_intrinsics  # noqa: PLC0415
-    from pbrdf.sensor.rig import Rig  # noqa: PLC0415
 
     hw = np.asarray(mask).shape[:2]
     k = projection.crop_intrinsics(sample_intrinsics(meta, hw, where), (0, 0, *hw), shape)
     dist = sample_distance(depth, mask, where)
-    try:
-        rig = Rig.from_dict(meta["rig"]) if "rig" in meta else Rig()
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: invalid rig: {exc}") from None
-    return light_tensor(rig, k, shape, dist), dist
+    return light_tensor(sidecar_rig(meta, where), k, shape, dist), dist
