@@ -57,6 +57,7 @@ __all__ = [
     "resolve_distance",
     "sample_distance",
     "sample_light",
+    "scene_light",
 ]
 
 #: Channels of the light input: 3 colour regions x 3 camera-frame components.
@@ -262,3 +263,30 @@ def sample_light(meta: Mapping[str, Any], depth: ArrayLike, mask: ArrayLike, sha
     k = projection.crop_intrinsics(sample_intrinsics(meta, hw, where), (0, 0, *hw), shape)
     dist = sample_distance(depth, mask, where)
     return light_tensor(sidecar_rig(meta, where), k, shape, dist), dist
+
+
+def scene_light(model, inp, depth: ArrayLike | None, region: ArrayLike, scale: float = 1.0) -> LightGeometry | None:
+    """The light geometry of an evaluated scene for a ``light_input`` model (None for a light-blind one).
+
+    The distance is the scene's tape measure: the median of its true ``depth`` over ``region``
+    (:func:`sample_distance`), else the capture's ``distance_m``, else the default (with a
+    warning); times ``scale`` (``1 + e`` for a distance off by ``e``, :mod:`network.distance_sensitivity`).
+
+    Args:
+        model: the network (its ``config.light_input`` decides).
+        inp: the scene's :class:`network.infer.InferenceInput` (rig, intrinsics, ``distance_m``).
+        depth: ``(H, W)`` true depth in m, or None.
+        region: ``(H, W)`` the object's pixels.
+        scale: factor on the distance.
+    """
+    if not model.config.light_input:
+        return None
+    if depth is not None and np.any(np.asarray(depth)[np.asarray(region, dtype=bool)] > 0):
+        distance, source = sample_distance(depth, region), "median true depth"
+    else:
+        distance, source = inp.distance_m, "capture.json"
+    geo = LightGeometry.resolve(inp.rig, inp.intrinsics, distance, source, "scene")
+    if scale == 1.0:
+        return geo
+    scaled = check_distance(geo.distance_m * scale, f"distance x {scale:g}")
+    return LightGeometry(geo.rig, geo.intrinsics, scaled, geo.measured, f"{geo.source} x {scale:g}")
