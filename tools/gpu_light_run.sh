@@ -3,8 +3,13 @@
 # val-light, fine-tune `small` with light input from the shipped model, score it, write to $OUT.
 #
 #   bash tools/gpu_light_run.sh                      # on a bare CUDA machine (see tools/gpu_machine.sh setup)
-#   DEVICE=cpu VARIANT=llvm COUNT=8 VAL_COUNT=2 STEPS=3 EVAL_COUNT=2 PBRDF_COUNT=4 SHARDS=1 \
-#       OUT=/tmp/light-rehearsal bash tools/gpu_light_run.sh   # the CPU rehearsal (minutes)
+#   DEVICE=cpu VARIANT=llvm COUNT=4 VAL_COUNT=2 STEPS=3 BATCH=2 WORKERS=0 EVAL_COUNT=2 EVAL_JOBS=1 PBRDF_COUNT=4 \
+#       SHARDS=1 OUT=/tmp/light-rehearsal bash tools/gpu_light_run.sh   # the CPU rehearsal (15 min on 2 shared cores)
+#
+# Sizing for a 15-minute lease (measured elsewhere on an H100: 2,000 train-engine scenes in about 100 s,
+# a `small` step at batch 1 in 0.062 s): the defaults (2,000 + 64 scenes, 1,500 steps at batch 8,
+# 24 scenes per test split) are a guess to re-measure on the first lease; set STEPS from its log.csv
+# seconds column, and carry $RUN back in to continue (the run resumes; its schedule spans STEPS).
 #
 # Stages, each resumable (a killed lease reruns the script and continues):
 #   1. setup (SETUP=1 and .whl/site.tar.xz present): tools/gpu_machine.sh setup;
@@ -28,10 +33,11 @@ SHARDS=${SHARDS:-8}
 COUNT=${COUNT:-2000}
 VAL_COUNT=${VAL_COUNT:-64}
 PBRDF_COUNT=${PBRDF_COUNT:-200}
-STEPS=${STEPS:-4000}
+STEPS=${STEPS:-1500}
 BATCH=${BATCH:-8}
 WORKERS=${WORKERS:-6}
-EVAL_COUNT=${EVAL_COUNT:-48}
+EVAL_COUNT=${EVAL_COUNT:-24}
+EVAL_JOBS=${EVAL_JOBS:-8}
 INIT=${INIT:-models/small/model.pt}
 RUN=${RUN:-$DATA/runs/light-small}
 mkdir -p "$OUT" "$DATA"
@@ -83,7 +89,7 @@ for split in test-procedural test-pbrdf; do
     for who in shipped light; do
         ckpt=$INIT
         [ "$who" = light ] && ckpt=$BEST
-        $PY headless/evaluate.py --input "$DATA/$split" --checkpoint "$ckpt" --device "$EVAL_DEVICE" --jobs 1 \
+        $PY headless/evaluate.py --input "$DATA/$split" --checkpoint "$ckpt" --device "$EVAL_DEVICE" --jobs "$EVAL_JOBS" \
             --train-stats models/small/train_stats.json --out "$OUT/eval/$split-$who" --quiet >/dev/null
     done
     stamp "scored $split"
