@@ -11,7 +11,7 @@ MODELS_STAMP := $(VENV)/.testmodels-ok
 BLENDER_STAMP := $(VENV)/.blender-ok
 OUT ?= out
 
-.PHONY: setup demo test test-fast bench lint format clean help addon test-sets train-data train-engine-model ship-engine-model ablation-data ablation
+.PHONY: setup demo test test-fast bench lint format clean help addon test-sets train-data train-engine-model ship-engine-model light-data train-light-model ablation-data ablation
 
 help:  ## list targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -88,6 +88,25 @@ ship-engine-model: setup  ## score the engine run's best.pt on the test splits a
 	$(PY) headless/evaluate.py --split test --input $(SPLITS_DIR) --checkpoint $(ENGINE_RUN)/best.pt --out $(ENGINE_RUN)/eval-test
 	cp $(ENGINE_RUN)/best.pt models/small/model.pt
 	cp $(ENGINE_RUN)/train_stats.json models/small/train_stats.json
+
+# The lighting-aware input (issue 27): train-light / val-light (train-engine's scenes at 0.35-1.6 m,
+# pbrdf/data/splits.py) and `small` fine-tuned with light_input from the shipped model (its light
+# weights start at zero, so step 0 is exactly models/small/model.pt). Resumable chunks as
+# train-engine-model (LIGHT_STOP=N ends a chunk after step N); tools/gpu_light_run.sh is the same on a GPU lease.
+LIGHT_RUN := $(OUT)/runs/light-small
+LIGHT_STEPS := 3000
+LIGHT_STOP ?= $(LIGHT_STEPS)
+light-data: setup  ## render train-light and val-light (resumable; SHARD=K/N)
+	$(PY) headless/expand_pbrdf.py --out $(SPLITS_DIR)/pbrdfs-train --count 200 --seed 12000 --quiet
+	$(PY) headless/render.py --split val-light --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/val-light --shard $(SHARD) --resume --quiet
+	$(PY) headless/render.py --split train-light --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/train-light --shard $(SHARD) --resume --quiet
+train-light-model: setup  ## fine-tune small with the light input (resumable chunks; needs `make light-data`)
+	$(PY) headless/train.py --input $(SPLITS_DIR)/train-light --val $(SPLITS_DIR)/val-light --config small \
+	    --overrides image_size=192 canonical_size=128 train_pixels=2048 infer_chunk=8192 light_input=true \
+	    --init-from models/small/model.pt --steps $(LIGHT_STEPS) --stop-after $(LIGHT_STOP) --batch-size 4 --lr 1e-4 \
+	    --lr-warmup 100 --min-lr-ratio 0.1 --seed 0 --input-scale calibrated --checkpoint-every 100 --val-samples 16 \
+	    --out $(LIGHT_RUN) --resume --quiet
+	$(PY) tools/plot_training.py $(LIGHT_RUN) --out docs/measurements/curves/light-small
 
 # The paper's Table 3 at this scale (network/ablation.py): six runs with one budget, scored on
 # test-scenes (white: its white twin). Resumable; ABLATION_SCENES training scenes per run.

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import bpy
 from bpy.app.handlers import persistent
-from bpy.props import EnumProperty, PointerProperty, StringProperty
+from bpy.props import EnumProperty, FloatProperty, PointerProperty, StringProperty
 
 from pbrdf.io.errors import one_line
 
@@ -88,7 +88,7 @@ def _new_job(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context) -> rec
         raise ValueError(f"{checkpoint}: no such checkpoint file (leave it empty for the shipped model)")
     return reconstruct_job.ReconstructJob(
         reconstruction_python(context), capture, out, card=op.mesh == "CARD", checkpoint=checkpoint,
-        repo_root=_REPO_ROOT,
+        repo_root=_REPO_ROOT, distance=op.distance or None,
     )  # fmt: skip
 
 
@@ -149,6 +149,11 @@ class _ReconstructProperties:
     checkpoint: StringProperty(
         name="Model", description="A model.pt checkpoint (empty: the shipped model)", subtype="FILE_PATH"
     )
+    distance: FloatProperty(
+        name="Distance (m)", min=0.0, max=3.0, default=0.0, precision=3,
+        description="Object distance from the camera in metres (a tape measure; 0: capture.json's distance_m, "
+        "else 0.75 m and a lighting-aware model's albedo is relative)",
+    )  # fmt: skip
 
 
 class PDIR_ReconstructSettings(_ReconstructProperties, bpy.types.PropertyGroup):
@@ -284,10 +289,12 @@ class PDIR_PT_reconstruct(SidebarPanel, bpy.types.Panel):
         layout.prop(s, "output_dir")
         layout.prop(s, "mesh", expand=True)
         layout.prop(s, "checkpoint")
+        layout.prop(s, "distance")
         row = layout.row()
         row.enabled = bool(s.capture_dir.strip())
         op = row.operator(PDIR_OT_reconstruct_capture.bl_idname, icon="SHADING_TEXTURE")
         op.capture_dir, op.output_dir, op.mesh, op.checkpoint = s.capture_dir, s.output_dir, s.mesh, s.checkpoint
+        op.distance = s.distance
         try:
             reconstruction_python(context)
         except (RuntimeError, ValueError) as e:

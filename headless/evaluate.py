@@ -20,6 +20,10 @@ and test_splits.json (strict JSON) in --out (default INPUT/eval).
 user's own, into evaluation.md and evaluation.json in --out (default DIR/eval).
 --real DIR adds the model's re-rendering error on real captures (real.md).
 --write-train-stats FILE computes the training means from the train split at --input.
+--distance-error E [E ...] instead scores the model alone with each scene's distance (its median
+true depth) scaled by 1 + e and 1 - e (network/distance_sensitivity.py), into
+distance_sensitivity.md/.json: how a lighting-aware model's albedo degrades with a tape measure
+off by e (a light-blind model's rows are equal by construction).
 The input ablation (one model per input variant) is headless/ablation.py.
 """
 
@@ -56,6 +60,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, help="output folder (default INPUT/eval)")
     parser.add_argument("--limit", type=int, help="evaluate only the first N samples")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--distance-error", type=float, nargs="+", metavar="E",
+                        help="score with the object distance off by +-E (e.g. 0.05 0.2) instead")  # fmt: skip
     return parser
 
 
@@ -132,6 +138,8 @@ def _evaluate(args: argparse.Namespace) -> int:
         args.train_stats or (beside if beside.is_file() else DEFAULT_CHECKPOINT.parent / STATS_FILE)
     )
     model.to(device)
+    if args.distance_error:
+        return _sensitivity(model, ckpt, stats, folders, args, root)
     results = [
         evaluate_dataset(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=args.jobs,
                          checkpoint_path=ckpt_path)
@@ -146,6 +154,23 @@ def _evaluate(args: argparse.Namespace) -> int:
     if missing:
         print(f"not rendered (skipped): {', '.join(missing)}")
     print(f"checkpoint {ckpt_path}; {time.perf_counter() - t0:.0f} s; wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+def _sensitivity(model, ckpt: dict, stats, folders: list[Path], args: argparse.Namespace, root: Path) -> int:
+    """``--distance-error``: :func:`network.distance_sensitivity.distance_sensitivity` per folder."""
+    from network.distance_sensitivity import distance_sensitivity, sensitivity_markdown  # noqa: PLC0415
+    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
+    from pbrdf.io.strict_json import dumps_strict  # noqa: PLC0415
+
+    errors = sorted({s * e for e in args.distance_error for s in (1, -1)})
+    results = [distance_sensitivity(model, ckpt, f, stats, errors, limit=args.limit) for f in folders]
+    out = args.out or root / "eval"
+    out.mkdir(parents=True, exist_ok=True)
+    md = "\n".join(sensitivity_markdown(r) for r in results)
+    atomic_write_text(out / "distance_sensitivity.json", dumps_strict({"results": results}) + "\n")
+    atomic_write_text(out / "distance_sensitivity.md", md)
+    print(md + f"wrote {out / 'distance_sensitivity.md'}")
     return 0
 
 

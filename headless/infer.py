@@ -78,6 +78,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--gltf", action="store_true",
                         help="also write <name>.glb (a sequence: one per frame), the asset for any engine")  # fmt: skip
     parser.add_argument("--card", action="store_true", help="no depth map (the import makes a flat card)")
+    parser.add_argument("--distance", type=float, metavar="M",
+                        help="object distance in metres along the viewing axis (a tape measure; overrides "
+                        "capture.json's distance_m; 0.2-3 m). A light-input model needs one: without it 0.75 m is "
+                        "assumed and albedo is relative; the distance used goes to <name>_light.json")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
     parser.add_argument("--progress-lines", action="store_true",
                         help="print 'progress: FRACTION STAGE' lines on stdout (for the Blender add-on)")  # fmt: skip
@@ -134,21 +138,45 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, progress, start: float = 0.3,
-                 span: float = 0.65) -> tuple[dict, CameraRecord]:  # fmt: skip
-    """The maps (with the relief depth unless ``--card``) and the camera of one capture or sample."""
+                 span: float = 0.65) -> tuple[dict, CameraRecord, dict | None]:  # fmt: skip
+    """The maps (with the relief depth unless ``--card``), the camera and a light model's distance record."""
     from network.infer import load_input, predict, relief_depth  # noqa: PLC0415
 
     progress(start, "decoding the capture")
     inp = load_input(source, require_object=True)
+    distance, light = _light(model, inp, args.distance, source)
     progress(start + 0.05 * span, "predicting the maps")
     pred = predict(
         model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
-        radiance=inp.radiance, stride=args.stride, resolution=args.resolution,
+        radiance=inp.radiance, stride=args.stride, resolution=args.resolution, light=light,
     )  # fmt: skip
     if not args.card:
         progress(start + 0.6 * span, "integrating the relief")
-        pred["depth"] = relief_depth(pred, inp.intrinsics, inp.distance_m)
-    return pred, CameraRecord.of_maps(inp.intrinsics, inp.mask.shape, inp.distance_m)
+        pred["depth"] = relief_depth(pred, inp.intrinsics, distance)
+    record = None if light is None else light.to_dict()
+    return pred, CameraRecord.of_maps(inp.intrinsics, inp.mask.shape, distance), record
+
+
+def _light(model, inp, flag: float | None, source: Path):
+    """The measured distance (``--distance``, else capture.json's, else None) and a light model's LightGeometry."""
+    from network.light_input import LightGeometry, check_distance  # noqa: PLC0415
+
+    distance = inp.distance_m if flag is None else check_distance(flag, "--distance")
+    if not model.config.light_input:
+        return distance, None
+    origin = "--distance" if flag is not None else CAPTURE_JSON
+    return distance, LightGeometry.resolve(inp.rig, inp.intrinsics, distance, origin, str(source))
+
+
+def _write(out: Path, prefix: str, pred: dict, camera: CameraRecord, light: dict | None) -> None:
+    """The maps and camera (:func:`write_predictions`), and ``<prefix>_light.json`` for a light-input model."""
+    write_predictions(out, prefix, pred, camera)
+    if light is not None:
+        import json  # noqa: PLC0415
+
+        from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
+
+        atomic_write_text(out / f"{prefix}_light.json", json.dumps(light, indent=2) + "\n")
 
 
 def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
@@ -164,10 +192,10 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
     progress(0.25, "loading the model")
     model, ckpt = _load_model(args.checkpoint or DEFAULT_CHECKPOINT)
     if frames is None:
-        pred, camera = _reconstruct(model, ckpt, args.input, args, progress)
+        pred, camera, light = _reconstruct(model, ckpt, args.input, args, progress)
         progress(0.95, "writing the maps")
         asset = _gltf_asset(args, pred, camera)
-        write_predictions(args.out, name, pred, camera)
+        _write(args.out, name, pred, camera, light)
         _write_gltf(args, name, asset)
         glb = f", {name}.glb" if asset else ""
         summary.append(f"wrote {len(pred)} maps ({name}_*.exr/.png{glb}) to {args.out.resolve()}")
@@ -176,13 +204,13 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
     for i, frame in enumerate(tqdm(frames, desc="frames", unit="frame", disable=args.quiet), start=1):
         start = time.perf_counter()
         try:
-            pred, camera = _reconstruct(model, ckpt, frame, args, progress, 0.3 + 0.7 * (i - 1) / len(frames),
+            pred, camera, light = _reconstruct(model, ckpt, frame, args, progress, 0.3 + 0.7 * (i - 1) / len(frames),
                                         0.7 / len(frames))  # fmt: skip
         except (ValueError, OSError) as exc:
             raise ValueError(f"frame {i} ({frame.name}): {exc}") from None
         seconds.append(time.perf_counter() - start)
         asset = _gltf_asset(args, pred, camera)
-        write_predictions(args.out, f"{name}_{i:04d}", pred, camera)
+        _write(args.out, f"{name}_{i:04d}", pred, camera, light)
         _write_gltf(args, f"{name}_{i:04d}", asset)
     record = SequenceRecord.of_frames(name, frames, seconds)
     write_sequence(args.out, record)

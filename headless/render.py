@@ -110,6 +110,7 @@ def _apply_split(args: argparse.Namespace) -> str | None:
     args.table_fraction = split.table_fraction
     args.texture_fraction = split.texture_fraction
     args.asset_materials = args.asset_materials or split.asset_materials
+    args.distance = split.distance
     args.assets = split.asset_folder()
     args.variant = args.variant or "llvm"  # the variant the splits were made with, GPU or not
     args.out = args.out or Path("out/splits") / split.name
@@ -225,6 +226,7 @@ def main(argv: list[str] | None = None) -> int:
             table_fraction=args.table_fraction,
             texture_fraction=args.texture_fraction or 0.0,
             asset_materials=args.asset_materials,
+            distance=getattr(args, "distance", None) or (0.5, 1.0),
             variant=args.variant or "auto",
             split=split,
             assets=args.assets,

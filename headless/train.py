@@ -36,7 +36,7 @@ SCALES = ("calibrated", "exposure-invariant")  # network.data.INPUT_SCALES
 
 
 #: The TrainConfig fields that network.train's errors name (``max_skipped=3``), all flags here.
-FLAGGED = ("resume", "max_skipped", "config", "overrides", "inputs", "input_scale")
+FLAGGED = ("resume", "max_skipped", "config", "overrides", "inputs", "input_scale", "init_from")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -88,6 +88,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--workers", type=int, default=0, help="data-loading processes per loader (default 0)")
     parser.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard events")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
+    parser.add_argument("--init-from", type=Path, metavar="CKPT",
+                        help="start from this model.pt's weights (fine-tuning; with --overrides light_input=true the "
+                        "light input's new weights start at zero, so step 0 is exactly CKPT's model)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
@@ -123,7 +126,7 @@ def main(argv: list[str] | None = None) -> int:
             real_weight=args.real_weight, real_start=args.real_start, real_warmup=args.real_warmup,
             inputs=args.inputs, input_scale=args.input_scale, bf16=args.bf16, device=args.device, val=args.val,
             val_every=args.val_every, val_samples=args.val_samples, max_skipped=args.max_skipped, workers=args.workers,
-            tensorboard=not args.no_tensorboard,
+            tensorboard=not args.no_tensorboard, init_from=args.init_from,
         )  # fmt: skip
         losses = train(cfg, progress=not args.quiet)
     except (ValueError, OSError, FloatingPointError) as exc:

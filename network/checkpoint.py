@@ -14,6 +14,7 @@ Two files per run, both ``torch.save`` dicts of plain values and tensors (read w
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import pickle
 from pathlib import Path
@@ -31,6 +32,7 @@ from .model.polar_model import PolarInverseModel
 __all__ = [
     "CHECKPOINT_FORMAT",
     "MODEL_KEYS",
+    "init_from_checkpoint",
     "load_checkpoint",
     "model_file_is_current",
     "model_file_state",
@@ -126,6 +128,35 @@ def load_checkpoint(path: str | Path) -> tuple[PolarInverseModel, dict]:
         raise ValueError(f"{path}: not a model checkpoint: {exc}") from None
     model.eval()
     return model, ckpt
+
+
+def init_from_checkpoint(model: PolarInverseModel, path: str | Path) -> dict:
+    """Start ``model`` from a trained checkpoint's weights (fine-tuning a light-input model from a light-blind one).
+
+    The checkpoint's configuration must equal ``model.config`` except ``light_input``; weights the
+    checkpoint lacks (the light input's ``light_embed`` and ``decoder.chi``) keep ``model``'s own
+    zero initialisation, so the model starts out as exactly the checkpoint's function.
+
+    Args:
+        model: the freshly built model.
+        path: a ``model.pt`` or ``checkpoint.pt``.
+
+    Returns:
+        The checkpoint dict (:func:`load_checkpoint`'s, with ``inputs`` and ``input_scale``).
+
+    Raises:
+        ValueError: a different configuration, or weights other than the light input's missing or extra.
+    """
+    _, ckpt = load_checkpoint(path)
+    theirs = ModelConfig.from_dict(ckpt["config"])
+    if dataclasses.replace(theirs, light_input=model.config.light_input) != model.config:
+        raise ValueError(f"{path}: init_from checkpoint's model config differs from the run's (other than light_input)")
+    result = model.load_state_dict(ckpt["model"], strict=False)
+    allowed = {"light_embed.weight", "decoder.chi.weight"}
+    if result.unexpected_keys or set(result.missing_keys) - allowed:
+        raise ValueError(f"{path}: init_from weights do not fit the model (missing {result.missing_keys}, "
+                         f"unexpected {result.unexpected_keys})")  # fmt: skip
+    return ckpt
 
 
 def params_sha256(state: dict[str, torch.Tensor]) -> str:

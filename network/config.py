@@ -79,6 +79,11 @@ class ModelConfig:
         train_pixels: Pixels decoded per image in training mode (random, inside the mask); also the number of
             context pixels every pixel attends to in dense (evaluation) decoding.
         infer_chunk: Pixels decoded together in dense decoding (memory bound; results do not depend on it).
+        light_input: The model also takes the display's irradiance per colour region at the object's distance
+            (:mod:`network.light_input`, 9 channels): each map's region vector enters the tokenizer's patch tokens
+            and the decoder's observations through zero-initialised projections, so a model given them starts
+            out as the same function as without. False (default, and every checkpoint without the key) builds
+            the model exactly as before.
     """
 
     image_size: int = 384
@@ -106,6 +111,7 @@ class ModelConfig:
     pixel_heads: int = 8
     train_pixels: int = 2048
     infer_chunk: int = 4096
+    light_input: bool = False
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "dpt_channels", tuple(int(c) for c in self.dpt_channels))
@@ -136,6 +142,8 @@ class ModelConfig:
         for name in ("mlp_ratio", "init_std"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ModelConfig.{name} must be > 0. Got {getattr(self, name)!r}")
+        if not isinstance(self.light_input, bool):
+            raise ValueError(f"ModelConfig.light_input must be a bool. Got {self.light_input!r}")
         if len(self.dpt_channels) != 4 or min(self.dpt_channels) < 1:
             raise ValueError(f"ModelConfig.dpt_channels must be 4 positive ints. Got {self.dpt_channels!r}")
         if self.canonical_size % self.patch_size:
@@ -163,9 +171,15 @@ class ModelConfig:
         return self.canonical_size // self.patch_size
 
     def to_dict(self) -> dict[str, Any]:
-        """Plain, JSON-serialisable dict of the fields (tuples become lists)."""
+        """Plain, JSON-serialisable dict of the fields (tuples become lists).
+
+        ``light_input`` is left out while False, so a light-blind model's dict is the one checkpoints
+        written before the field existed hold (resuming compares them).
+        """
         out = dataclasses.asdict(self)
         out["dpt_channels"] = list(self.dpt_channels)
+        if not self.light_input:
+            del out["light_input"]
         return out
 
     @classmethod

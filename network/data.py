@@ -41,6 +41,8 @@ from pbrdf.data import capture as pcapture
 from pbrdf.data import dataset as pdataset
 from pbrdf.data import sample as psample
 
+from .light_input import sample_light
+
 __all__ = [
     "CALIBRATED_GAIN",
     "INPUT_SCALES",
@@ -316,6 +318,9 @@ class SampleDataset(Dataset):
         indices: which sample indices to use (default: all completed ones, sorted).
         input_scale: :data:`INPUT_SCALES`; ``"calibrated"`` reads the display radiance from each
             sample's sidecar rig.
+        light_input: also give ``light`` ``(9, size, size)`` (:func:`network.light_input.sample_light`: the
+            display's irradiance at ONE distance, the median of the sample's depth over its mask, as a tape
+            measure would give it) and ``distance`` (a 0-d tensor, m).
     """
 
     def __init__(
@@ -325,7 +330,9 @@ class SampleDataset(Dataset):
         size: int | None = None,
         indices: list[int] | None = None,
         input_scale: str = "exposure-invariant",
+        light_input: bool = False,
     ) -> None:
+        self.light_input = light_input
         if input_scale not in INPUT_SCALES:
             raise ValueError(f"unknown input scale {input_scale!r}; choose one of {INPUT_SCALES}")
         self.input_scale = input_scale
@@ -343,14 +350,18 @@ class SampleDataset(Dataset):
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         index = self.indices[i]
-        sample, meta = psample.read_sample(self.root, index, keys=("maps", "mask", *TARGET_KEYS))
+        depth = ("depth",) if self.light_input else ()
+        sample, meta = psample.read_sample(self.root, index, keys=("maps", "mask", *TARGET_KEYS, *depth))
         where = str(psample.sample_paths(self.root, index).exr)
         check_item(sample, where)
-        t = sample_to_tensors(sample)
+        t = sample_to_tensors({k: v for k, v in sample.items() if k != "depth"})
         if self.size is not None and t["maps"].shape[-1] != self.size:
             t = resize_batch(t, self.size)
         radiance = None
         if self.input_scale == "calibrated":
             radiance = pcapture.display_radiance(meta, where)
         t["maps"] = normalize_maps(t["maps"], t["mask"], radiance=radiance)
+        if self.light_input:
+            light, dist = sample_light(meta, sample["depth"], sample["mask"], tuple(t["mask"].shape[-2:]), where)
+            t["light"], t["distance"] = light, torch.tensor(dist, dtype=torch.float32)
         return t

@@ -56,6 +56,7 @@ from .constant import constant_predict
 from .data import checkpoint_input_scale
 from .infer import DEFAULT_CHECKPOINT, load_input, predict
 from .inputs import checkpoint_inputs
+from .light_input import scene_light
 from .lpips import lpips_status
 from .statistics import summarize
 
@@ -236,13 +237,15 @@ def predict_scene(
     *,
     input_scale: str = "exposure-invariant",
     baseline: bool = True,
+    distance_scale: float = 1.0,
 ) -> ScenePredictions:
     """Run every method on one sample as on a user's input (its capture folder when it has raw brackets).
 
     ``variant`` and ``input_scale`` are the checkpoint's; the display radiance comes from the
     capture's ``capture.json`` or the sample's sidecar (:func:`network.infer.load_input`), as for a
     user. ``baseline=False`` leaves out photometric stereo (``preds["baseline"]`` is empty), for
-    diagnostics of the model alone.
+    diagnostics of the model alone. A ``light_input`` model is given the scene's one distance
+    (:func:`network.light_input.scene_light`) times ``distance_scale``.
 
     Raises:
         ValueError: the decoded grid differs from the truth, or the model fails on a non-empty
@@ -265,7 +268,9 @@ def predict_scene(
     ours = None
     if auto.any():
         try:
-            ours = predict(model, maps, auto, inputs=variant, input_scale=input_scale, radiance=inp.radiance)
+            light = scene_light(model, inp, sample.get("depth"), region, distance_scale)
+            ours = predict(model, maps, auto, inputs=variant, input_scale=input_scale, radiance=inp.radiance,
+                           light=light)  # fmt: skip
         except NothingToReconstruct:  # a mask that vanishes at the network's grid: nothing was reconstructed
             ours = None
         preds["ours"] = _fill_nearest(ours, auto, region) if ours is not None else constant

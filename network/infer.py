@@ -26,6 +26,7 @@ from pbrdf.io.errors import NothingToReconstruct
 
 from .data import exposure_radiance, input_radiance, normalize_maps
 from .inputs import apply_inputs
+from .light_input import LightGeometry, crop_light, sidecar_rig
 from .model import PolarInverseModel
 from .model.dense import REFINE_DEG
 
@@ -64,6 +65,7 @@ class InferenceInput:
         intrinsics: ``K (3, 3)`` of the maps' grid.
         distance_m: the capture's object distance in m, or None (a sample's own depth is ground
             truth, not an input).
+        rig: the capture's or sample's rig (:class:`pbrdf.sensor.rig.Rig`), for the light input.
     """
 
     maps: np.ndarray
@@ -71,6 +73,7 @@ class InferenceInput:
     radiance: float | None
     intrinsics: np.ndarray
     distance_m: float | None = None
+    rig: object = None
 
 
 def load_input(path: str | Path, *, require_object: bool = False) -> InferenceInput:
@@ -102,7 +105,7 @@ def load_input(path: str | Path, *, require_object: bool = False) -> InferenceIn
         if require_object:
             pdecode_capture.check_usable(dec, cap, need_object=True)
         k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
-        return InferenceInput(dec.maps, dec.input_mask, cap.meta.radiance, k, cap.meta.distance_m)
+        return InferenceInput(dec.maps, dec.input_mask, cap.meta.radiance, k, cap.meta.distance_m, cap.meta.rig)
     if path.suffix in (".exr", ".json") and path.exists():
         sample, meta = psample.read_sample(path, keys=("maps", "mask"))
         if require_object and not sample["mask"].any():
@@ -110,7 +113,7 @@ def load_input(path: str | Path, *, require_object: bool = False) -> InferenceIn
         where = path.with_suffix(".json")
         radiance = pcapture.display_radiance(meta, str(where))
         k = sample_intrinsics(meta, sample["mask"].shape, where)
-        return InferenceInput(sample["maps"], sample["mask"], radiance, k)
+        return InferenceInput(sample["maps"], sample["mask"], radiance, k, None, sidecar_rig(meta, str(where)))
     raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
 
 
@@ -171,6 +174,7 @@ def predict(
     stride: int = 1,
     resolution: str = "full",
     refine_deg: float | None = REFINE_DEG,
+    light: LightGeometry | None = None,
 ) -> dict[str, np.ndarray]:
     """Normal, albedo, roughness, metallic ``(H, W, C)`` for nine maps of any size.
 
@@ -203,6 +207,8 @@ def predict(
         resolution: ``"full"`` (decode at the maps' resolution) or ``"network"`` (at the input size).
         refine_deg: stride > 1: decode the pixels whose decoded neighbours' normals differ by more
             than this (degrees), whose BRDF differs, or that the mask's edge cuts; None interpolates all.
+        light: rig, intrinsics of ``maps`` and object distance (:class:`network.light_input.LightGeometry`):
+            required by a ``light_input`` model (its light channels are computed for the crop), ignored otherwise.
 
     Returns:
         ``{"normal": (H, W, 3), "albedo": (H, W, 3), "roughness": (H, W, 1), "metallic": (H, W, 1),
@@ -221,7 +227,9 @@ def predict(
     maps, radiance = _scaled_radiance(maps, input_radiance(input_scale, radiance))
     if resolution not in RESOLUTIONS:
         raise ValueError(f"resolution must be one of {', '.join(RESOLUTIONS)}; got {resolution!r}")
-    crop = _Crop.of(maps, mask, box, model)
+    if model.config.light_input and light is None:
+        raise ValueError("light: a light_input model needs the rig, intrinsics and object distance (LightGeometry)")
+    crop = _Crop.of(maps, mask, box, model, light if model.config.light_input else None)
     model.eval()
     decode = _decode_full if resolution == "full" else _decode_network
     pred = decode(model, crop, inputs=inputs, radiance=radiance, stride=stride, refine_deg=refine_deg)
@@ -262,15 +270,20 @@ class _Crop:
         mask: ``(1, 1, h, w)`` its mask (0/1).
         net_maps: ``(1, 9, S, S)`` bilinearly resized to the input size S.
         net_mask: ``(1, 1, S, S)`` nearest-resized.
+        light: ``(1, 9, h, w)`` light channels of the crop (a ``light_input`` model), else None.
+        net_light: ``(1, 9, S, S)`` the same on the network's grid.
     """
 
     maps: torch.Tensor
     mask: torch.Tensor
     net_maps: torch.Tensor
     net_mask: torch.Tensor
+    light: torch.Tensor | None = None
+    net_light: torch.Tensor | None = None
 
     @classmethod
-    def of(cls, maps: np.ndarray, mask: np.ndarray, box: tuple[int, int, int, int], model: PolarInverseModel) -> _Crop:
+    def of(cls, maps: np.ndarray, mask: np.ndarray, box: tuple[int, int, int, int], model: PolarInverseModel,
+           light: LightGeometry | None = None) -> _Crop:  # fmt: skip
         y0, x0, y1, x1 = box
         size = model.config.image_size
         device = next(model.parameters()).device  # the model's device (CPU or GPU); results come back as numpy
@@ -280,7 +293,10 @@ class _Crop:
         net_k = F.interpolate(k, size=(size, size), mode="nearest")
         if not bool(net_k.any()):
             raise NothingToReconstruct("the mask vanishes at the network's input size: nothing to reconstruct")
-        return cls(m, k, net_m, net_k)
+        if light is None:
+            return cls(m, k, net_m, net_k)
+        lt, net_lt = (crop_light(light, box, hw).to(device) for hw in (tuple(m.shape[-2:]), (size, size)))
+        return cls(m, k, net_m, net_k, lt, net_lt)
 
 
 def _decode_full(model, crop: _Crop, *, inputs, radiance, stride, refine_deg) -> dict[str, torch.Tensor]:
@@ -288,10 +304,11 @@ def _decode_full(model, crop: _Crop, *, inputs, radiance, stride, refine_deg) ->
     # One scale at both resolutions: the one the encoder's (resized) input defines.
     scale = radiance if radiance is not None else exposure_radiance(crop.net_maps, crop.net_mask)
     features = model.encode(
-        apply_inputs(normalize_maps(crop.net_maps, crop.net_mask, radiance=scale), inputs), crop.net_mask
-    )
+        apply_inputs(normalize_maps(crop.net_maps, crop.net_mask, radiance=scale), inputs), crop.net_mask,
+        crop.net_light,
+    )  # fmt: skip
     pixel_maps = apply_inputs(normalize_maps(crop.maps, crop.mask, radiance=scale), inputs)
-    pred = model.decode_dense(features, pixel_maps, crop.mask, stride=stride, refine_deg=refine_deg)
+    pred = model.decode_dense(features, pixel_maps, crop.mask, stride=stride, refine_deg=refine_deg, light=crop.light)
     _check_finite(pred)
     return {name: pred[name][0] for name in OUTPUT_CHANNELS}
 
@@ -306,7 +323,7 @@ def _decode_network(model, crop: _Crop, *, inputs, radiance, stride, refine_deg)
     from scipy import ndimage  # noqa: PLC0415
 
     x = apply_inputs(normalize_maps(crop.net_maps, crop.net_mask, radiance=radiance), inputs)
-    pred = model(x, crop.net_mask, stride=stride, refine_deg=refine_deg)
+    pred = model(x, crop.net_mask, stride=stride, refine_deg=refine_deg, light=crop.net_light)
     _check_finite(pred)
     invalid = crop.net_mask[0, 0].cpu().numpy() == 0
     _, (iy, ix) = ndimage.distance_transform_edt(invalid, return_indices=True)

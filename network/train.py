@@ -62,7 +62,7 @@ from torch.utils.data import DataLoader, Dataset
 from pbrdf.data.splits import require_role
 from pbrdf.io.atomic import remove_leftovers
 
-from .checkpoint import CHECKPOINT_FORMAT, model_file_state, params_sha256, save_checkpoint
+from .checkpoint import CHECKPOINT_FORMAT, init_from_checkpoint, model_file_state, params_sha256, save_checkpoint
 from .config import get_config
 from .data import INPUT_SCALES, TARGET_KEYS, SampleDataset, checkpoint_input_scale, gather_pixels
 from .distributed import DistContext, init_distributed, resolve_device, rng_state, set_rng_state
@@ -107,6 +107,8 @@ class TrainConfig:
         max_skipped: more skipped steps than this stop the run.
         workers: data-loading worker processes per loader.
         tensorboard: write TensorBoard events to ``OUT/tb`` (when tensorboard is installed).
+        init_from: start from this checkpoint's weights (:func:`network.checkpoint.init_from_checkpoint`; e.g. a
+            ``light_input`` model from a light-blind one, its light weights at zero); ignored once resumed.
     """
 
     data: Path
@@ -141,6 +143,7 @@ class TrainConfig:
     max_skipped: int = 10
     workers: int = 0
     tensorboard: bool = True
+    init_from: Path | None = None
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "checkpoint_every", "val_samples"):
@@ -203,9 +206,9 @@ class _PixelModel(nn.Module):
         super().__init__()
         self.model = model
 
-    def forward(self, maps: torch.Tensor, mask: torch.Tensor, pixels: torch.Tensor, valid: torch.Tensor) -> dict:
-        features = self.model.encode(maps, mask)
-        return self.model.decode_pixels(features, maps, pixels, valid)
+    def forward(self, maps: Tensor, mask: Tensor, pixels: Tensor, valid: Tensor, light: Tensor | None = None) -> dict:
+        features = self.model.encode(maps, mask, light)
+        return self.model.decode_pixels(features, maps, pixels, valid, light)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -221,7 +224,8 @@ def _validate(model: PolarInverseModel, ds: SampleDataset, count: int, inputs: s
     for i in range(min(count, len(ds))):
         item = ds[i]
         maps = apply_inputs(item["maps"][None].to(device), inputs)
-        pred = model(maps, item["mask"][None].to(device))
+        light = item["light"][None].to(device) if "light" in item else None
+        pred = model(maps, item["mask"][None].to(device), light=light)
         mask = item["mask"][0].numpy() > 0
         normal = pred["normal"][0].float().permute(1, 2, 0).cpu().numpy()
         errors.append(normal_mae_deg(normal, item["normal"].permute(1, 2, 0).numpy(), mask))
@@ -286,8 +290,11 @@ def _datasets(cfg: TrainConfig, image_size: int) -> _Data:
         require_role(cfg.val, ("val",), "validation")
     if cfg.real is not None:
         require_role(cfg.real, ("train",), "training (real-data loss)")
+    light = get_config(cfg.config, **cfg.overrides).light_input
+    if light and cfg.real is not None:
+        raise ValueError("real captures (real) cannot train a light_input model yet (no distance per capture)")
     ds = SampleDataset(
-        cfg.data, size=image_size, input_scale=cfg.input_scale,
+        cfg.data, size=image_size, input_scale=cfg.input_scale, light_input=light,
         indices=list(cfg.indices) if cfg.indices is not None else None,
     )  # fmt: skip
     if cfg.indices is not None and len(ds) != len(cfg.indices):
@@ -299,7 +306,9 @@ def _datasets(cfg: TrainConfig, image_size: int) -> _Data:
         real = RealDataset(cfg.real, size=image_size, input_scale=cfg.input_scale)
         if len(real) == 0:
             raise ValueError(f"{cfg.real}: no real captures found")
-    val = SampleDataset(cfg.val, size=image_size, input_scale=cfg.input_scale) if cfg.val is not None else None
+    val = None
+    if cfg.val is not None:
+        val = SampleDataset(cfg.val, size=image_size, input_scale=cfg.input_scale, light_input=light)
     return _Data(ds, real, val)
 
 
@@ -327,7 +336,10 @@ class Trainer:
             torch.backends.cuda.matmul.allow_tf32 = True
             torch.backends.cudnn.allow_tf32 = True
         torch.manual_seed(cfg.seed)  # identical initial weights on every rank
-        self.model = PolarInverseModel(self.model_cfg).to(device)
+        self.model = PolarInverseModel(self.model_cfg)
+        if cfg.init_from is not None:  # fine-tuning; a resumed checkpoint overrides these weights
+            _check_init(init_from_checkpoint(self.model, cfg.init_from), cfg)
+        self.model = self.model.to(device)
         self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         torch.manual_seed(cfg.seed + 1 + dd.rank)  # per-rank stream for anything random after init
         self.start, self.losses, self.skipped = 0, [], 0
@@ -424,7 +436,7 @@ class Trainer:
         with torch.autocast(device_type=self.device.type, dtype=torch.bfloat16, enabled=self.cfg.bf16):
             # The network sees the variant's maps; the losses keep the measured ones.
             maps = apply_inputs(batch["maps"], self.cfg.inputs)
-            pred = self.net(maps, batch["mask"].to(batch["maps"].dtype), pixels, valid)
+            pred = self.net(maps, batch["mask"].to(batch["maps"].dtype), pixels, valid, batch.get("light"))
         return {k: v.float() for k, v in pred.items()}  # losses and backward in float32, outside autocast
 
     def _skip(self, step: int, reason: str, row: dict) -> None:
@@ -566,6 +578,14 @@ class Trainer:
                 self.bar.close()
             self.logs.close()
         return self.losses
+
+
+def _check_init(ckpt: dict, cfg: TrainConfig) -> None:
+    """ValueError unless the ``init_from`` checkpoint was trained with the run's input variant and scale."""
+    for name in ("inputs", "input_scale"):
+        if ckpt[name] != getattr(cfg, name):
+            raise ValueError(f"{cfg.init_from}: init_from checkpoint was trained with {name}={ckpt[name]!r}, "
+                             f"not {getattr(cfg, name)!r}")  # fmt: skip
 
 
 def _plain(cfg: TrainConfig) -> dict[str, Any]:

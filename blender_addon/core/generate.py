@@ -100,6 +100,7 @@ class GenerateConfig:
     variant: str = "auto"
     texture_fraction: float = 0.0
     asset_materials: bool = False
+    distance: tuple[float, float] = (0.5, 1.0)
 
     def __post_init__(self) -> None:
         """Check the fields; ``shapes`` None becomes ``none`` with ``assets``, else ``procedural``."""
@@ -199,6 +200,8 @@ class GenerateConfig:
             args["texture_fraction"] = self.texture_fraction
         if self.asset_materials:
             args["asset_materials"] = True
+        if tuple(self.distance) != (0.5, 1.0):
+            args["distance_range"] = list(self.distance)
         return args
 
 
@@ -384,7 +387,7 @@ def generate(
 
 #: The manifest's ``config`` fields that decide what a sample holds: a run adding to a folder must match them.
 SCENE_FIELDS = ("resolution", "seed", "spp", "shapes", "objects", "table_fraction", "texture_fraction",
-                "asset_materials", "pattern", "noise", "keep_raw", "split")  # fmt: skip
+                "asset_materials", "pattern", "noise", "keep_raw", "split", "distance")  # fmt: skip
 
 
 def _check_same_scenes(out: Path, info: dict) -> None:
@@ -436,7 +439,7 @@ def _write_one(
         spec = scenegen.random_scene(
             inputs.rig, seed, asset_files=inputs.asset_files, materials=inputs.materials,
             shapes=SHAPE_SETS[cfg.shapes], objects=cfg.objects, table_fraction=cfg.table_fraction,
-            asset_materials=cfg.asset_materials, texture_fraction=cfg.texture_fraction,
+            asset_materials=cfg.asset_materials, texture_fraction=cfg.texture_fraction, distance=tuple(cfg.distance),
         )  # fmt: skip
     if spec_hook is not None:
         spec = spec_hook(spec)

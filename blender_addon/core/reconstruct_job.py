@@ -133,8 +133,9 @@ def command_line(
     card: bool = False,
     checkpoint: str | os.PathLike | None = None,
     module: str = SCRIPT_MODULE,
+    distance: float | None = None,
 ) -> list[str]:
-    """The command that reconstructs ``capture`` into ``out`` (never ``--blend``).
+    """The command that reconstructs ``capture`` into ``out`` (never ``--blend``); ``distance`` (m) -> ``--distance``.
 
     Example:
         >>> " ".join(command_line("py", "cap", "o", card=True, checkpoint="m.pt"))
@@ -145,6 +146,8 @@ def command_line(
         cmd.append("--card")
     if checkpoint is not None and str(checkpoint).strip():
         cmd += ["--checkpoint", str(checkpoint)]
+    if distance:
+        cmd += ["--distance", f"{distance:g}"]
     return cmd
 
 
@@ -237,6 +240,7 @@ class ReconstructJob:
         out: the output folder (created when missing; the maps land there as ``<name>_<map>.*``).
         card: a flat card (``--card``: no depth map) instead of a relief mesh.
         checkpoint: a ``model.pt``; None or empty: the shipped model.
+        distance: the object distance in m (``--distance``); None or 0: capture.json's, else the default.
         repo_root: the repository to run from (:func:`repository_root`); None: the installed project.
         module: the module run with ``-m`` (tests substitute a stand-in).
 
@@ -257,7 +261,9 @@ class ReconstructJob:
         checkpoint: str | os.PathLike | None = None,
         repo_root: str | os.PathLike | None = None,
         module: str = SCRIPT_MODULE,
+        distance: float | None = None,
     ) -> None:
+        self.distance = distance or None
         self.capture = check_capture_folder(capture)
         self.out = Path(out).expanduser().resolve()
         if self.out == self.capture or self.capture in self.out.parents:
@@ -288,7 +294,7 @@ class ReconstructJob:
     def command(self) -> list[str]:
         """The command line (after :meth:`start`, with the staging folder as ``--out``)."""
         return command_line(self.python, self.capture, self._staging or self.out, card=self.card,
-                            checkpoint=self.checkpoint, module=self.module)  # fmt: skip
+                            checkpoint=self.checkpoint, module=self.module, distance=self.distance)  # fmt: skip
 
     def start(self) -> None:
         """Create the staging folder and start the process (OSError: it cannot start; nothing left behind)."""

@@ -159,12 +159,14 @@ class DenseInputs:
         values: (H*W, 9) input map values, row ``row * W + col``.
         size: (H, W) of the input.
         feature_size: (Hc, Wc) of the features.
+        light: (H*W, 27) each map's light vector (x, y, z per map), or None (a light-blind model).
     """
 
     table: Tensor
     values: Tensor
     size: tuple[int, int]
     feature_size: tuple[int, int]
+    light: Tensor | None = None
 
 
 class PixelDecoder(nn.Module):
@@ -182,6 +184,9 @@ class PixelDecoder(nn.Module):
         d, da = config.dpt_dim, config.agg_dim
         self.phi = nn.Linear(d, d)
         self.psi = MapValueEmbedding(config.pixel_embed_hidden, d)
+        if config.light_input:  # the light vector of each observation's colour region, zero at the start
+            self.chi = nn.Linear(3, d, bias=False)
+            nn.init.zeros_(self.chi.weight)
         self.obs_blocks = nn.ModuleList(
             Block(d, config.decoder_heads, config.mlp_ratio) for _ in range(config.obs_depth)
         )
@@ -197,20 +202,24 @@ class PixelDecoder(nn.Module):
         self.normal_head = Mlp(da, da // 2, 3)
         self.brdf_head = Mlp(da, da // 2, 5)
 
-    def observe(self, features: Tensor, values: Tensor) -> Tensor:
+    def observe(self, features: Tensor, values: Tensor, light: Tensor | None = None) -> Tensor:
         """The nine observations of each pixel, attended across before pooling: (N, 9, D), (N, 9, 1) -> (N, 9, D_a).
 
-        ``z_n = phi(F_n) + psi_n(I_n)``, then ``obs_blocks``, ``agg_proj`` and ``agg_blocks``; shared by
-        :meth:`embed` and :meth:`embed_rows`, which differ only in how they gather the inputs and pool.
+        ``z_n = phi(F_n) + psi_n(I_n)`` (``+ chi(L_n)`` with light), then ``obs_blocks``, ``agg_proj`` and
+        ``agg_blocks``; shared by :meth:`embed` and :meth:`embed_rows`, which differ only in how they gather the
+        inputs and pool.
 
         Args:
             features: (N, 9, D) sampled DPT features of N pixels.
             values: (N, 9, 1) their input map values.
+            light: (N, 9, 3) each observation's light vector (a ``light_input`` model), or None.
 
         Returns:
             (N, 9, D_a) tokens for the pooling.
         """
         z = self.phi(features) + self.psi(values)
+        if light is not None:
+            z = z + self.chi(light.to(z.dtype))
         for blk in self.obs_blocks:
             z = blk(z)
         z = self.agg_proj(z)
@@ -218,13 +227,14 @@ class PixelDecoder(nn.Module):
             z = blk(z)
         return z
 
-    def embed(self, features: Tensor, maps: Tensor, pixels: Tensor) -> Tensor:
+    def embed(self, features: Tensor, maps: Tensor, pixels: Tensor, light: Tensor | None = None) -> Tensor:
         """Aggregated per-pixel features.
 
         Args:
             features: (B, 9, D, Hc, Wc) DPT features.
             maps: (B, 9, H, W) input maps.
             pixels: (B, P) flat pixel indices into H x W.
+            light: (B, 9, 3, H, W) each map's light vector, or None.
 
         Returns:
             (B, P, D_a).
@@ -236,7 +246,11 @@ class PixelDecoder(nn.Module):
         f = sampled.reshape(b, m, d, p).permute(0, 3, 1, 2)  # (B, P, 9, D)
         values = torch.gather(maps.reshape(b, m, h * w), 2, pixels[:, None].expand(-1, m, -1))
         values = values.permute(0, 2, 1)[..., None].to(f.dtype)  # (B, P, 9, 1)
-        return self.pool(self.observe(f.reshape(b * p, m, d), values.reshape(b * p, m, 1))).reshape(b, p, -1)
+        lv = None
+        if light is not None:
+            lv = torch.gather(light.reshape(b, m * 3, h * w), 2, pixels[:, None].expand(-1, m * 3, -1))
+            lv = lv.permute(0, 2, 1).reshape(b * p, m, 3)
+        return self.pool(self.observe(f.reshape(b * p, m, d), values.reshape(b * p, m, 1), lv)).reshape(b, p, -1)
 
     def embed_rows(self, inputs: DenseInputs, pixels: Tensor, pool_query: Tensor) -> Tensor:
         """:meth:`embed` of one image's pixels from channels-last tables: the same values to float rounding.
@@ -256,20 +270,23 @@ class PixelDecoder(nn.Module):
         p = pixels.shape[0]
         f = sample_bilinear_rows(inputs.table, pixels, inputs.size, inputs.feature_size).reshape(p, m, -1)
         values = inputs.values.index_select(0, pixels)[..., None].to(f.dtype)  # (P, 9, 1)
-        return self.pool.forward_folded(self.observe(f, values), pool_query)
+        lv = None if inputs.light is None else inputs.light.index_select(0, pixels).reshape(p, m, 3)
+        return self.pool.forward_folded(self.observe(f, values, lv), pool_query)
 
     @staticmethod
-    def dense_inputs(features: Tensor, maps: Tensor) -> DenseInputs:
+    def dense_inputs(features: Tensor, maps: Tensor, light: Tensor | None = None) -> DenseInputs:
         """Channels-last tables of one image for :meth:`embed_rows`.
 
         Args:
             features: (9, D, Hc, Wc) DPT features of one image.
             maps: (9, H, W) its input maps.
+            light: (9, 3, H, W) each map's light vector, or None.
         """
         m, d, hc, wc = features.shape
         h, w = maps.shape[-2:]
         table = features.permute(2, 3, 0, 1).reshape(hc * wc, m * d)  # a copy made once per image
-        return DenseInputs(table, maps.reshape(m, h * w).t().contiguous(), (h, w), (hc, wc))
+        lt = None if light is None else light.reshape(m * 3, h * w).t().contiguous()
+        return DenseInputs(table, maps.reshape(m, h * w).t().contiguous(), (h, w), (hc, wc), lt)
 
     def heads(self, x: Tensor) -> dict[str, Tensor]:
         """Output heads on (B, P, D_a) tokens, computed in float32.

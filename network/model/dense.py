@@ -209,6 +209,7 @@ def decode_dense(
     *,
     stride: int = 1,
     refine_deg: float | None = REFINE_DEG,
+    light: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """Decode the masked pixels, in chunks, each attending to a fixed context of masked pixels.
 
@@ -235,6 +236,7 @@ def decode_dense(
             (:func:`unreliable_fill` with this normal threshold in degrees and :data:`REFINE_BRDF`) or are cut
             by the mask's edge are decoded too, so they get exactly their stride-1 values; None fills every
             covered pixel by interpolation.
+        light: (B, 9, 3, H, W) each map's light vector (a ``light_input`` model), or None.
 
     Returns:
         ``normal`` (B, 3, H, W), ``albedo`` (B, 3, H, W), ``roughness`` (B, 1, H, W), ``metallic`` (B, 1, H, W);
@@ -254,7 +256,7 @@ def decode_dense(
         idx = torch.nonzero(mask[i].reshape(-1) > 0).squeeze(1)
         if idx.numel() == 0:
             continue
-        inputs = dec.dense_inputs(features[i], maps[i])
+        inputs = dec.dense_inputs(features[i], maps[i], None if light is None else light[i])
         ctx = context_pixels(idx, config.train_pixels)
         cache, x = dec.context_pass(_embed_rows(dec, config, inputs, ctx, pool_query)[None])
         _store(out, i, ctx, dec.heads(x))
@@ -296,6 +298,7 @@ def decode_dense_reference(
     maps: Tensor,
     mask: Tensor,
     chunk: int | None = None,
+    light: Tensor | None = None,
 ) -> dict[str, Tensor]:
     """:func:`decode_dense` at stride 1 the straightforward way, for tests and ``headless/bench.py``.
 
@@ -311,9 +314,11 @@ def decode_dense_reference(
         if idx.numel() == 0:
             continue
         f, mp = features[i : i + 1], maps[i : i + 1]
-        cache = decoder.context_cache(decoder.embed(f, mp, context_pixels(idx, config.train_pixels)[None]))
+        lt = None if light is None else light[i : i + 1]
+        cache = decoder.context_cache(decoder.embed(f, mp, context_pixels(idx, config.train_pixels)[None], lt))
         for part in idx.split(chunk):
-            _store(out, i, part, decoder.heads(decoder.transform_cached(decoder.embed(f, mp, part[None]), cache)))
+            x = decoder.transform_cached(decoder.embed(f, mp, part[None], lt), cache)
+            _store(out, i, part, decoder.heads(x))
     return {k: v.reshape(b, -1, h, w) for k, v in out.items()}
 
 

@@ -30,6 +30,12 @@ per-pixel decoder keep PyTorch's default initialisation (why: ``init_std`` in :c
 
 Input scaling is the data pipeline's job (:func:`network.data.normalize_maps`): the model expects the maps already
 normalised and does not rescale them.
+
+Light input (``config.light_input``, :mod:`network.light_input`): ``light`` (B, 9, H, W) holds the display's
+irradiance vector of each colour region; map n sees its own region's vector (``MAP_COLOR[n]``). It enters the
+tokenizer as ``light_embed`` (a patch projection, 3 -> C, added to the patch embeddings) and the decoder as
+``decoder.chi`` (3 -> D, added to each observation); both start at zero, so weights loaded from a light-blind
+checkpoint (:func:`network.checkpoint.init_from_checkpoint`) give exactly the light-blind model's outputs.
 """
 
 from __future__ import annotations
@@ -44,7 +50,7 @@ from .decoder import PixelDecoder
 from .dense import REFINE_DEG, decode_dense, decode_dense_reference
 from .dpt import DPTHead
 from .interleave import InterleavedAttention
-from .maps import NUM_MAPS
+from .maps import MAP_COLOR, NUM_MAPS
 from .sampling import sample_pixels
 from .tokenizer import IN_CHANS, MapEmbedding, ViTTokenizer
 
@@ -97,6 +103,9 @@ class PolarInverseModel(nn.Module):
         )
         self.dpt = DPTHead(4 * c, config.dpt_channels, config.dpt_dim)
         self.decoder = PixelDecoder(config)
+        if config.light_input:
+            self.light_embed = nn.Conv2d(3, c, config.patch_size, stride=config.patch_size, bias=False)
+            nn.init.zeros_(self.light_embed.weight)
         k = config.interleave_iters
         #: Iterations feeding the four DPT levels (evenly spread; repeats when K < 4).
         self.dpt_levels = tuple(round(i * (k - 1) / 3) for i in range(4))
@@ -108,12 +117,28 @@ class PolarInverseModel(nn.Module):
         p = cfg.patch_size
         return (max(p, round(height * scale / p) * p), max(p, round(width * scale / p) * p))
 
-    def encode(self, maps: Tensor, mask: Tensor) -> Tensor:
+    def per_map_light(self, light: Tensor | None, like: Tensor) -> Tensor | None:
+        """(B, 9, H, W) light channels -> (B, 9, 3, H, W), map n's region vector; None for a light-blind model.
+
+        Raises:
+            ValueError: a light-input model without ``light``, or ``light`` of the wrong shape.
+        """
+        if not self.config.light_input:
+            return None
+        b, _, h, w = like.shape
+        if light is None or tuple(light.shape) != (b, 9, h, w):
+            got = None if light is None else tuple(light.shape)
+            raise ValueError(f"light must have shape {(b, 9, h, w)} for a light_input model. Got {got}")
+        index = torch.tensor([3 * c + k for c in MAP_COLOR for k in range(3)], device=light.device)
+        return light.to(like.dtype).index_select(1, index).reshape(b, NUM_MAPS, 3, h, w)
+
+    def encode(self, maps: Tensor, mask: Tensor, light: Tensor | None = None) -> Tensor:
         """Per-map features at the canonical resolution.
 
         Args:
             maps: (B, 9, H, W).
             mask: (B, 1, H, W) in {0, 1}.
+            light: (B, 9, H, W) light channels (``config.light_input`` only; ignored otherwise).
 
         Returns:
             DPT features (B, 9, D, Hc, Wc), (Hc, Wc) = :meth:`tokenizer_size`.
@@ -126,7 +151,14 @@ class PolarInverseModel(nn.Module):
             x = F.interpolate(x, size=(hc, wc), mode="area")
             mk = F.interpolate(mask, size=(hc, wc), mode="area")
         inp = torch.stack([x, mk.expand(-1, m, -1, -1)], dim=2).reshape(b * m, IN_CHANS, hc, wc)
-        tokens, grid = self.tokenizer(inp)
+        extra = None
+        lm = self.per_map_light(light, maps)
+        if lm is not None:
+            lx = lm.reshape(b, m * 3, h, w) * mask
+            if (hc, wc) != (h, w):
+                lx = F.interpolate(lx, size=(hc, wc), mode="area")
+            extra = self.light_embed(lx.reshape(b * m, 3, hc, wc)).flatten(2).transpose(1, 2)
+        tokens, grid = self.tokenizer(inp, extra)
         tokens = tokens.reshape(b, m, tokens.shape[1], -1) + self.map_embed()[:, None].to(tokens.dtype)
         outputs = self.interleave(tokens)
         start = self.tokenizer.num_prefix
@@ -135,7 +167,7 @@ class PolarInverseModel(nn.Module):
         return feats.reshape(b, m, feats.shape[1], hc, wc)
 
     def decode_pixels(
-        self, features: Tensor, maps: Tensor, pixels: Tensor, valid: Tensor | None = None
+        self, features: Tensor, maps: Tensor, pixels: Tensor, valid: Tensor | None = None, light: Tensor | None = None
     ) -> dict[str, Tensor]:
         """Decode a set of pixels per image, the pixels of an image attending to each other.
 
@@ -144,11 +176,12 @@ class PolarInverseModel(nn.Module):
             maps: (B, 9, H, W).
             pixels: (B, P) flat indices into H x W.
             valid: Optional (B, P) bool; invalid pixels are not attended to (their outputs are meaningless).
+            light: (B, 9, H, W) light channels (``config.light_input`` only).
 
         Returns:
             ``normal`` (B, 3, P), ``albedo`` (B, 3, P), ``roughness`` (B, 1, P), ``metallic`` (B, 1, P).
         """
-        x = self.decoder.embed(features, maps, pixels)
+        x = self.decoder.embed(features, maps, pixels, self.per_map_light(light, maps))
         key_mask = None
         if valid is not None and not bool(valid.all()):
             key_mask = valid.clone()
@@ -164,6 +197,7 @@ class PolarInverseModel(nn.Module):
         *,
         stride: int = 1,
         refine_deg: float | None = REFINE_DEG,
+        light: Tensor | None = None,
     ) -> dict[str, Tensor]:
         """Decode the masked pixels densely: :func:`~network.model.dense.decode_dense` with this model's decoder.
 
@@ -175,6 +209,7 @@ class PolarInverseModel(nn.Module):
             stride: 1 decodes every masked pixel; s > 1 decodes every s-th row and column and fills the rest.
             refine_deg: s > 1: also decode the filled pixels whose decoded neighbours' normals differ by more than
                 this (degrees), whose BRDF values differ, or that the mask's edge cuts; None interpolates them all.
+            light: (B, 9, H, W) light channels (``config.light_input`` only).
 
         Returns:
             ``normal`` (B, 3, H, W), ``albedo`` (B, 3, H, W), ``roughness`` (B, 1, H, W), ``metallic`` (B, 1, H, W);
@@ -184,17 +219,19 @@ class PolarInverseModel(nn.Module):
             ValueError: If ``stride`` is not a positive int.
         """
         return decode_dense(
-            self.decoder, self.config, features, maps, mask, chunk, stride=stride, refine_deg=refine_deg
-        )
+            self.decoder, self.config, features, maps, mask, chunk, stride=stride, refine_deg=refine_deg,
+            light=self.per_map_light(light, maps),
+        )  # fmt: skip
 
     def decode_dense_reference(
-        self, features: Tensor, maps: Tensor, mask: Tensor, chunk: int | None = None
+        self, features: Tensor, maps: Tensor, mask: Tensor, chunk: int | None = None, light: Tensor | None = None
     ) -> dict[str, Tensor]:
         """:meth:`decode_dense` at stride 1 the straightforward way, for tests and benchmarks.
 
         See :func:`~network.model.dense.decode_dense_reference`; same arguments (without ``stride``) and outputs.
         """
-        return decode_dense_reference(self.decoder, self.config, features, maps, mask, chunk)
+        lm = self.per_map_light(light, maps)
+        return decode_dense_reference(self.decoder, self.config, features, maps, mask, chunk, light=lm)
 
     def forward(
         self,
@@ -206,6 +243,7 @@ class PolarInverseModel(nn.Module):
         chunk: int | None = None,
         stride: int = 1,
         refine_deg: float | None = REFINE_DEG,
+        light: Tensor | None = None,
     ) -> dict[str, Tensor]:
         """Predict normal, albedo, roughness and metallic.
 
@@ -218,6 +256,8 @@ class PolarInverseModel(nn.Module):
             stride: Dense decoding only: decode every ``stride``-th row and column and interpolate the rest
                 (:meth:`decode_dense`); 1 (default) decodes every masked pixel.
             refine_deg: Edge-aware stride (:meth:`decode_dense`); None turns the refinement off.
+            light: (B, 9, H, W) light channels (:mod:`network.light_input`); required by a ``light_input`` model,
+                ignored by others.
 
         Returns:
             With ``pixels`` given, or in training mode (``train_pixels`` random masked pixels per image):
@@ -239,15 +279,15 @@ class PolarInverseModel(nn.Module):
         if h < p or w < p:
             raise ValueError(f"Input must be at least {p} x {p} pixels. Got {h} x {w}")
         mask = mask.to(maps.dtype)
-        features = self.encode(maps, mask)
+        features = self.encode(maps, mask, light)
         if pixels is not None:
             if pixels.ndim != 2 or pixels.shape[0] != b:
                 raise ValueError(f"pixels must have shape ({b}, P). Got {tuple(pixels.shape)}")
             pixels = pixels.long()
-            out = self.decode_pixels(features, maps, pixels)
+            out = self.decode_pixels(features, maps, pixels, light=light)
             return {**out, "pixels": pixels, "valid": torch.ones_like(pixels, dtype=torch.bool)}
         if self.training:
             pixels, valid = sample_pixels(mask, self.config.train_pixels, generator)
-            out = self.decode_pixels(features, maps, pixels, valid)
+            out = self.decode_pixels(features, maps, pixels, valid, light)
             return {**out, "pixels": pixels, "valid": valid}
-        return self.decode_dense(features, maps, mask, chunk, stride=stride, refine_deg=refine_deg)
+        return self.decode_dense(features, maps, mask, chunk, stride=stride, refine_deg=refine_deg, light=light)

@@ -112,16 +112,19 @@ class ViTTokenizer(nn.Module):
         trunc_normal_(self.cls_token)
         trunc_normal_(self.register_tokens)
 
-    def forward(self, x: Tensor) -> tuple[Tensor, tuple[int, int]]:
+    def forward(self, x: Tensor, extra: Tensor | None = None) -> tuple[Tensor, tuple[int, int]]:
         """Tokens of a batch of single maps.
 
         Args:
             x: (B, in_chans, H, W), H and W multiples of the patch size.
+            extra: Optional (B, h*w, C) added to the patch embeddings (the light input's tokens).
 
         Returns:
             Tokens (B, 1 + R + h*w, C) after the final LayerNorm, and the grid (h, w).
         """
         tokens, grid = self.patch_embed(x)
+        if extra is not None:
+            tokens = tokens + extra.to(tokens.dtype)
         b = tokens.shape[0]
         tokens = torch.cat([self.cls_token.expand(b, -1, -1), tokens], dim=1)
         tokens = tokens + interpolate_pos_embed(self.pos_embed, grid).to(tokens.dtype)

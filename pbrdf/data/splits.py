@@ -85,6 +85,8 @@ class Split:
         texture_fraction: the probability that an object's drawn material gets seeded procedural
             textures (``headless/render.py --texture-fraction``).
         asset_materials: asset files keep their own materials (``--asset-materials``).
+        distance: ``(min, max)`` object distance from the camera in m (uniform; the light-input
+            splits widen the engine's 0.5-1.0 m so the network sees the display's fall-off).
     """
 
     name: str
@@ -104,6 +106,7 @@ class Split:
     twin_of: str | None = None
     texture_fraction: float = 0.0
     asset_materials: bool = False
+    distance: tuple[float, float] = (0.5, 1.0)
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
@@ -184,6 +187,26 @@ SPLITS: dict[str, Split] = {
             **_ENGINE,
         ),
         Split("val-engine", "val", seed=31_000, count=64, description="as train-engine (selection)", **_ENGINE),
+        # The lighting-aware input's data (issue 27): train-engine's scenes over a wider distance
+        # range, so the light channels vary; `make train-light-model` renders them and fine-tunes.
+        Split(
+            "train-light",
+            "train",
+            seed=32_000,
+            count=2000,
+            distance=(0.35, 1.6),
+            description="as train-engine at 0.35-1.6 m (lighting-aware input)",
+            **_ENGINE,
+        ),
+        Split(
+            "val-light",
+            "val",
+            seed=33_000,
+            count=64,
+            distance=(0.35, 1.6),
+            description="as train-light (selection)",
+            **_ENGINE,
+        ),
         Split(
             "test-scenes",
             "test",

@@ -1,0 +1,39 @@
+"""network/distance_sensitivity.py: a light-blind model's rows are equal, a light model's move with the distance."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+
+from network.config import get_config
+from network.distance_sensitivity import distance_sensitivity, sensitivity_markdown
+from network.model import PolarInverseModel
+
+STATS = {"format": "pdir-train-stats/1", "albedo": [0.4, 0.35, 0.3], "roughness": 0.42, "metallic": 0.3}
+CKPT = {"inputs": "full", "input_scale": "calibrated"}
+
+
+@pytest.fixture(autouse=True)
+def one_thread():
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(before)
+
+
+@pytest.mark.mitsuba
+def test_blind_rows_are_equal_and_light_rows_move(tiny_dataset):
+    torch.manual_seed(0)
+    blind = PolarInverseModel(get_config("toy")).eval()
+    result = distance_sensitivity(blind, CKPT, tiny_dataset, STATS, [0.2], limit=2)
+    assert result["errors"] == [0.0, 0.2] and result["scenes"] == 2 and result["light_input"] is False
+    assert result["rows"]["0.2"]["delta_albedo_psnr"]["mean"] == 0.0
+    assert "light-blind" in sensitivity_markdown(result)
+    light = PolarInverseModel(get_config("toy", light_input=True)).eval()
+    light.load_state_dict(blind.state_dict(), strict=False)
+    with torch.no_grad():
+        light.decoder.chi.weight.normal_(0, 1.0)
+    moved = distance_sensitivity(light, CKPT, tiny_dataset, STATS, [-0.2], limit=2)
+    assert abs(moved["rows"]["-0.2"]["delta_albedo_psnr"]["mean"]) > 1e-4
+    with pytest.raises(ValueError, match="errors must be > -1"):
+        distance_sensitivity(blind, CKPT, tiny_dataset, STATS, [-1.0])
