@@ -134,6 +134,8 @@ class _ChannelScenes:
         self.names = [f"object_{i}" for i in range(len(self.spec.objects))]
         # Direct light only comes from the linearly polarized display (S3 = 0): tables skip a column.
         self.linear_light = self.integrator == "direct"
+        # With a texture, every object is its kind's canonical tree: few sets of trees, few compiles.
+        self.canonical = needs_truth_pass(self.spec)
 
     def build(self, channel: int):
         """The loaded scene of ``channel``."""
@@ -142,7 +144,7 @@ class _ChannelScenes:
         objs = {
             name: ms.mesh_object(
                 name, m[0], m[1], m[2],
-                _bsdf_dict(self.materials[obj.material], channel, self.linear_light),
+                _bsdf_dict(self.materials[obj.material], channel, self.linear_light, self.canonical),
                 two_sided=m[3], uvs=m[4] if len(m) > 4 else None,
             )
             for name, obj, m in zip(self.names, self.spec.objects, self.meshes, strict=True)
@@ -161,7 +163,7 @@ class _ChannelScenes:
         updates = ms.display_updates(self.spec.rig.display, channel, params)
         for name, obj, mesh in zip(self.names, self.spec.objects, self.meshes, strict=True):
             mat = self.materials[obj.material]
-            if textured_bsdf.has_textures(mat):
+            if self.canonical:
                 u = textured_bsdf.channel_updates(mat, channel, f"{name}.bsdf.brdf_0" if mesh[3] else f"{name}.bsdf")
             else:
                 u = ms.channel_updates(name, mat, channel, two_sided=mesh[3])
@@ -171,9 +173,9 @@ class _ChannelScenes:
         return updates
 
 
-def _bsdf_dict(material, channel: int, linear_light: bool) -> dict:
-    """The material's BSDF for one colour channel: :mod:`.textured_bsdf` with textures, else its constants."""
-    if textured_bsdf.has_textures(material):
+def _bsdf_dict(material, channel: int, linear_light: bool, canonical: bool) -> dict:
+    """The material's BSDF for one colour channel: its kind's canonical tree in a textured scene, else constants."""
+    if canonical:
         return textured_bsdf.bsdf_dict(material, channel, linear_light=linear_light)
     return ms.bsdf_dict(material, channel, linear_light=linear_light)
 
