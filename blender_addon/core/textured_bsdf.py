@@ -27,12 +27,15 @@ the nested BSDFs' Mueller matrices: docs/textured_rendering.md says why each cho
 Between colour channels only bitmap data, constants and table data change
 (:func:`channel_updates`).
 
-Canonical trees (``canonical=True``, what :mod:`.render` builds for every object of a scene
-with textures): Dr.Jit compiles a scene's kernels per *set of distinct BSDF trees* (Mitsuba
-dispatches over every BSDF of the scene; identical trees share one body whatever their data),
+Canonical trees (``canonical=True``; :mod:`.render` builds them for every object of a scene
+with textures where its ``CANONICAL_TREES`` is on, off by default: measured, they did not make
+scenes share kernels, docs/measurements/headless.md): Dr.Jit compiles a scene's kernels per
+*set of distinct BSDF trees* (Mitsuba dispatches over every BSDF of the scene; identical trees
+share one body whatever their data),
 and a float constant, a 1-texel bitmap, a larger bitmap, a blend or a normal map each make a
 different tree; the bitmaps' sizes and values do not, their ``to_uv`` does (it is compiled in).
-So a canonical tree has one structure per material kind: every texture parameter a bitmap
+So a canonical tree has one structure per material kind (:mod:`.render` also wraps every
+object of such a scene in ``twosided``): every texture parameter a bitmap
 (constants become :data:`CONSTANT_TEXELS`-square bitmaps), ``pplastic`` and ``conductor`` both
 the ``blendbsdf`` of the dielectric and the metal (weight the metallic texture, or 0 / 1), the
 ``normalmap`` always present (flat where the material has none), a table mixture padded to
@@ -311,7 +314,7 @@ def _tree(
     return d, [(k.lstrip("."), v) for k, v in t.varying]
 
 
-def bsdf_dict(material: MaterialSpec, channel: int, *, linear_light: bool = False, canonical: bool = True) -> dict:
+def bsdf_dict(material: MaterialSpec, channel: int, *, linear_light: bool = False, canonical: bool = False) -> dict:
     """The material's BSDF dict for colour channel ``channel`` (0, 1, 2): its textures, or constants.
 
     ``linear_light``: the tables skip their Mueller matrices' last column (:mod:`.table_bsdf`).
@@ -332,7 +335,7 @@ def _varying_cached(material: MaterialSpec, grid: tg.MaterialGrid, canonical: bo
 
 
 def channel_updates(
-    material: MaterialSpec, channel: int, prefix: str, *, canonical: bool = True
+    material: MaterialSpec, channel: int, prefix: str, *, canonical: bool = False
 ) -> dict[str, Any] | None:
     """Scene-parameter updates (keys under ``prefix``, the BSDF's key) that switch the BSDF to ``channel``.
 

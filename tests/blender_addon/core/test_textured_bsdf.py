@@ -207,7 +207,8 @@ def test_canonical_tree_renders_what_the_plain_tree_renders(mono, uv_slab, monke
     plain = render_one(uv_slab, mat)
     assert plain.truth is None
     monkeypatch.setattr(render, "needs_truth_pass", lambda spec: True)  # as in a scene with a texture
-    tree = textured_bsdf.bsdf_dict(mat, 0)
+    monkeypatch.setattr(render, "CANONICAL_TREES", True)
+    tree = textured_bsdf.bsdf_dict(mat, 0, canonical=True)
     assert tree["type"] == "normalmap" and tree["bsdf"]["type"] == "blendbsdf"
     canonical = render_one(uv_slab, mat)
     region = canonical.mask & plain.mask
