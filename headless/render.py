@@ -32,7 +32,8 @@ analytic polarimetric ones (pplastic and rough conductors) with random parameter
 material from the library with probability F and analytic otherwise (default 1 with --pbrdfs,
 0 without). --texture-fraction F gives each drawn material seeded procedural textures with
 probability F (base colour and roughness that vary, metal segments or worn paint, a mild normal
-map, a mix of pBRDF tables; default 0: uniform materials); --asset-materials keeps the materials
+map, a mix of pBRDF tables; default 0: uniform materials; a --split's own fraction, which F
+overrides for train and val splits, never for test splits); --asset-materials keeps the materials
 of asset files that have them (glTF metallic-roughness, OBJ+MTL: one object per material, with
 its textures) instead of drawing one. --variant picks the Mitsuba variant: auto (default; cuda_ad_mono_polarized when
 Dr.Jit has a CUDA backend, else llvm), llvm, cuda, scalar (scalar_spectral_polarized, slow) or
@@ -86,9 +87,10 @@ def _apply_split(args: argparse.Namespace) -> str | None:
         raise ValueError(f"--split {split.name} renders with seed {split.seed}; --seed cannot change it")
     if args.scene is not None or args.assets is not None:
         raise ValueError("--split draws its own scenes: it cannot be combined with --scene or --assets")
-    if args.objects is not None or args.table_fraction is not None or args.texture_fraction is not None:
-        raise ValueError(f"--split {split.name} fixes the objects and materials: drop --objects, --table-fraction "
-                         "and --texture-fraction")  # fmt: skip
+    if args.objects is not None or args.table_fraction is not None:
+        raise ValueError(f"--split {split.name} fixes the objects and materials: drop --objects and --table-fraction")
+    if args.texture_fraction is not None and split.role == "test":
+        raise ValueError(f"--split {split.name} is a fixed test split: drop --texture-fraction")
     if split.pbrdfs and args.pbrdfs is None:
         raise ValueError(f"--split {split.name} needs --pbrdfs DIR (expanded tables; `make test-sets` makes them)")
     if not split.pbrdfs and args.pbrdfs is not None:
@@ -108,7 +110,8 @@ def _apply_split(args: argparse.Namespace) -> str | None:
     args.keep_raw = args.keep_raw or split.keep_raw
     args.objects = f"{split.objects[0]}-{split.objects[1]}"
     args.table_fraction = split.table_fraction
-    args.texture_fraction = split.texture_fraction
+    if args.texture_fraction is None:  # train and val splits take another fraction (a folder of its own)
+        args.texture_fraction = split.texture_fraction
     args.asset_materials = args.asset_materials or split.asset_materials
     args.distance = split.distance
     args.assets = split.asset_folder()

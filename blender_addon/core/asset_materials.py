@@ -426,7 +426,7 @@ def asset_parts(path: str | os.PathLike, *, crease_deg: float | None = None) -> 
         if material is not None and material.textures is not None and not mesh.metadata["has_uv"]:
             lost.append(k)
         parts.append(AssetPart(ref, k, material))
-    notes += mesh.metadata["uv_notes"]
+        notes += [n for n in mesh.metadata["uv_notes"] if n not in notes]  # every part's, each once
     if lost:
         notes.append(f"textured materials {lost} have triangles without UVs (their textures read one texel there)")
     return AssetParts(str(path), tuple(parts), tuple(notes))

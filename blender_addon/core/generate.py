@@ -388,18 +388,22 @@ def generate(
 #: The manifest's ``config`` fields that decide what a sample holds: a run adding to a folder must match them.
 SCENE_FIELDS = ("resolution", "seed", "spp", "shapes", "objects", "table_fraction", "texture_fraction",
                 "asset_materials", "pattern", "noise", "keep_raw", "split", "distance")  # fmt: skip
+#: Scene fields added after the first manifests, with the value every run before them had.
+_FIELDS_BEFORE = {"texture_fraction": 0.0, "asset_materials": False, "distance": [0.5, 1.0]}
 
 
 def _check_same_scenes(out: Path, info: dict) -> None:
     """Refuse to add samples to a dataset whose manifest was written with other scene settings.
 
     A split whose definition changed (e.g. textures added) would otherwise mix two kinds of samples
-    in one folder on ``resume``. Fields a manifest lacks (older runs) are not compared.
+    in one folder on ``resume``. Fields a manifest lacks (older runs) are not compared, except
+    those of :data:`_FIELDS_BEFORE`, which had their value there.
     """
     try:
         old = dataset.read_manifest(out).get("config") or {}
     except FileNotFoundError:
         return
+    old = {**_FIELDS_BEFORE, **old} if old else old
     new = json.loads(json.dumps(info["config"], default=str))  # as the manifest stores it (tuples as lists)
     differ = [f"{k}={old[k]!r} there, {new[k]!r} now" for k in SCENE_FIELDS if k in old and old[k] != new.get(k)]
     if differ:

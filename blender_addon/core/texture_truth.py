@@ -4,7 +4,7 @@ The truth pass renders a stand-in of the scene: the same meshes (with their UVs)
 sensor, crop, film filter (box), sampler, ``spp`` and seed as the first colour pass, so the same
 pixel sample positions (tested: the coverage is the same, sample for sample), with every
 object's BSDF a ``diffuse`` whose reflectance is a bitmap of :func:`.texel_grid.realized` on the
-material's grid (the arrays the render looked up), or a constant for untextured materials.
+material's grid (the arrays the render looked up), or of the constants for untextured materials.
 Mitsuba's ``aov`` integrator reports that reflectance (``ab:albedo``) at each sample's hit and
 the film averages it over the pixel, as it averages the Stokes images. It runs in the RGB variant
 of the same backend (:func:`rgb_variant`), three quantities per pass: the albedo, then
@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from . import mitsuba_scene as ms
 from . import texel_grid as tg
-from .textured_bsdf import bitmap, has_textures
+from .textured_bsdf import CONSTANT_TEXELS, bitmap, has_textures
 
 if TYPE_CHECKING:
     from .passes import RenderSettings
@@ -67,15 +67,19 @@ def _integrator(aovs: str):
     return _INTEGRATORS[key]
 
 
-def _stacks(spec: SceneSpec) -> list[tuple[NDArray | None, NDArray | None, NDArray]]:
-    """Per object: ``(H, W, 6)`` planes (albedo RGB, roughness, metallic, 1) and ``to_uv`` (textured), and constants."""
+def _stacks(spec: SceneSpec) -> list[tuple[NDArray, NDArray]]:
+    """Per object: ``(H, W, 6)`` planes (albedo RGB, roughness, metallic, 1) and their ``to_uv``.
+
+    An untextured material's constants are a :data:`.textured_bsdf.CONSTANT_TEXELS`-square plane:
+    every object is then the same ``diffuse`` of a bitmap, whose kernels one compile serves.
+    """
     materials = {m.name: m for m in spec.materials}
     out = []
     for obj in spec.objects:
         m = materials[obj.material]
-        consts = np.array([*m.albedo, m.roughness, m.metallic, 1.0], np.float32)
         if not has_textures(m):
-            out.append((None, None, consts))
+            consts = np.array([*m.albedo, m.roughness, m.metallic, 1.0], np.float32)
+            out.append((np.broadcast_to(consts, (CONSTANT_TEXELS, CONSTANT_TEXELS, 6)), np.eye(3)))
             continue
         grid = tg.material_grid(m)
         real = tg.realized(m, grid)
@@ -85,7 +89,7 @@ def _stacks(spec: SceneSpec) -> list[tuple[NDArray | None, NDArray | None, NDArr
         planes[..., 3] = np.asarray(real["roughness"], np.float32)
         planes[..., 4] = np.asarray(real["metallic"], np.float32)
         planes[..., 5] = 1.0
-        out.append((planes, grid.to_uv, consts))
+        out.append((planes, grid.to_uv))
     return out
 
 
@@ -137,10 +141,9 @@ def _render_passes(mi, spec, meshes, window, settings, names, seed) -> list[NDAr
     """The two stand-in renders (:data:`PASSES`), each ``(H, W, C)`` of pixel sums over samples / spp."""
     stacks = _stacks(spec)
     objects = {}
-    for name, mesh, (planes, to_uv, consts) in zip(names, meshes, stacks, strict=True):
-        refl = bitmap(planes[..., :3], to_uv) if planes is not None else {"type": "rgb", "value": consts[:3].tolist()}
+    for name, mesh, (planes, to_uv) in zip(names, meshes, stacks, strict=True):
         uv = mesh[4] if len(mesh) > 4 else None
-        bsdf = mi.load_dict({"type": "diffuse", "reflectance": refl})
+        bsdf = mi.load_dict({"type": "diffuse", "reflectance": bitmap(planes[..., :3], to_uv)})
         objects[name] = ms.mesh_from_arrays(name, mesh[0], mesh[1], {"bsdf": bsdf}, normals=mesh[2], uvs=uv)
     sensor = ms.sensor_dict(spec.rig.camera, window, settings.spp, sampler=settings.sampler)
     sensor["film"]["pixel_format"] = "rgb"
@@ -150,12 +153,9 @@ def _render_passes(mi, spec, meshes, window, settings, names, seed) -> list[NDAr
     for p in range(len(PASSES)):
         if p > 0:
             updates = {}
-            for name, (planes, _, consts) in zip(names, stacks, strict=True):
-                if planes is None:
-                    updates[f"{name}.bsdf.reflectance.value"] = mi.Color3f(*consts[3 * p : 3 * p + 3].tolist())
-                else:
-                    data = np.ascontiguousarray(np.flipud(planes[..., 3 * p : 3 * p + 3]), dtype=np.float32)
-                    updates[f"{name}.bsdf.reflectance.data"] = mi.TensorXf(data)
+            for name, (planes, _) in zip(names, stacks, strict=True):
+                data = np.ascontiguousarray(np.flipud(planes[..., 3 * p : 3 * p + 3]), dtype=np.float32)
+                updates[f"{name}.bsdf.reflectance.data"] = mi.TensorXf(data)
             params.update(updates)
         integ = _integrator(_FULL_AOVS if p == 0 else "ab:albedo")
         out.append(np.asarray(mi.render(scene, integrator=integ, seed=seed, spp=settings.spp), dtype=np.float32))

@@ -224,7 +224,8 @@ def test_split_prefix_is_labelled_and_keeps_raw(tmp_path):
         (["--count", "1", "--shapes", "none"], "--shapes none leaves nothing to draw: give --assets DIR"),
         (["--count", "1", "--variant", "gpu"], "--variant gpu must be one of ['auto', 'llvm', 'cuda', 'scalar']"),
         (["--split", "val", "--objects", "2"], "--split val fixes the objects and materials: drop --objects"),
-        (["--split", "val", "--table-fraction", "0"], "drop --objects, --table-fraction and --texture-fraction"),
+        (["--split", "val", "--table-fraction", "0"], "drop --objects and --table-fraction"),
+        (["--split", "test-textured", "--texture-fraction", "0"], "fixed test split: drop --texture-fraction"),
         (["--count", "1", "--texture-fraction", "1.5"], "--texture-fraction 1.5 must be in [0, 1]"),
     ],
 )

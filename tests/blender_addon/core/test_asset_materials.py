@@ -327,6 +327,13 @@ class TestParts:
         np.testing.assert_allclose(np.unique(union.round(6), axis=0), np.unique(plain.round(6), axis=0), atol=1e-9)
         assert all(p.metadata["two_sided"] == whole.metadata["two_sided"] for p in parts)
 
+    def test_every_parts_uv_notes_are_kept_once(self, tmp_path, rng):
+        v, uv = box_triangles(rng)
+        prims = [{"v": v[:18], "uv": uv[:18] + 1e6, "material": 0}, {"v": v[18:], "uv": uv[18:] + 1e6, "material": 1}]
+        path = write_gltf(tmp_path, "far2", prims, materials=[textured(), textured()])
+        notes = [n for n in am.asset_parts(path).notes if "UVs beyond" in n]
+        assert sorted(n[-12:] for n in notes) == ["(material 0)", "(material 1)"]
+
     def test_cleaning_keeps_each_face_with_its_material(self, tmp_path, rng):
         v, uv = box_triangles(rng)
 

@@ -1,5 +1,6 @@
 """Dataset generation end to end: reproducible, sharded, resumable, with clear errors."""
 
+import json
 import os
 import signal
 import subprocess
@@ -103,6 +104,18 @@ def test_resume_with_other_scene_settings_refuses(tmp_path):
         and psample.check_complete(tmp_path, 0)
         and not (tmp_path / "samples" / "000001.exr").exists()
     )
+    assert generate(GenerateConfig(out=tmp_path, count=2, resume=True, **SMALL), progress=False).written == [1]
+
+
+def test_resume_of_a_folder_from_before_textures_refuses_textures(tmp_path):
+    """A manifest without ``texture_fraction`` (runs before the field) had none: textures now refuse to mix in."""
+    generate(GenerateConfig(out=tmp_path, count=2, shard=(0, 2), **SMALL), progress=False)
+    manifest = tmp_path / "manifest.json"
+    doc = json.loads(manifest.read_text())
+    del doc["config"]["texture_fraction"], doc["config"]["asset_materials"]
+    manifest.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"^\S+: its samples were made with other settings \(texture_fraction=0.0 "):
+        generate(GenerateConfig(out=tmp_path, count=2, resume=True, texture_fraction=0.5, **SMALL), progress=False)
     assert generate(GenerateConfig(out=tmp_path, count=2, resume=True, **SMALL), progress=False).written == [1]
 
 

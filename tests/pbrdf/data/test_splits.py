@@ -83,6 +83,12 @@ def test_engine_splits_and_their_guards():
     # Training and selection see none of the test scenes' shapes: no corpus, no unseen meshes.
     assert train.shapes == val.shapes == "train" and train.assets is None and val.assets is None
     assert test.shapes == "meshes" and test.assets == "assimp-testmodels" and test.keep_raw
+    # Textures on for the engine's splits (and the white twin); the fixed test splits keep their history.
+    white = splits.get_split("train-engine-white")
+    assert train.texture_fraction == val.texture_fraction == white.texture_fraction == 0.5
+    fixed = {s.name: s.texture_fraction for s in splits.test_splits()}
+    assert fixed == {"test-procedural": 0.0, "test-meshes": 0.0, "test-pbrdf": 0.0, "test-scenes": 0.0,
+                     "test-textured": 1.0}  # fmt: skip
     with pytest.raises(ValueError, match="objects must be"):
         splits.Split("x", "train", seed=1, count=1, objects=(2, 1))
     with pytest.raises(ValueError, match="shapes must be one of"):
