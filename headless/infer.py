@@ -120,9 +120,15 @@ def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error)."""
     args = build_parser().parse_args(argv)
 
+    started = time.perf_counter()
+
     def progress(fraction: float, stage: str) -> None:
         if args.progress_lines:
             print(f"progress: {fraction:.3f} {stage}", flush=True)
+        elif not args.quiet:  # a stage line with the elapsed time (tqdm.write keeps a sequence's bar intact)
+            from tqdm import tqdm  # noqa: PLC0415
+
+            tqdm.write(f"[{time.perf_counter() - started:6.1f} s] {stage}", file=sys.stderr)
 
     progress(0.0, "starting Python and torch")
     summary: list[str] = []
@@ -130,7 +136,10 @@ def main(argv: list[str] | None = None) -> int:
     if code:
         return code
     print(summary[0])
-    return _save_blend(args) if args.blend else 0
+    if not args.blend:
+        return 0
+    progress(0.97, "saving the .blend (Blender in its own process)")
+    return _save_blend(args)
 
 
 def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, progress, start: float = 0.3,
@@ -165,7 +174,7 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
     model, ckpt = _load_model(args.checkpoint or DEFAULT_CHECKPOINT)
     if frames is None:
         pred, camera = _reconstruct(model, ckpt, args.input, args, progress)
-        progress(0.95, "writing the maps")
+        progress(0.95, "writing the maps" + (" and the glTF binary" if args.gltf else ""))
         asset = _gltf_asset(args, pred, camera)
         write_predictions(args.out, name, pred, camera)
         _write_gltf(args, name, asset)
