@@ -35,7 +35,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from pbrdf.sensor.projection import pixel_rays
 
-__all__ = ["COARSE_PIXELS", "FINE_ITERATIONS", "integrate_normals", "log_depth_gradients"]
+__all__ = ["integrate_normals", "log_depth_gradients"]
 
 
 def log_depth_gradients(
@@ -90,12 +90,6 @@ def _edges(mask: NDArray[np.bool_]) -> tuple[NDArray[np.int64], NDArray[np.int64
     return p, q, axis
 
 
-#: :func:`integrate_normals` integrates a mask of more pixels than this coarse to fine.
-COARSE_PIXELS = 60_000
-#: Solves at each finer level of the coarse-to-fine integration.
-FINE_ITERATIONS = 2
-
-
 class _Solver:
     """Solves the re-weighted normal equations (2-D grid Laplacians, symmetric positive definite).
 
@@ -137,18 +131,15 @@ def integrate_normals(
     tau: float = 0.002,
     min_cos: float = 0.05,
     anchor: float = 1e-6,
-    coarse_pixels: int | None = COARSE_PIXELS,
     rtol: float = 1e-6,
+    settle: float = 1e-4,
 ) -> NDArray[np.float32]:
     """Depth (m along the viewing axis) of the surface whose normals are ``normal`` on ``mask``.
 
-    Only the mask's bounding box is worked on. A mask of more than ``coarse_pixels`` pixels is
-    first integrated at half resolution (2 x 2 blocks wholly inside the mask, their mean normal;
-    recursively), which runs the re-weighting; its log depth, upsampled, is the start and fixes the
-    first weights of :data:`FINE_ITERATIONS` solves at full resolution (coarse to fine: the jumps
-    are found where solves are cheap, the detail is added where they are not). Each part of the
-    mask that is not connected to the others gets mean log depth 0 before the common scale (what the
-    ``anchor`` term alone gives when solved exactly).
+    Only the mask's bounding box is worked on. The re-weighting stops early once a solve moves no
+    pixel's log depth by more than ``settle`` (a relative depth change: 1e-4 is 0.075 mm at 0.75 m).
+    Each part of the mask that is not connected to the others gets mean log depth 0 before the
+    common scale (what the ``anchor`` term alone gives when solved exactly).
 
     Args:
         normal: ``(H, W, 3)`` camera-frame unit normals (OpenGL axes, facing the camera).
@@ -156,16 +147,14 @@ def integrate_normals(
         intrinsics: ``K (3, 3)`` of the normal map's pixel grid.
         distance: median depth of the result over the mask, in m (the capture distance or the
             rig's object distance).
-        iterations: least-squares solves (at the coarsest level); 1 is plain (smooth across jumps),
-            more re-weight the one-sided equations so that a pixel next to a depth jump trusts its
-            other side.
+        iterations: least-squares solves at most; 1 is plain (smooth across jumps), more re-weight
+            the one-sided equations so that a pixel next to a depth jump trusts its other side.
         tau: scale of the squared log-depth steps compared on the two sides of a pixel (0.002:
             steps of a few tenths of a percent per pixel already choose a side).
         min_cos: see :func:`log_depth_gradients`.
         anchor: weight pulling each pixel's log depth toward 0 (keeps the systems definite).
-        coarse_pixels: integrate larger masks coarse to fine (above); None solves at full
-            resolution only (``iterations`` solves there).
         rtol: relative residual at which each conjugate-gradient solve stops.
+        settle: stop re-weighting when a solve changed no log depth by more than this.
 
     Returns:
         ``(H, W)`` float32 depth, positive and finite on the mask, 0 elsewhere.
@@ -192,8 +181,8 @@ def integrate_normals(
     k = np.array(intrinsics, dtype=np.float64)
     k[0, 2] -= x0  # the crop's own pixel grid
     k[1, 2] -= y0
-    settings = _Settings(iterations, tau, min_cos, anchor, coarse_pixels, rtol)
-    z = _log_depth(n[y0:y1, x0:x1], m[y0:y1, x0:x1], k, settings)
+    settings = _Settings(iterations, tau, min_cos, anchor, rtol, settle)
+    z = _solve(n[y0:y1, x0:x1], m[y0:y1, x0:x1], k, settings)
     inside = m[y0:y1, x0:x1]
     z -= np.median(z[inside])
     depth = np.zeros(m.shape, np.float32)
@@ -207,52 +196,12 @@ class _Settings:
     tau: float
     min_cos: float
     anchor: float
-    coarse_pixels: int | None
     rtol: float
+    settle: float
 
 
-def _log_depth(n: NDArray[np.float64], m: NDArray[np.bool_], k: NDArray[np.float64], s: _Settings) -> NDArray:
-    """``(H, W)`` log depth on ``m`` (0 elsewhere), coarse to fine above ``s.coarse_pixels`` pixels."""
-    h, w = m.shape
-    z0 = None
-    if s.coarse_pixels is not None and m.sum() > s.coarse_pixels and min(h, w) >= 8:
-        cn, cm = _half(n, m)
-        if cm.any():
-            ck = k.copy()
-            ck[:2] /= 2.0
-            ck[:2, 2] -= 0.25  # pixel centres: (x + 0.5) / 2 - 0.5
-            z0 = _upsample(_log_depth(cn, cm, ck, s), cm, (h, w))
-    iterations = max(1, s.iterations) if z0 is None else FINE_ITERATIONS
-    return _solve(n, m, k, s, iterations, z0)
-
-
-def _half(n: NDArray[np.float64], m: NDArray[np.bool_]) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
-    """Normals and mask on the half grid: the 2 x 2 blocks wholly inside the mask, their mean normal."""
-    h, w = (m.shape[0] // 2) * 2, (m.shape[1] // 2) * 2
-    blocks = m[:h, :w].reshape(h // 2, 2, w // 2, 2)
-    cm = blocks.all(axis=(1, 3))
-    cn = n[:h, :w].reshape(h // 2, 2, w // 2, 2, 3).sum(axis=(1, 3))
-    norm = np.linalg.norm(cn, axis=-1, keepdims=True)
-    cm &= norm[..., 0] > 1e-6
-    return np.where(cm[..., None], cn / np.maximum(norm, 1e-12), [0.0, 0.0, 1.0]), cm
-
-
-def _upsample(z: NDArray[np.float64], m: NDArray[np.bool_], shape: tuple[int, int]) -> NDArray[np.float64]:
-    """A half-grid log depth on the full grid: the nearest half-grid pixel of the mask for each pixel."""
-    from scipy import ndimage  # noqa: PLC0415
-
-    _, (iy, ix) = ndimage.distance_transform_edt(~m, return_indices=True)
-    filled = z[iy, ix]
-    yy = np.minimum(np.arange(shape[0]) // 2, m.shape[0] - 1)
-    xx = np.minimum(np.arange(shape[1]) // 2, m.shape[1] - 1)
-    return filled[np.ix_(yy, xx)]
-
-
-def _solve(n, m, k, s: _Settings, iterations: int, z0: NDArray[np.float64] | None) -> NDArray[np.float64]:
-    """``(H, W)`` log depth: ``iterations`` re-weighted least-squares solves.
-
-    From ``z0`` (its steps fix the first weights) or from 0 with even weights.
-    """
+def _solve(n: NDArray[np.float64], m: NDArray[np.bool_], k: NDArray[np.float64], s: _Settings) -> NDArray[np.float64]:
+    """``(H, W)`` log depth on ``m`` (0 elsewhere): the re-weighted least-squares solves."""
     from scipy import sparse  # noqa: PLC0415
     from scipy.ndimage import label  # noqa: PLC0415
 
@@ -280,20 +229,19 @@ def _solve(n, m, k, s: _Settings, iterations: int, z0: NDArray[np.float64] | Non
     # Each edge holds two one-sided equations, z_q - z_p = g(p) ("after p") and = g(q) ("before q");
     # a pixel splits its trust between its two sides by how much the depth jumps on each.
     w_after = np.where(after >= 0, np.where(before >= 0, 0.5, 1.0), 0.0)
-    z = np.zeros(cols.size) if z0 is None else z0.ravel()[cols]
-    if z0 is not None:
-        w_after = np.where(both, _side(d @ z, after, before, s.tau), w_after)
+    z = np.zeros(cols.size)
     solve = _Solver(s.rtol)
-    for it in range(iterations):
+    for it in range(max(1, s.iterations)):
         wf = w_after[axis, ip]  # after p
         wb = np.where(before[axis, iq] >= 0, 1.0 - w_after[axis, iq], 0.0)  # before q
         wb = np.where(after[axis, iq] >= 0, wb, 1.0)
         weight = np.maximum(wf + wb, 1e-8)
         target = (wf * grad[0] + wb * grad[1]) / weight
         dw = d.T.multiply(weight)
-        z = solve((dw @ d + reg).tocsr(), dw @ target, z)
-        if it + 1 < iterations:
-            w_after = np.where(both, _side(d @ z, after, before, s.tau), w_after)
+        z, previous = solve((dw @ d + reg).tocsr(), dw @ target, z), z
+        if it + 1 == s.iterations or (it > 0 and np.abs(z - previous).max() <= s.settle):
+            break
+        w_after = np.where(both, _side(d @ z, after, before, s.tau), w_after)
     # Parts of the mask with no edge between them: each at mean log depth 0 (the anchor's exact answer).
     parts, count = label(m)
     part = parts.ravel()[cols] - 1
