@@ -71,8 +71,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--input", type=Path, required=True, help="capture folder or sample .exr/.json")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--blend", action="store_true", help="also save a Blender scene with the relightable asset")
-    parser.add_argument("--stride", type=int, default=1, choices=[1, 2, 4],
-                        help="decode every s-th pixel, interpolate the rest where smooth (faster)")  # fmt: skip
+    parser.add_argument("--stride", default="auto", choices=["auto", "1", "2", "4"],
+                        help="decode every s-th pixel, interpolate the rest where smooth (faster); auto: 4 for "
+                        "capture-sized objects, else 1 (network.model.dense.auto_stride)")  # fmt: skip
     parser.add_argument("--resolution", choices=["full", "network"], default="full",
                         help="decode at the capture's resolution (default) or at the network's input size")  # fmt: skip
     parser.add_argument("--gltf", action="store_true",
@@ -146,13 +147,15 @@ def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, prog
                  span: float = 0.65) -> tuple[dict, CameraRecord]:  # fmt: skip
     """The maps (with the relief depth unless ``--card``) and the camera of one capture or sample."""
     from network.infer import load_input, predict, relief_depth  # noqa: PLC0415
+    from network.model.dense import auto_stride  # noqa: PLC0415
 
     progress(start, "decoding the capture")
     inp = load_input(source, require_object=True)
-    progress(start + 0.05 * span, "predicting the maps")
+    stride = auto_stride(int(inp.mask.sum())) if args.stride == "auto" else int(args.stride)
+    progress(start + 0.05 * span, f"predicting the maps ({int(inp.mask.sum())} pixels, stride {stride})")
     pred = predict(
         model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
-        radiance=inp.radiance, stride=args.stride, resolution=args.resolution,
+        radiance=inp.radiance, stride=stride, resolution=args.resolution,
     )  # fmt: skip
     if not args.card:
         progress(start + 0.6 * span, "integrating the relief")

@@ -62,13 +62,14 @@ def stage_table(seconds: dict[str, float], total: float) -> str:
     return "\n".join(lines)
 
 
-def profile(capture: Path, checkpoint: Path, *, stride: int = 1, blend: bool = False) -> dict:
+def profile(capture: Path, checkpoint: Path, *, stride: int | None = None, blend: bool = False) -> dict:
     """Seconds per stage of one capture's reconstruction (what ``headless/infer.py --gltf [--blend]`` does).
 
     Args:
         capture: a capture folder (raw brackets + ``capture.json``).
         checkpoint: the model.
-        stride: :func:`network.infer.predict`'s ``stride``.
+        stride: :func:`network.infer.predict`'s ``stride``; None: ``headless/infer.py``'s default
+            (:func:`network.model.dense.auto_stride`).
         blend: also time the ``.blend`` (``headless/relight.py --save-blend`` in its own process; skipped with a
             note when bpy is not installed).
 
@@ -80,6 +81,7 @@ def profile(capture: Path, checkpoint: Path, *, stride: int = 1, blend: bool = F
 
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.infer import predict, relief_depth  # noqa: PLC0415
+    from network.model.dense import auto_stride  # noqa: PLC0415
     from pbrdf.data import capture as pcapture  # noqa: PLC0415
     from pbrdf.data import capture_decode  # noqa: PLC0415
     from pbrdf.data.gltf_asset import build_asset, write_asset  # noqa: PLC0415
@@ -96,6 +98,7 @@ def profile(capture: Path, checkpoint: Path, *, stride: int = 1, blend: bool = F
         capture_decode.check_usable(dec, cap, need_object=True)
         mask = dec.input_mask
     k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
+    stride = auto_stride(int(mask.sum())) if stride is None else stride
     model.encode = clock.wrap("encoder (crop resized to the input size)", model.encode)
     model.decode_dense = clock.wrap("per-pixel decoder", model.decode_dense)
     with clock.stage("crop, normalise, paste back"), torch.inference_mode():
@@ -172,14 +175,17 @@ def stride_error(ref: dict[str, np.ndarray], pred: dict[str, np.ndarray], mask: 
     return out
 
 
-def stride_rows(capture: Path, checkpoint: Path, strides: tuple[int, ...] = (2, 4), *, repeat: int = 1) -> dict:
+def stride_rows(
+    capture: Path, checkpoint: Path, strides: tuple[int, ...] = (2, 4), *, repeat: int = 1, warmup: int = 1
+) -> dict:
     """:func:`network.infer.predict` on a capture at stride 1 and at each stride, side by side: time and error.
 
     Args:
         capture: a capture folder or sample.
         checkpoint: the model.
         strides: strides to compare with stride 1 (edge-aware, the default ``refine_deg``).
-        repeat: timed calls per row (the median is reported; one untimed warm-up call first).
+        repeat: timed calls per row (the median is reported).
+        warmup: untimed calls before them.
 
     Returns:
         ``{"masked_pixels", "rows": {"stride_s": {"what", "seconds_median", "seconds_all",
@@ -199,7 +205,7 @@ def stride_rows(capture: Path, checkpoint: Path, strides: tuple[int, ...] = (2, 
         timing, pred = time_call(
             lambda s=stride: predict(model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
                                      radiance=inp.radiance, stride=s),
-            what, repeat=repeat, warmup=1,
+            what, repeat=repeat, warmup=warmup,
         )  # fmt: skip
         row = timing.to_dict()
         ref = pred if stride == 1 else ref
