@@ -90,6 +90,10 @@ def _edges(mask: NDArray[np.bool_]) -> tuple[NDArray[np.int64], NDArray[np.int64
     return p, q, axis
 
 
+# Systems of at most this many unknowns are solved directly (little fill-in on a grid this small).
+_DIRECT = 20_000
+
+
 class _Solver:
     """Solves the re-weighted normal equations (2-D grid Laplacians, symmetric positive definite).
 
@@ -106,8 +110,10 @@ class _Solver:
 
     def __call__(self, a, b: NDArray[np.float64], x0: NDArray[np.float64]) -> NDArray[np.float64]:
         import pyamg  # noqa: PLC0415
-        from scipy.sparse.linalg import cg  # noqa: PLC0415
+        from scipy.sparse.linalg import cg, spsolve  # noqa: PLC0415
 
+        if a.shape[0] <= _DIRECT:  # small: a sparse direct solve beats building and running a hierarchy
+            return spsolve(a.tocsc(), b)
         if self.pre is None:
             self.pre = pyamg.smoothed_aggregation_solver(a, symmetry="symmetric", max_coarse=500).aspreconditioner()
         steps = [0]
