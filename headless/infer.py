@@ -173,6 +173,10 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
     frames = sequence_frames(args.input)
     if frames is not None and args.blend:
         raise ValueError("--blend saves one capture's asset; import a sequence with the add-on's Import PBR maps")
+    if frames is not None:  # frames that do not belong together are refused before any is written
+        from pbrdf.data.capture_decode import check_sequence  # noqa: PLC0415
+
+        check_sequence(frames)
     progress(0.25, "loading the model")
     model, ckpt = _load_model(args.checkpoint or DEFAULT_CHECKPOINT)
     if frames is None:
