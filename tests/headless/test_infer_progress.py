@@ -48,3 +48,18 @@ def test_stage_lines_show_the_elapsed_time(tmp_path):
     quiet = subprocess.run([*cmd, "--out", str(tmp_path / "q"), "--quiet", "--stride", "2"], cwd=ROOT,
                            capture_output=True, text=True, timeout=300)  # fmt: skip
     assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
+
+
+def test_a_sequence_with_mismatched_frames_is_one_line_and_writes_nothing(tmp_path):
+    from pbrdf.data import capture
+    from pbrdf.sensor import camera
+
+    for name, exposures in (("t000", (0.01, 0.02, 0.1, 0.2)), ("t001", (0.01, 0.02, 0.1, 0.4))):
+        raws = np.full((4, 32, 48), 500, np.uint16)
+        (tmp_path / "seq").mkdir(exist_ok=True)
+        capture.save_capture(tmp_path / "seq" / name, raws, camera.CameraModel(exposures=exposures))
+    cmd = [sys.executable, "headless/infer.py", "--input", str(tmp_path / "seq"), "--out", str(tmp_path / "o")]
+    proc = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 2
+    assert proc.stderr.splitlines()[-1].startswith(f"error: {tmp_path / 'seq' / 't001'}: exposures_s"), proc.stderr
+    assert not (tmp_path / "o").exists()
