@@ -55,3 +55,9 @@ def test_profile_times_every_stage_of_the_example_capture():
     assert sum(stages.values()) <= result["total_seconds"] * 1.001
     assert result["frame"]["raw"][1:] == [256, 256] and result["frame"]["decoded"] == [128, 128]
     assert 0 < result["frame"]["masked_share"] < 1 and result["table"].count("\n") == len(stages) + 1
+
+
+def test_identical_float32_normals_are_zero_degrees_apart():
+    ref = {k: v.astype(np.float32) for k, v in _maps(np.random.default_rng(1)).items()}
+    err = stride_error(ref, ref, np.ones((20, 30), bool))
+    assert err["normal_deg_max"] == 0.0 and err["within"]
