@@ -26,6 +26,12 @@ camera (pbrdf/data/gltf_asset.py says how an off-centre principal point is kept)
 Maps are predicted at the input's own resolution (--resolution full: the encoder sees the object
 resized to the network's input size, and the per-pixel decoder reads every pixel of the capture);
 --resolution network decodes at the input size and upsamples (faster on large captures, blurrier).
+--stride auto (the default) decodes every 4th pixel of a capture-sized object (150,000 masked
+pixels or more) and interpolates the rest where it is smooth, decoding edges exactly.
+
+Cost: a full sensor frame (2448 x 2048 raw, object on half of it) took 55 s wall, 36 s of CPU and
+1.2 GB with --gltf on a shared 2-core machine (2026-11-27, docs/measurements/fullframe.md; an
+idle machine is faster). Every step prints "[elapsed s] stage" on stderr unless --quiet.
 
 Sequences: a folder whose sub-folders are capture folders (frames, in name order) gives
 DIR/<name>_NNNN_<map>.exr per frame (NNNN from 0001; Blender reads each map as an image
