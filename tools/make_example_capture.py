@@ -61,6 +61,12 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.height is not None and not (0 < args.height <= args.resolution and args.height % 2 == 0):
         parser.error(f"--height must be even and in 2..{args.resolution} (--resolution); got {args.height}")
+    from pbrdf.sensor.rig import Rig  # noqa: PLC0415
+
+    cam = Rig().camera  # the raw frame must fit the sensor, as a real capture does (pbrdf.data.capture_decode)
+    if 2 * args.resolution > cam.sensor_width_px or 2 * (args.height or args.resolution) > cam.sensor_height_px:
+        parser.error(f"the raw frame (twice --resolution, twice --height) must fit the {cam.sensor_width_px} x "
+                     f"{cam.sensor_height_px} sensor; e.g. --resolution 1224 --height 1024")  # fmt: skip
     from blender_addon.core.generate import GenerateConfig, generate  # noqa: PLC0415
     from pbrdf.data import capture  # noqa: PLC0415
     from pbrdf.data import sample as psample  # noqa: PLC0415

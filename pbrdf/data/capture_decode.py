@@ -170,11 +170,13 @@ def decode_capture(
         gives them, plus ``measured``, ``foreground`` and ``input_mask`` (the network's mask).
 
     Raises:
-        ValueError: bad capture content or a bad ``mask.png``.
+        ValueError: bad capture content, raw frames larger than the rig camera's sensor, or a bad
+            ``mask.png``.
     """
     cap = capture if isinstance(capture, Capture) else load_capture(capture)
     if isinstance(capture, Capture):
         validate_capture(cap)
+    _check_sensor_size(cap)
     # Decode without a signal threshold (the measured pixels), then apply it exactly as decode().
     dec = decode(cap.raws, cap.model, grid=grid, eps=eps, min_signal=-np.inf)
     measured = dec.mask
@@ -188,6 +190,18 @@ def decode_capture(
     return DecodedCapture(
         maps=maps, mask=mask, stokes=dec.stokes, measured=measured, foreground=foreground, foreground_source=source
     )
+
+
+def _check_sensor_size(cap: Capture) -> None:
+    """Refuse raw frames larger than the rig camera's sensor (``rig.camera.sensor_*_px``): no frame of that camera."""
+    cam = cap.meta.rig.camera
+    h, w = cap.raws.shape[1:]
+    if h > cam.sensor_height_px or w > cam.sensor_width_px:
+        where = cap.folder if cap.folder is not None else "capture"
+        raise ValueError(
+            f"{where}: raw frames are {w}x{h}, larger than the camera's {cam.sensor_width_px}x{cam.sensor_height_px} "
+            "sensor (capture.json rig.camera.sensor_width_px / sensor_height_px): not a frame of this camera"
+        )
 
 
 class CaptureWarning(UserWarning):

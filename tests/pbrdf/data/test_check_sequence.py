@@ -26,3 +26,15 @@ def test_matching_frames_pass_and_mismatches_name_both_frames(tmp_path):
     (b / sorted(p.name for p in b.glob("raw_*"))[1]).unlink()
     with pytest.raises(FileNotFoundError, match="raw file listed in capture.json does not exist"):
         check_sequence([a, b])
+
+
+def test_a_raw_larger_than_the_sensor_is_refused(tmp_path):
+    from pbrdf.data.capture_decode import decode_capture
+
+    model = camera.CameraModel()
+    raws = np.full((4, 2052, 16), 500, np.uint16)  # 4 rows more than the IMX250's 2048
+    folder = capture.save_capture(tmp_path / "tall", raws, model)
+    with pytest.raises(ValueError, match=r"tall: raw frames are 16x2052, larger than the camera's 2448x2048 sensor"):
+        decode_capture(folder)
+    small = capture.save_capture(tmp_path / "small", raws[:, :2048], model)
+    assert decode_capture(small).maps.shape == (1024, 8, 9)
