@@ -39,8 +39,10 @@ sequence) and DIR/<name>_sequence.json (frames, their capture folders, and the f
 second of decode + prediction). The model is loaded once; each frame's files are written whole.
 
 Bad input (an unreadable checkpoint or sample, a capture with nothing usable: all dark, all
-saturated, no object found) prints one line "error: <message>" on stderr, exits with status 2
-and writes nothing: every map is predicted and checked before the first file is written.
+saturated, no object found; raws larger than the sensor; sequence frames whose exposures or raw
+sizes differ) prints one line "error: <message>" on stderr (after the stage lines that came
+before it, unless --quiet), exits with status 2 and writes nothing: every map is predicted and
+checked before the first file is written, and a sequence's frames are checked before the first.
 Warnings raised on the way are dropped on an error and printed as "warning: ..." lines after
 a successful run.
 """
