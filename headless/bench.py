@@ -6,7 +6,7 @@
                                     [--out FILE]
     python headless/bench.py pbrdf [--count 40] [--out FILE]
     python headless/bench.py network [--configs toy small] [--paper] [--strides 1 2 4] [--threads 2]
-                                     [--device cpu|cuda] [--input CAPTURE] [--out FILE]
+                                     [--device cpu|cuda] [--input CAPTURE] [--frame CAPTURE] [--out FILE]
 
 decode: a raw IMX250MYR HDR bracket decoded into the nine maps on the half and full grids, next
 to polanalyser's demosaic + Stokes (network.bench.decode). render: time per dataset sample to
@@ -15,7 +15,11 @@ benchmark blob with an analytic material and with a pBRDF table (network.bench.r
 PCA error against components, validity-filter throughput, expansion speed
 (network.bench.expansion). network: inference and training time and memory per model config,
 and network.infer.predict on a capture with the shipped model: its time and the error of each
-decoding stride against stride 1 (network.bench.model).
+decoding stride against stride 1 (network.bench.model). With --frame (a full-frame capture, e.g.
+`tools/make_example_capture.py --resolution 1224 --height 1024`): that capture's rows
+(network.bench.fullframe): every stage of headless/infer.py timed once (full_frame.profile,
+a Markdown table in .table), and predict at stride 1 and each --strides value side by side with
+the error of each against stride 1 and whether it holds the tolerance (full_frame.strides).
 
 One timing rule everywhere (network.bench.timing): --warmup untimed calls, then --repeat timed
 calls; every timed entry reports what it timed, its median (seconds_median) and all samples
@@ -47,7 +51,7 @@ QUICK = {
     "decode": {"height": 128, "width": 160, "repeat": 2},
     "render": {"resolution": 32, "ref_spp": 64, "spp": [4, 16]},  # naive rows on the analytic scene only
     "pbrdf": {"count": 4, "repeat": 1},
-    "network": {"configs": ["toy"], "paper": False, "strides": [1, 2], "checkpoint": None},
+    "network": {"configs": ["toy"], "paper": False, "strides": [1, 2], "checkpoint": None, "frame": None},
 }
 
 
@@ -190,6 +194,8 @@ def build_parser() -> argparse.ArgumentParser:
     nb.add_argument("--checkpoint", type=Path, default=_default_checkpoint(), help="trained model for predict()")
     nb.add_argument("--input", type=Path, metavar="CAPTURE",
                     help="capture folder or sample for predict() (default examples/capture)")  # fmt: skip
+    nb.add_argument("--frame", type=Path, metavar="CAPTURE",
+                    help="a full-frame capture: every stage of infer.py timed; its strides vs stride 1")  # fmt: skip
     _common(nb, repeat=1)
     return parser
 
@@ -226,9 +232,27 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
         return expansion.run(count=args.count, **common)
     if min(args.strides) < 1 or not 0 < args.mask_fraction <= 1:
         parser.error("--strides must be >= 1 and --mask-fraction in (0, 1]")
+    configs = tuple(dict.fromkeys(args.configs + (["paper"] if args.paper else [])))
+    if args.frame is not None:
+        return {**_network(args, configs, common), "full_frame": _full_frame(args)}
+    return _network(args, configs, common)
+
+
+def _full_frame(args: argparse.Namespace) -> dict:
+    """``network --frame``: the capture's stage profile and its strides against stride 1."""
+    from network.bench import fullframe  # noqa: PLC0415
+
+    if args.checkpoint is None or not args.checkpoint.is_file():
+        raise ValueError(f"--frame needs a trained model; --checkpoint {args.checkpoint} is not a file")
+    strides = tuple(s for s in args.strides if s != 1)
+    return {"profile": fullframe.profile(args.frame, args.checkpoint),
+            "strides": fullframe.stride_rows(args.frame, args.checkpoint, strides, repeat=args.repeat,
+                                                warmup=args.warmup)}  # fmt: skip
+
+
+def _network(args: argparse.Namespace, configs: tuple, common: dict) -> dict:
     from network.bench import model  # noqa: PLC0415
 
-    configs = tuple(dict.fromkeys(args.configs + (["paper"] if args.paper else [])))
     return model.run(
         configs=configs, size=args.size, mask_fraction=args.mask_fraction, strides=tuple(args.strides),
         threads=args.threads, device=args.device, bf16=args.bf16, reference=args.reference,

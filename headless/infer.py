@@ -26,6 +26,12 @@ camera (pbrdf/data/gltf_asset.py says how an off-centre principal point is kept)
 Maps are predicted at the input's own resolution (--resolution full: the encoder sees the object
 resized to the network's input size, and the per-pixel decoder reads every pixel of the capture);
 --resolution network decodes at the input size and upsamples (faster on large captures, blurrier).
+--stride auto (the default) decodes every 4th pixel of a capture-sized object (150,000 masked
+pixels or more) and interpolates the rest where it is smooth, decoding edges exactly.
+
+Cost: a full sensor frame (2448 x 2048 raw, object on half of it) took 55 s wall, 36 s of CPU and
+1.2 GB with --gltf on a shared 2-core machine (2026-11-27, docs/measurements/fullframe.md; an
+idle machine is faster). Every step prints "[elapsed s] stage" on stderr unless --quiet.
 
 Sequences: a folder whose sub-folders are capture folders (frames, in name order) gives
 DIR/<name>_NNNN_<map>.exr per frame (NNNN from 0001; Blender reads each map as an image
@@ -33,8 +39,10 @@ sequence) and DIR/<name>_sequence.json (frames, their capture folders, and the f
 second of decode + prediction). The model is loaded once; each frame's files are written whole.
 
 Bad input (an unreadable checkpoint or sample, a capture with nothing usable: all dark, all
-saturated, no object found) prints one line "error: <message>" on stderr, exits with status 2
-and writes nothing: every map is predicted and checked before the first file is written.
+saturated, no object found; raws larger than the sensor; sequence frames whose exposures or raw
+sizes differ) prints one line "error: <message>" on stderr (after the stage lines that came
+before it, unless --quiet), exits with status 2 and writes nothing: every map is predicted and
+checked before the first file is written, and a sequence's frames are checked before the first.
 Warnings raised on the way are dropped on an error and printed as "warning: ..." lines after
 a successful run.
 """
@@ -71,8 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--input", type=Path, required=True, help="capture folder or sample .exr/.json")
     parser.add_argument("--out", type=Path, required=True, help="output folder")
     parser.add_argument("--blend", action="store_true", help="also save a Blender scene with the relightable asset")
-    parser.add_argument("--stride", type=int, default=1, choices=[1, 2, 4],
-                        help="decode every s-th pixel, interpolate the rest where smooth (faster)")  # fmt: skip
+    parser.add_argument("--stride", default="auto", choices=["auto", "1", "2", "4"],
+                        help="decode every s-th pixel, interpolate the rest where smooth (faster); auto: 4 for "
+                        "capture-sized objects, else 1 (network.model.dense.auto_stride)")  # fmt: skip
     parser.add_argument("--resolution", choices=["full", "network"], default="full",
                         help="decode at the capture's resolution (default) or at the network's input size")  # fmt: skip
     parser.add_argument("--gltf", action="store_true",
@@ -124,9 +133,15 @@ def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error)."""
     args = build_parser().parse_args(argv)
 
+    started = time.perf_counter()
+
     def progress(fraction: float, stage: str) -> None:
         if args.progress_lines:
             print(f"progress: {fraction:.3f} {stage}", flush=True)
+        elif not args.quiet:  # a stage line with the elapsed time (tqdm.write keeps a sequence's bar intact)
+            from tqdm import tqdm  # noqa: PLC0415
+
+            tqdm.write(f"[{time.perf_counter() - started:6.1f} s] {stage}", file=sys.stderr)
 
     progress(0.0, "starting Python and torch")
     summary: list[str] = []
@@ -134,21 +149,26 @@ def main(argv: list[str] | None = None) -> int:
     if code:
         return code
     print(summary[0])
-    return _save_blend(args) if args.blend else 0
+    if not args.blend:
+        return 0
+    progress(0.97, "saving the .blend (Blender in its own process)")
+    return _save_blend(args)
 
 
 def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, progress, start: float = 0.3,
                  span: float = 0.65) -> tuple[dict, CameraRecord, dict | None]:  # fmt: skip
     """The maps (with the relief depth unless ``--card``), the camera and a light model's distance record."""
     from network.infer import load_input, predict, relief_depth  # noqa: PLC0415
+    from network.model.dense import auto_stride  # noqa: PLC0415
 
     progress(start, "decoding the capture")
     inp = load_input(source, require_object=True)
     distance, light = _light(model, inp, args.distance, source)
-    progress(start + 0.05 * span, "predicting the maps")
+    stride = auto_stride(int(inp.mask.sum())) if args.stride == "auto" else int(args.stride)
+    progress(start + 0.05 * span, f"predicting the maps ({int(inp.mask.sum())} pixels, stride {stride})")
     pred = predict(
         model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
-        radiance=inp.radiance, stride=args.stride, resolution=args.resolution, light=light,
+        radiance=inp.radiance, stride=stride, resolution=args.resolution, light=light,
     )  # fmt: skip
     if not args.card:
         progress(start + 0.6 * span, "integrating the relief")
@@ -189,11 +209,15 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
     frames = sequence_frames(args.input)
     if frames is not None and args.blend:
         raise ValueError("--blend saves one capture's asset; import a sequence with the add-on's Import PBR maps")
+    if frames is not None:  # frames that do not belong together are refused before any is written
+        from pbrdf.data.capture_decode import check_sequence  # noqa: PLC0415
+
+        check_sequence(frames)
     progress(0.25, "loading the model")
     model, ckpt = _load_model(args.checkpoint or DEFAULT_CHECKPOINT)
     if frames is None:
         pred, camera, light = _reconstruct(model, ckpt, args.input, args, progress)
-        progress(0.95, "writing the maps")
+        progress(0.95, "writing the maps" + (" and the glTF binary" if args.gltf else ""))
         asset = _gltf_asset(args, pred, camera)
         _write(args.out, name, pred, camera, light)
         _write_gltf(args, name, asset)

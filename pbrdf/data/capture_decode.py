@@ -15,15 +15,17 @@ is found from the capture alone.
 
 from __future__ import annotations
 
+import json
 import os
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from numpy.typing import NDArray
 
-from pbrdf.data.capture import Capture, load_capture, validate_capture
+from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, validate_capture
 from pbrdf.data.raw_files import open_image
 from pbrdf.io.errors import NothingToReconstruct
 from pbrdf.sensor.decode import Decoded, decode
@@ -37,6 +39,7 @@ __all__ = [
     "object_mask",
     "CaptureWarning",
     "check_usable",
+    "check_sequence",
 ]
 
 #: Optional object mask inside a capture folder (overrides the automatic foreground mask).
@@ -167,11 +170,13 @@ def decode_capture(
         gives them, plus ``measured``, ``foreground`` and ``input_mask`` (the network's mask).
 
     Raises:
-        ValueError: bad capture content or a bad ``mask.png``.
+        ValueError: bad capture content, raw frames larger than the rig camera's sensor, or a bad
+            ``mask.png``.
     """
     cap = capture if isinstance(capture, Capture) else load_capture(capture)
     if isinstance(capture, Capture):
         validate_capture(cap)
+    _check_sensor_size(cap)
     # Decode without a signal threshold (the measured pixels), then apply it exactly as decode().
     dec = decode(cap.raws, cap.model, grid=grid, eps=eps, min_signal=-np.inf)
     measured = dec.mask
@@ -185,6 +190,18 @@ def decode_capture(
     return DecodedCapture(
         maps=maps, mask=mask, stokes=dec.stokes, measured=measured, foreground=foreground, foreground_source=source
     )
+
+
+def _check_sensor_size(cap: Capture) -> None:
+    """Refuse raw frames larger than the rig camera's sensor (``rig.camera.sensor_*_px``): no frame of that camera."""
+    cam = cap.meta.rig.camera
+    h, w = cap.raws.shape[1:]
+    if h > cam.sensor_height_px or w > cam.sensor_width_px:
+        where = cap.folder if cap.folder is not None else "capture"
+        raise ValueError(
+            f"{where}: raw frames are {w}x{h}, larger than the camera's {cam.sensor_width_px}x{cam.sensor_height_px} "
+            "sensor (capture.json rig.camera.sensor_width_px / sensor_height_px): not a frame of this camera"
+        )
 
 
 class CaptureWarning(UserWarning):
@@ -240,3 +257,55 @@ def check_usable(decoded: DecodedCapture, capture: Capture, *, need_object: bool
         if need_object:
             raise NothingToReconstruct(f"{where}: nothing to reconstruct: {reason}")
         warnings.warn(f"{where}: {reason}", CaptureWarning, stacklevel=2)
+
+
+def check_sequence(folders: Sequence[str | os.PathLike]) -> None:
+    """Refuse a sequence of capture folders whose frames do not belong together, before any is decoded.
+
+    Every frame must list the first frame's exposure times, and its raw files must exist and have
+    the first frame's size (read from the file headers, not the pixels, so this is quick). Content
+    this cannot read is left to :func:`pbrdf.data.capture.load_capture`, which names it.
+
+    Args:
+        folders: the frames' capture folders, in order.
+
+    Raises:
+        FileNotFoundError: a raw file listed in a frame's ``capture.json`` is missing.
+        ValueError: a frame whose exposures or raw size differ from the first frame's (one line
+            naming both frames).
+    """
+    first = None
+    for folder in map(Path, folders):
+        try:
+            doc = json.loads((folder / CAPTURE_JSON).read_text())
+            exposures = sorted(float(t) for t in doc["exposures_s"])
+            names = [str(n) for n in doc["raw_files"]]
+        except (OSError, ValueError, TypeError, KeyError):
+            continue  # load_capture says what is wrong with it
+        missing = [n for n in names if not (folder / n).is_file()]
+        if missing:
+            raise FileNotFoundError(f"{folder / missing[0]}: raw file listed in {CAPTURE_JSON} does not exist")
+        size = _raw_size(folder / names[0]) if names else None
+        if first is None:
+            first = (folder, exposures, size)
+            continue
+        if exposures != first[1]:
+            raise ValueError(f"{folder}: exposures_s {exposures} differ from {first[1]} of the sequence's first frame "
+                             f"{first[0].name}; a sequence is captured with one bracket")  # fmt: skip
+        if size is not None and first[2] is not None and size != first[2]:
+            raise ValueError(f"{folder}: raw size {size[0]}x{size[1]} differs from {first[2][0]}x{first[2][1]} of the "
+                             f"sequence's first frame {first[0].name}")  # fmt: skip
+
+
+def _raw_size(path: Path) -> tuple[int, int] | None:
+    """``(width, height)`` of a raw file from its header, or None where the header cannot be read."""
+    from PIL import Image, UnidentifiedImageError  # noqa: PLC0415
+
+    try:
+        if path.suffix.lower() == ".npy":
+            shape = np.load(path, mmap_mode="r").shape
+            return (int(shape[-1]), int(shape[-2])) if len(shape) >= 2 else None
+        with Image.open(path) as img:
+            return img.size
+    except (OSError, ValueError, UnidentifiedImageError):
+        return None

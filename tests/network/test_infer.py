@@ -69,7 +69,7 @@ def test_infer_on_sample_and_capture(tiny_dataset, tmp_path):
     assert (tmp_path / "o" / "cap_albedo.png").is_file()
     bad = subprocess.run(
         [sys.executable, "headless/infer.py", "--checkpoint", str(ckpt), "--input", str(tmp_path / "nope"), "--out",
-         str(tmp_path / "o2")], cwd=root, capture_output=True, text=True, timeout=300,
+         str(tmp_path / "o2"), "--quiet"], cwd=root, capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert bad.returncode == 2 and bad.stderr.startswith("error:")
 
@@ -261,8 +261,8 @@ def test_relative_capture_falls_back_with_one_warning(tmp_path):
     got = exr.read_exr(tmp_path / "o" / "rel_albedo.exr")
     np.testing.assert_allclose(got["albedo.R"], want["albedo"][..., 0], rtol=1e-5, atol=1e-6)
     bad = capture.save_capture(tmp_path / "bad", raws, m, extra={"radiometry": "absolute"})
-    proc = subprocess.run([*cmd[:5], str(bad), "--out", str(tmp_path / "o2")], cwd=root, capture_output=True,
-                          text=True, timeout=300)  # fmt: skip
+    proc = subprocess.run([*cmd[:5], str(bad), "--out", str(tmp_path / "o2"), "--quiet"], cwd=root,
+                          capture_output=True, text=True, timeout=300)  # fmt: skip
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "radiometry must be one of" in proc.stderr
     assert not (tmp_path / "o2").exists()
 

@@ -108,3 +108,16 @@ def test_mitsuba_normals_integrate_to_mitsuba_depth(tiny_dataset):
         got = integrate_normals(sample["normal"], mask, np.asarray(meta["intrinsics"]), float(np.median(truth[mask])))
         errors.append(np.median(np.abs(got[mask] / truth[mask] - 1)))
     assert max(errors) < 0.01, errors
+
+
+def test_off_centre_object_is_integrated_on_its_box_with_an_early_stop():
+    """A plane in a corner of a wide frame: the crop keeps the pinhole geometry, the early stop the answer."""
+    k = pinhole_intrinsics(300.0, 200, 160)  # principal point at the frame's centre, far from the corner
+    rays = pixel_rays(k, 160, 200)
+    depth, normal = _plane(rays, (0.0, 0.0, -0.7), (0.3, -0.2, 1.0))
+    mask = np.zeros((160, 200), bool)
+    mask[10:60, 120:190] = True
+    got = integrate_normals(normal, mask, k, float(np.median(depth[mask])))
+    assert np.abs(got[mask] / depth[mask] - 1).max() < 1e-4 and np.all(got[~mask] == 0)
+    exact = integrate_normals(normal, mask, k, float(np.median(depth[mask])), settle=0.0, rtol=1e-10)
+    assert np.abs(got[mask] / exact[mask] - 1).max() < 1e-4

@@ -1,0 +1,215 @@
+"""A full-frame capture through the whole inference path, stage by stage, and its strides against stride 1.
+
+:func:`profile` times each stage of what ``headless/infer.py`` does to one capture folder, in one process:
+reading the raw brackets, decoding them into the nine maps, the object mask, the crop and encoder, the per-pixel
+decoder, the relief depth integration, writing the maps and the glTF binary (and, where ``blend`` is set and the
+bpy wheel is installed, the ``.blend`` in its own process as ``--blend`` does). :func:`stride_rows` decodes the
+same capture at stride 1 and at each of the given strides (edge-aware, the default ``refine_deg``) and reports the
+time of :func:`network.infer.predict` and the error of each against stride 1 (normal angle p99, BRDF RMSE), the
+tolerance the defaults must keep (:data:`TOLERANCE`).
+
+Example:
+    >>> rows = {"decode": 1.0, "predict": 3.0}
+    >>> print(stage_table(rows, total=4.0).splitlines()[2])
+    | decode | 1.00 | 25 % |
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["TOLERANCE", "profile", "stage_table", "stride_rows", "stride_error"]
+
+#: What a faster default must keep against the stride-1 full-resolution answer (issue 30): normal angle p99 in
+#: degrees, and RMSE of albedo, roughness and metallic.
+TOLERANCE = {"normal_deg_p99": 1.0, "brdf_rmse": 0.01}
+
+
+class _Clock:
+    """Named stage timings, in the order they were first timed (a repeated stage adds up)."""
+
+    def __init__(self) -> None:
+        self.seconds: dict[str, float] = {}
+
+    @contextmanager
+    def stage(self, name: str):
+        start = time.perf_counter()
+        try:
+            yield
+        finally:
+            self.seconds[name] = self.seconds.get(name, 0.0) + time.perf_counter() - start
+
+    def wrap(self, name: str, fn: Callable) -> Callable:
+        def timed(*args, **kwargs):
+            with self.stage(name):
+                return fn(*args, **kwargs)
+
+        return timed
+
+
+def stage_table(seconds: dict[str, float], total: float) -> str:
+    """A Markdown table of stage seconds and their share of ``total``."""
+    lines = ["| stage | seconds | share |", "|---|---:|---:|"]
+    lines += [f"| {name} | {s:.2f} | {100 * s / total:.0f} % |" for name, s in seconds.items()]
+    return "\n".join(lines)
+
+
+def profile(capture: Path, checkpoint: Path, *, stride: int | None = None, blend: bool = False) -> dict:
+    """Seconds per stage of one capture's reconstruction (what ``headless/infer.py --gltf [--blend]`` does).
+
+    Args:
+        capture: a capture folder (raw brackets + ``capture.json``).
+        checkpoint: the model.
+        stride: :func:`network.infer.predict`'s ``stride``; None: ``headless/infer.py``'s default
+            (:func:`network.model.dense.auto_stride`).
+        blend: also time the ``.blend`` (``headless/relight.py --save-blend`` in its own process; skipped with a
+            note when bpy is not installed).
+
+    Returns:
+        ``{"stages": {name: seconds}, "total_seconds", "table" (Markdown), "frame" (raw and decoded sizes, masked
+        share), "notes"}``.
+    """
+    import torch  # noqa: PLC0415
+
+    from network.checkpoint import load_checkpoint  # noqa: PLC0415
+    from network.infer import predict, relief_depth  # noqa: PLC0415
+    from network.model.dense import auto_stride  # noqa: PLC0415
+    from pbrdf.data import capture as pcapture  # noqa: PLC0415
+    from pbrdf.data import capture_decode  # noqa: PLC0415
+    from pbrdf.data.gltf_asset import build_asset, write_asset  # noqa: PLC0415
+    from pbrdf.data.predictions import CameraRecord, write_predictions  # noqa: PLC0415
+
+    clock, notes = _Clock(), []
+    model, ckpt = load_checkpoint(checkpoint)
+    start = time.perf_counter()
+    with clock.stage("read the raw brackets"):
+        cap = pcapture.load_capture(capture)
+    with clock.stage("decode the nine maps"):
+        dec = capture_decode.decode_capture(cap)
+    with clock.stage("object mask (foreground)"):
+        capture_decode.check_usable(dec, cap, need_object=True)
+        mask = dec.input_mask
+    k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
+    stride = auto_stride(int(mask.sum())) if stride is None else stride
+    model.encode = clock.wrap("encoder (crop resized to the input size)", model.encode)
+    model.decode_dense = clock.wrap("per-pixel decoder", model.decode_dense)
+    with clock.stage("crop, normalise, paste back"), torch.inference_mode():
+        pred = predict(model, dec.maps, mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
+                       radiance=cap.meta.radiance, stride=stride)  # fmt: skip
+    inner = clock.seconds["encoder (crop resized to the input size)"] + clock.seconds["per-pixel decoder"]
+    clock.seconds["crop, normalise, paste back"] -= inner
+    with clock.stage("relief depth integration"):
+        pred["depth"] = relief_depth(pred, k, cap.meta.distance_m)
+    camera = CameraRecord.of_maps(k, mask.shape, cap.meta.distance_m)
+    with tempfile.TemporaryDirectory() as tmp:
+        with clock.stage("write the maps (EXR + PNG)"):
+            write_predictions(tmp, "frame", pred, camera)
+        with clock.stage("glTF binary"):
+            write_asset(Path(tmp) / "frame.glb", build_asset(pred, k, distance=camera.distance_m or 0.75), name="f")
+        if blend:
+            _time_blend(clock, Path(tmp), notes)
+    total = time.perf_counter() - start
+    return {
+        "stages": clock.seconds,
+        "total_seconds": total,
+        "table": stage_table(clock.seconds, total),
+        "frame": {"raw": list(cap.raws.shape), "decoded": list(mask.shape), "masked_share": float(mask.mean())},
+        "stride": stride,
+        "threads": torch.get_num_threads(),
+        "notes": notes,
+    }
+
+
+def _time_blend(clock: _Clock, folder: Path, notes: list[str]) -> None:
+    """The ``.blend`` of ``--blend`` (headless/relight.py in its own process), or a note without bpy."""
+    import importlib.util  # noqa: PLC0415
+
+    if importlib.util.find_spec("bpy") is None:
+        notes.append(".blend not timed: the bpy wheel is not installed")
+        return
+    script = Path(__file__).resolve().parents[2] / "headless" / "relight.py"
+    cmd = [sys.executable, str(script), "--input", str(folder), "--name", "frame", "--out", str(folder),
+           "--frames", "0", "--save-blend", "--quiet"]  # fmt: skip
+    with clock.stage(".blend (headless/relight.py --save-blend, own process)"):
+        proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
+    if proc.returncode:
+        notes.append(f".blend failed: {proc.stderr.strip().splitlines()[-1:]}")
+
+
+def stride_error(ref: dict[str, np.ndarray], pred: dict[str, np.ndarray], mask: np.ndarray) -> dict[str, float]:
+    """Error of ``pred`` against ``ref`` inside ``mask``: normal angle (degrees) and BRDF RMSE per map.
+
+    Args:
+        ref: ``{"normal", "albedo", "roughness", "metallic"}`` ``(H, W, C)`` maps (the stride-1 answer).
+        pred: the same maps from another setting.
+        mask: ``(H, W)`` bool.
+
+    Returns:
+        ``normal_deg_p99``, ``normal_deg_max``, ``<map>_rmse`` (over every channel of the map) and ``within``
+        (:data:`TOLERANCE` holds).
+
+    Example:
+        >>> m = np.ones((2, 2), bool)
+        >>> a = {"normal": np.tile([0.0, 0, 1], (2, 2, 1)), "albedo": np.zeros((2, 2, 3)),
+        ...      "roughness": np.zeros((2, 2, 1)), "metallic": np.zeros((2, 2, 1))}
+        >>> b = dict(a, albedo=np.full((2, 2, 3), 0.02))
+        >>> e = stride_error(a, b, m)
+        >>> round(e["albedo_rmse"], 3), e["within"]
+        (0.02, False)
+    """
+    a, b = ref["normal"][mask].astype(np.float64), pred["normal"][mask].astype(np.float64)
+    # atan2 of |a x b| and a . b: exact near 0 deg, where arccos of a float32 dot product reads 0.03 deg
+    deg = np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
+    out = {"normal_deg_p99": float(np.quantile(deg, 0.99)), "normal_deg_max": float(deg.max())}
+    for key in ("albedo", "roughness", "metallic"):
+        out[f"{key}_rmse"] = float(np.sqrt(np.mean((ref[key][mask] - pred[key][mask]) ** 2)))
+    worst = max(out[f"{key}_rmse"] for key in ("albedo", "roughness", "metallic"))
+    out["within"] = bool(out["normal_deg_p99"] <= TOLERANCE["normal_deg_p99"] and worst <= TOLERANCE["brdf_rmse"])
+    return out
+
+
+def stride_rows(
+    capture: Path, checkpoint: Path, strides: tuple[int, ...] = (2, 4), *, repeat: int = 1, warmup: int = 1
+) -> dict:
+    """:func:`network.infer.predict` on a capture at stride 1 and at each stride, side by side: time and error.
+
+    Args:
+        capture: a capture folder or sample.
+        checkpoint: the model.
+        strides: strides to compare with stride 1 (edge-aware, the default ``refine_deg``).
+        repeat: timed calls per row (the median is reported).
+        warmup: untimed calls before them.
+
+    Returns:
+        ``{"masked_pixels", "rows": {"stride_s": {"what", "seconds_median", "seconds_all",
+        "error_vs_stride_1"}}}``.
+    """
+    from network.bench.timing import time_call  # noqa: PLC0415
+    from network.checkpoint import load_checkpoint  # noqa: PLC0415
+    from network.infer import load_input, predict  # noqa: PLC0415
+
+    model, ckpt = load_checkpoint(checkpoint)
+    inp = load_input(capture, require_object=True)
+    rows, ref = {}, None
+    for stride in (1, *[s for s in strides if s != 1]):
+        what = (f"network.infer.predict of {Path(capture).name} ({inp.mask.shape[1]} x {inp.mask.shape[0]} decoded, "
+                f"{int(inp.mask.sum())} masked pixels) at full resolution, stride {stride}: encoder + per-pixel "
+                "decoder (no decode of the raws, no depth)")  # fmt: skip
+        timing, pred = time_call(
+            lambda s=stride: predict(model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
+                                     radiance=inp.radiance, stride=s),
+            what, repeat=repeat, warmup=warmup,
+        )  # fmt: skip
+        row = timing.to_dict()
+        ref = pred if stride == 1 else ref
+        row["error_vs_stride_1"] = stride_error(ref, pred, inp.mask)
+        rows[f"stride_{stride}"] = row
+    return {"masked_pixels": int(inp.mask.sum()), "tolerance": TOLERANCE, "rows": rows}

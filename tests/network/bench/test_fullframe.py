@@ -1,0 +1,63 @@
+"""network/bench/fullframe.py: the stage profile of a capture and the stride error against stride 1."""
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from network.bench.fullframe import TOLERANCE, profile, stride_error
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def _rotated(normal: np.ndarray, deg: float) -> np.ndarray:
+    """Normals turned by ``deg`` about the x axis (an independent rotation, not the error's own formula)."""
+    a = np.radians(deg)
+    rot = np.array([[1.0, 0.0, 0.0], [0.0, np.cos(a), -np.sin(a)], [0.0, np.sin(a), np.cos(a)]])
+    return normal @ rot.T
+
+
+def _maps(rng: np.random.Generator) -> dict:
+    n = rng.normal(size=(20, 30, 3)) + [0.0, 0.0, 4.0]
+    return {
+        "normal": n / np.linalg.norm(n, axis=-1, keepdims=True),
+        "albedo": rng.uniform(0, 1, (20, 30, 3)),
+        "roughness": rng.uniform(0, 1, (20, 30, 1)),
+        "metallic": rng.uniform(0, 1, (20, 30, 1)),
+    }
+
+
+def test_stride_error_measures_angles_and_rmse():
+    ref = _maps(np.random.default_rng(0))
+    mask = np.ones((20, 30), bool)
+    mask[:, :5] = False
+    turned = dict(ref, normal=_rotated(ref["normal"], 0.8))
+    err = stride_error(ref, turned, mask)
+    # v and Rv are 0.8 deg apart where v is normal to the axis; these normals lean at most ~35 deg toward it
+    assert 0.6 < err["normal_deg_p99"] <= 0.8 + 1e-6 and err["albedo_rmse"] == 0.0 and err["within"]
+    brighter = dict(ref, albedo=ref["albedo"] + np.where(mask[..., None], 0.0, 1.0))  # only outside the mask
+    assert stride_error(ref, brighter, mask)["albedo_rmse"] == 0.0
+    off = dict(ref, roughness=ref["roughness"] + 2 * TOLERANCE["brdf_rmse"])
+    err = stride_error(ref, off, mask)
+    assert err["roughness_rmse"] == pytest.approx(2 * TOLERANCE["brdf_rmse"]) and not err["within"]
+    assert not stride_error(ref, dict(ref, normal=_rotated(ref["normal"], 1.5)), mask)["within"]
+
+
+def test_profile_times_every_stage_of_the_example_capture():
+    checkpoint = ROOT / "models" / "small" / "model.pt"
+    result = profile(ROOT / "examples" / "capture", checkpoint, stride=2)
+    stages = result["stages"]
+    named = ("read the raw brackets", "decode the nine maps", "encoder (crop resized to the input size)",
+             "per-pixel decoder", "relief depth integration", "write the maps (EXR + PNG)", "glTF binary")  # fmt: skip
+    for name in named:
+        assert stages[name] > 0, name
+    assert all(s >= 0 for s in stages.values())
+    assert sum(stages.values()) <= result["total_seconds"] * 1.001
+    assert result["frame"]["raw"][1:] == [256, 256] and result["frame"]["decoded"] == [128, 128]
+    assert 0 < result["frame"]["masked_share"] < 1 and result["table"].count("\n") == len(stages) + 1
+
+
+def test_identical_float32_normals_are_zero_degrees_apart():
+    ref = {k: v.astype(np.float32) for k, v in _maps(np.random.default_rng(1)).items()}
+    err = stride_error(ref, ref, np.ones((20, 30), bool))
+    assert err["normal_deg_max"] == 0.0 and err["within"]
