@@ -19,6 +19,8 @@ and test_splits.json (strict JSON) in --out (default INPUT/eval).
 --input DIR alone scores any rendered dataset with ground truth (headless/render.py), e.g. a
 user's own, into evaluation.md and evaluation.json in --out (default DIR/eval).
 --real DIR adds the model's re-rendering error on real captures (real.md).
+--refine adds the row "network + refinement" (network/refine.py: each object's albedo scale fitted
+so that the re-rendered unpol matches the capture) and the paired per-scene differences.
 --write-train-stats FILE computes the training means from the train split at --input.
 The input ablation (one model per input variant) is headless/ablation.py.
 """
@@ -56,6 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, help="output folder (default INPUT/eval)")
     parser.add_argument("--limit", type=int, help="evaluate only the first N samples")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--refine", action="store_true",
+                        help="add the 'network + refinement' row (network/refine.py) with paired per-scene "
+                             "differences and their 95 %% intervals")  # fmt: skip
     return parser
 
 
@@ -134,7 +139,7 @@ def _evaluate(args: argparse.Namespace) -> int:
     model.to(device)
     results = [
         evaluate_dataset(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=args.jobs,
-                         checkpoint_path=ckpt_path)
+                         checkpoint_path=ckpt_path, refine=args.refine)
         for f in folders
     ]  # fmt: skip
     out = args.out or root / "eval"

@@ -61,6 +61,12 @@ from pbrdf.data.predictions import (  # noqa: E402
 )
 from pbrdf.io.errors import one_line  # noqa: E402
 
+_REFINE_HELP = (
+    "test-time refinement (network/refine.py): fit each object's albedo scale so that the maps re-rendered "
+    "under the display match the capture; about 1 s per capture on 2 CPU cores; needs calibrated radiometry "
+    "and capture.json's distance_m (else 0.75 m, with a warning)"
+)
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (see the module docstring)."""
@@ -78,6 +84,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--gltf", action="store_true",
                         help="also write <name>.glb (a sequence: one per frame), the asset for any engine")  # fmt: skip
     parser.add_argument("--card", action="store_true", help="no depth map (the import makes a flat card)")
+    parser.add_argument("--refine", action="store_true", help=_REFINE_HELP)
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
     parser.add_argument("--progress-lines", action="store_true",
                         help="print 'progress: FRACTION STAGE' lines on stdout (for the Blender add-on)")  # fmt: skip
@@ -145,6 +152,14 @@ def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, prog
         model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
         radiance=inp.radiance, stride=args.stride, resolution=args.resolution,
     )  # fmt: skip
+    if args.refine:
+        from network.refine import refine_input  # noqa: PLC0415
+
+        progress(start + 0.5 * span, "refining against the capture")
+        res = refine_input(pred, inp)
+        pred = res.pred
+        if res.refined and not args.quiet:
+            print(f"{source.name}: {res.message} in {res.seconds:.1f} s")
     if not args.card:
         progress(start + 0.6 * span, "integrating the relief")
         pred["depth"] = relief_depth(pred, inp.intrinsics, inp.distance_m)

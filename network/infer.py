@@ -23,6 +23,7 @@ from pbrdf.data.capture import DEFAULT_DISTANCE_M
 from pbrdf.data.predictions import OUTPUT_CHANNELS
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.io.errors import NothingToReconstruct
+from pbrdf.sensor.rig import Rig
 
 from .data import exposure_radiance, input_radiance, normalize_maps
 from .inputs import apply_inputs
@@ -64,6 +65,7 @@ class InferenceInput:
         intrinsics: ``K (3, 3)`` of the maps' grid.
         distance_m: the capture's object distance in m, or None (a sample's own depth is ground
             truth, not an input).
+        rig: the capture's rig (display and camera; :mod:`network.refine` re-renders under it), or None.
     """
 
     maps: np.ndarray
@@ -71,6 +73,7 @@ class InferenceInput:
     radiance: float | None
     intrinsics: np.ndarray
     distance_m: float | None = None
+    rig: Rig | None = None
 
 
 def load_input(path: str | Path, *, require_object: bool = False) -> InferenceInput:
@@ -102,7 +105,7 @@ def load_input(path: str | Path, *, require_object: bool = False) -> InferenceIn
         if require_object:
             pdecode_capture.check_usable(dec, cap, need_object=True)
         k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
-        return InferenceInput(dec.maps, dec.input_mask, cap.meta.radiance, k, cap.meta.distance_m)
+        return InferenceInput(dec.maps, dec.input_mask, cap.meta.radiance, k, cap.meta.distance_m, cap.meta.rig)
     if path.suffix in (".exr", ".json") and path.exists():
         sample, meta = psample.read_sample(path, keys=("maps", "mask"))
         if require_object and not sample["mask"].any():
@@ -110,7 +113,8 @@ def load_input(path: str | Path, *, require_object: bool = False) -> InferenceIn
         where = path.with_suffix(".json")
         radiance = pcapture.display_radiance(meta, str(where))
         k = sample_intrinsics(meta, sample["mask"].shape, where)
-        return InferenceInput(sample["maps"], sample["mask"], radiance, k)
+        rig = Rig.from_dict(meta["rig"]) if isinstance(meta.get("rig"), dict) else None
+        return InferenceInput(sample["maps"], sample["mask"], radiance, k, rig=rig)
     raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
 
 
