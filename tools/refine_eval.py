@@ -110,6 +110,7 @@ def main() -> None:
             scene = predict_scene(model, ckpt["inputs"], root, i, stats, input_scale=ckpt["input_scale"],
                                   baseline=False, refine=True)  # fmt: skip
             rows.append(_row(scene))
+            print(json.dumps({"split": root.name, **rows[-1]}, default=float), flush=True)
         results[root.name] = rows
         print(_table(root.name, rows), flush=True)
     if args.json:
