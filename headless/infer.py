@@ -1,7 +1,7 @@
 """Predict normal, albedo, roughness and metallic maps from a capture or a rendered sample.
 
     python headless/infer.py --input (capture folder | sample.exr | folder of capture folders) --out DIR
-        [--checkpoint model.pt] [--resolution full|network] [--blend] [--gltf] [--quiet]
+        [--checkpoint model.pt] [--resolution full|network] [--refine] [--blend] [--gltf] [--quiet]
 
 Without --checkpoint the shipped model (models/small/model.pt, see its MODEL_CARD.md) is used,
 so a real capture folder gives maps without training anything. A capture folder is raw HDR
@@ -26,6 +26,13 @@ camera (pbrdf/data/gltf_asset.py says how an off-centre principal point is kept)
 Maps are predicted at the input's own resolution (--resolution full: the encoder sees the object
 resized to the network's input size, and the per-pixel decoder reads every pixel of the capture);
 --resolution network decodes at the input size and upsamples (faster on large captures, blurrier).
+
+--refine checks the prediction against the capture (network/refine.py): the maps are re-rendered
+under the display at capture.json's distance_m and each object's albedo scale is fitted so that
+the re-rendered unpol matches the decoded one (about 1 s per capture on 2 CPU cores). It needs a
+calibrated capture (radiometry); without distance_m it assumes 0.75 m and says so; where the fit
+cannot be trusted (metal, too few lit pixels, no lower re-rendering error) it keeps the network's
+maps and says why. Measured gains and losses: docs/measurements/refine.md.
 
 Sequences: a folder whose sub-folders are capture folders (frames, in name order) gives
 DIR/<name>_NNNN_<map>.exr per frame (NNNN from 0001; Blender reads each map as an image
