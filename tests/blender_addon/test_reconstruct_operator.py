@@ -222,7 +222,7 @@ def reconstruct(bpy, monkeypatch):
 def _stub(reconstruct, **props):
     """An object with the operator's properties and a ``report`` that records, for calling ``execute`` directly."""
     reports = []
-    values = {"capture_dir": "", "output_dir": "", "mesh": "RELIEF", "checkpoint": ""} | props
+    values = {"capture_dir": "", "output_dir": "", "mesh": "RELIEF", "checkpoint": "", "refine": False} | props
     op = types.SimpleNamespace(**values, report=lambda kind, text: reports.append((set(kind), text)))
     return op, reports
 
