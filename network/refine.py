@@ -15,9 +15,9 @@ The scale is the only thing the network cannot know (a dark object near the disp
 bright one far from it); the chroma and the texture stay the network's. The confidence ``w_p``
 keeps out what the re-renderer cannot explain: grazing normals (``n . v`` small), dark and
 saturated pixels, pixels brighter in LP than in unpol (metal-like), and, through the robust loss,
-cast shadows and interreflections. An object with too few confident pixels, or whose fitted
-scale is implausible, keeps the network's albedo; so does every object when the fit does not
-lower the re-rendering loss, and the result says so.
+cast shadows and interreflections. The scale is searched within :data:`SCALE_RANGE` only; an
+object with too few confident pixels keeps the network's albedo, and so does every object when
+the fit does not lower the re-rendering loss, and the result says so.
 
 The scale needs calibrated radiometry (the display radiance in the maps' units) and the object's
 distance; without the radiance nothing is refined, without the distance the rig's default is used
@@ -183,7 +183,7 @@ def refine(
     def keep(message: str, before=None, after=None) -> RefineResult:
         return RefineResult(pred, False, before, after, {}, time.perf_counter() - start, message)
 
-    if radiance is None:
+    if radiance is None or not radiance > 0:
         return keep("not refined: the capture's radiometry is relative (no display radiance)")
     if not mask.any():
         return keep("not refined: the mask is empty")
