@@ -22,7 +22,7 @@ from pathlib import Path
 
 import bpy
 from bpy.app.handlers import persistent
-from bpy.props import EnumProperty, FloatProperty, PointerProperty, StringProperty
+from bpy.props import BoolProperty, EnumProperty, FloatProperty, PointerProperty, StringProperty
 
 from pbrdf.io.errors import one_line
 
@@ -88,7 +88,7 @@ def _new_job(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context) -> rec
         raise ValueError(f"{checkpoint}: no such checkpoint file (leave it empty for the shipped model)")
     return reconstruct_job.ReconstructJob(
         reconstruction_python(context), capture, out, card=op.mesh == "CARD", checkpoint=checkpoint,
-        repo_root=_REPO_ROOT, distance=op.distance or None,
+        repo_root=_REPO_ROOT, distance=op.distance or None, refine=op.refine,
     )  # fmt: skip
 
 
@@ -154,6 +154,12 @@ class _ReconstructProperties:
         description="Object distance from the camera in metres (a tape measure; 0: capture.json's distance_m, "
         "else 0.75 m and a lighting-aware model's albedo is relative)",
     )  # fmt: skip
+    refine: BoolProperty(
+        name="Refine against the capture",
+        description="Fit each object's albedo scale so the re-rendered maps match the capture (about 1 s more; "
+        "needs calibrated radiometry and capture.json's distance_m)",
+        default=False,
+    )
 
 
 class PDIR_ReconstructSettings(_ReconstructProperties, bpy.types.PropertyGroup):
@@ -290,11 +296,13 @@ class PDIR_PT_reconstruct(SidebarPanel, bpy.types.Panel):
         layout.prop(s, "mesh", expand=True)
         layout.prop(s, "checkpoint")
         layout.prop(s, "distance")
+        layout.prop(s, "refine")
         row = layout.row()
         row.enabled = bool(s.capture_dir.strip())
         op = row.operator(PDIR_OT_reconstruct_capture.bl_idname, icon="SHADING_TEXTURE")
         op.capture_dir, op.output_dir, op.mesh, op.checkpoint = s.capture_dir, s.output_dir, s.mesh, s.checkpoint
         op.distance = s.distance
+        op.refine = s.refine
         try:
             reconstruction_python(context)
         except (RuntimeError, ValueError) as e:

@@ -19,6 +19,8 @@ and test_splits.json (strict JSON) in --out (default INPUT/eval).
 --input DIR alone scores any rendered dataset with ground truth (headless/render.py), e.g. a
 user's own, into evaluation.md and evaluation.json in --out (default DIR/eval).
 --real DIR adds the model's re-rendering error on real captures (real.md).
+--refine adds the row "network + refinement" (network/refine.py: each object's albedo scale fitted
+so that the re-rendered unpol matches the capture) and the paired per-scene differences.
 --write-train-stats FILE computes the training means from the train split at --input.
 --distance-error E [E ...] instead scores the model alone with each scene's distance (its median
 true depth) scaled by 1 + e and 1 - e (network/distance_sensitivity.py), into
@@ -62,6 +64,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--distance-error", type=float, nargs="+", metavar="E",
                         help="score with the object distance off by +-E (e.g. 0.05 0.2) instead")  # fmt: skip
+    parser.add_argument("--refine", action="store_true",
+                        help="add the 'network + refinement' row (network/refine.py) with paired per-scene "
+                             "differences and their 95 %% intervals")  # fmt: skip
     return parser
 
 
@@ -142,7 +147,7 @@ def _evaluate(args: argparse.Namespace) -> int:
         return _sensitivity(model, ckpt, stats, folders, args, root)
     results = [
         evaluate_dataset(model, ckpt, f, stats, limit=args.limit, progress=not args.quiet, jobs=args.jobs,
-                         checkpoint_path=ckpt_path)
+                         checkpoint_path=ckpt_path, refine=args.refine)
         for f in folders
     ]  # fmt: skip
     out = args.out or root / "eval"

@@ -1,7 +1,7 @@
 """Predict normal, albedo, roughness and metallic maps from a capture or a rendered sample.
 
     python headless/infer.py --input (capture folder | sample.exr | folder of capture folders) --out DIR
-        [--checkpoint model.pt] [--resolution full|network] [--blend] [--gltf] [--quiet]
+        [--checkpoint model.pt] [--resolution full|network] [--refine] [--blend] [--gltf] [--quiet]
 
 Without --checkpoint the shipped model (models/small/model.pt, see its MODEL_CARD.md) is used,
 so a real capture folder gives maps without training anything. A capture folder is raw HDR
@@ -32,6 +32,13 @@ pixels or more) and interpolates the rest where it is smooth, decoding edges exa
 Cost: a full sensor frame (2448 x 2048 raw, object on half of it) took 55 s wall, 36 s of CPU and
 1.2 GB with --gltf on a shared 2-core machine (2026-11-27, docs/measurements/fullframe.md; an
 idle machine is faster). Every step prints "[elapsed s] stage" on stderr unless --quiet.
+
+--refine checks the prediction against the capture (network/refine.py): the maps are re-rendered
+under the display at capture.json's distance_m and each object's albedo scale is fitted so that
+the re-rendered unpol matches the decoded one (about 1 s per capture on 2 CPU cores). It needs a
+calibrated capture (radiometry); without distance_m it assumes 0.75 m and says so; where the fit
+cannot be trusted (metal, too few lit pixels, no lower re-rendering error) it keeps the network's
+maps and says why. Measured gains and losses: docs/measurements/refine.md.
 
 Sequences: a folder whose sub-folders are capture folders (frames, in name order) gives
 DIR/<name>_NNNN_<map>.exr per frame (NNNN from 0001; Blender reads each map as an image
@@ -69,6 +76,12 @@ from pbrdf.data.predictions import (  # noqa: E402
 )
 from pbrdf.io.errors import one_line  # noqa: E402
 
+_REFINE_HELP = (
+    "test-time refinement (network/refine.py): fit each object's albedo scale so that the maps re-rendered "
+    "under the display match the capture; about 1 s per capture on 2 CPU cores; needs calibrated radiometry "
+    "and capture.json's distance_m (else 0.75 m, with a warning)"
+)
+
 
 def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (see the module docstring)."""
@@ -91,6 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="object distance in metres along the viewing axis (a tape measure; overrides "
                         "capture.json's distance_m; 0.2-3 m). A light-input model needs one: without it 0.75 m is "
                         "assumed and albedo is relative; the distance used goes to <name>_light.json")  # fmt: skip
+    parser.add_argument("--refine", action="store_true", help=_REFINE_HELP)
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
     parser.add_argument("--progress-lines", action="store_true",
                         help="print 'progress: FRACTION STAGE' lines on stdout (for the Blender add-on)")  # fmt: skip
@@ -170,6 +184,16 @@ def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, prog
         model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
         radiance=inp.radiance, stride=stride, resolution=args.resolution, light=light,
     )  # fmt: skip
+    if args.refine:
+        from dataclasses import replace  # noqa: PLC0415
+
+        from network.refine import refine_input  # noqa: PLC0415
+
+        progress(start + 0.5 * span, "refining against the capture")
+        res = refine_input(pred, replace(inp, distance_m=distance))  # --distance, else capture.json's
+        pred = res.pred
+        if res.refined and not args.quiet:
+            print(f"{source.name}: {res.message} in {res.seconds:.1f} s")
     if not args.card:
         progress(start + 0.6 * span, "integrating the relief")
         pred["depth"] = relief_depth(pred, inp.intrinsics, distance)

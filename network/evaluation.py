@@ -82,6 +82,7 @@ METHODS = {
     "baseline": "Photometric stereo (calibrated)",
     "constant": "Constant (normal to camera, train means)",
     "object_mean": "Per-object mean (oracle: each object's mean material, no texture)",
+    "refined": "Ours + refinement (network/refine.py)",
 }
 #: Columns: (key, header, higher is better).
 METRICS = (
@@ -214,6 +215,7 @@ class ScenePredictions:
         objects: ``(H, W)`` object id per pixel (index into the sidecar's ``objects``, -1 off
             objects), or None for datasets without the channel.
         intrinsics: ``K (3, 3)`` of the maps' grid (the capture's calibration), or None (no depth score).
+        refine: with the refinement, what it did (``refined``, ``seconds``, ``message``), else None.
     """
 
     index: int
@@ -226,6 +228,7 @@ class ScenePredictions:
     ours: dict | None
     objects: np.ndarray | None = None
     intrinsics: np.ndarray | None = None
+    refine: dict | None = None
 
 
 def predict_scene(
@@ -238,6 +241,7 @@ def predict_scene(
     input_scale: str = "exposure-invariant",
     baseline: bool = True,
     distance_scale: float = 1.0,
+    refine: bool = False,
 ) -> ScenePredictions:
     """Run every method on one sample as on a user's input (its capture folder when it has raw brackets).
 
@@ -245,7 +249,10 @@ def predict_scene(
     capture's ``capture.json`` or the sample's sidecar (:func:`network.infer.load_input`), as for a
     user. ``baseline=False`` leaves out photometric stereo (``preds["baseline"]`` is empty), for
     diagnostics of the model alone. A ``light_input`` model is given the scene's one distance
-    (:func:`network.light_input.scene_light`) times ``distance_scale``.
+    (:func:`network.light_input.scene_light`) times ``distance_scale``. ``refine=True`` adds the
+    ``refined`` row: the model's maps through :func:`network.refine.refine` with the sample's rig
+    and one distance, the median true depth of the object (what a capture's ``distance_m`` gives;
+    never the per-pixel depth).
 
     Raises:
         ValueError: the decoded grid differs from the truth, or the model fails on a non-empty
@@ -289,7 +296,26 @@ def predict_scene(
         k = sample_intrinsics(meta, region.shape, sidecar) if "intrinsics" in meta else None
     objects = np.rint(sample["object"]).astype(np.int64) if "object" in sample else None
     preds["object_mean"] = object_mean_predict(gt, region, objects)
-    return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects, k)
+    preds["refined"], info = {}, None
+    if refine:
+        preds["refined"], info = _refined(ours, preds["ours"], inp, gt, region, auto)
+    return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects, k, info)
+
+
+def _refined(ours, fallback, inp, gt: dict, region: np.ndarray, auto: np.ndarray) -> tuple[dict, dict]:
+    """The ``refined`` row's maps (extended over ``region``) and what the refinement did."""
+    from pbrdf.sensor.rig import Rig  # noqa: PLC0415
+
+    from .refine import refine  # noqa: PLC0415
+
+    if ours is None:
+        return fallback, {"refined": False, "seconds": 0.0, "message": "no prediction"}
+    depth = gt.get("depth")
+    valid = region & (depth > 0) if depth is not None else None
+    distance = float(np.median(depth[valid])) if valid is not None and valid.any() else inp.distance_m
+    res = refine(ours, inp.maps, inp.intrinsics, inp.rig or Rig(), inp.radiance, distance)
+    info = {"refined": res.refined, "seconds": res.seconds, "message": res.message}
+    return _fill_nearest(res.pred, auto, region), info
 
 
 def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
@@ -304,6 +330,8 @@ def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
     }
     for m in METHODS:
         row[m] = score(scene.preds[m], scene.gt, scene.region, lpips=lpips, intrinsics=scene.intrinsics)
+    if scene.refine is not None:
+        row["refine"] = scene.refine
     if scene.objects is not None:
         # One row per object seen (multi-object scenes): its mesh, material and scores, no LPIPS.
         specs = scene.meta.get("objects") or []
@@ -325,6 +353,16 @@ def summarize_rows(rows: list[Mapping[str, Any]]) -> dict[str, Any]:
     weights = [r["pixels"] for r in rows]
     methods = {m: {k: summarize([r[m][k] for r in rows], weights) for k, _, _ in METRICS} for m in METHODS}
     out = {"methods": methods, "mask_iou": summarize([r["mask_iou"] for r in rows])}
+    if any(r.get("refine") for r in rows):  # paired per-scene differences, refinement minus network
+        out["paired"] = {
+            k: summarize([None if r["refined"][k] is None or r["ours"][k] is None else r["refined"][k] - r["ours"][k]
+                          for r in rows], weights)
+            for k, _, _ in METRICS
+        }  # fmt: skip
+        info = [r["refine"] for r in rows if r.get("refine")]
+        seconds = [i["seconds"] for i in info]
+        out["refine_seconds"] = {"median": float(np.median(seconds)), "max": float(np.max(seconds)),
+                                 "refined": sum(bool(i["refined"]) for i in info)}  # fmt: skip
     objs = [o for r in rows for o in r.get("objects") or ()]
     if objs:  # per-object means: every object counts once, however large it is in the frame
         w = [o["pixels"] for o in objs]
@@ -346,6 +384,7 @@ def evaluate_dataset(
     progress: bool = False,
     jobs: int = 1,
     checkpoint_path: str | Path | None = None,
+    refine: bool = False,
 ) -> dict[str, Any]:
     """Score the model, the baseline and the constant predictor on every scene of a rendered dataset.
 
@@ -363,6 +402,7 @@ def evaluate_dataset(
         jobs: worker processes (each loads ``checkpoint_path`` onto ``model``'s device and runs one
             torch thread); scenes are independent, so the rows are the same for any ``jobs``.
         checkpoint_path: the checkpoint file (needed with ``jobs > 1``; names the model's row).
+        refine: add the ``refined`` row and its paired differences (:func:`predict_scene`).
 
     Returns:
         JSON-ready dict: ``split`` (None for an unlabelled dataset), ``model`` (the ``ours`` row's
@@ -398,13 +438,14 @@ def evaluate_dataset(
     try:
         if jobs > 1:
             device = str(next(model.parameters()).device)  # every worker puts its copy where the model is
-            init = (str(checkpoint_path), variant, str(root), dict(stats), bool(lpips), device)
+            init = (str(checkpoint_path), variant, str(root), dict(stats), bool(lpips), device, refine)
             rows = _pool_rows(indices, jobs, init, bar)
         else:
             scale = checkpoint_input_scale(checkpoint)
             rows = []
             for i in indices:
-                rows.append(score_scene(predict_scene(model, variant, root, i, stats, input_scale=scale), lpips=lpips))
+                scene = predict_scene(model, variant, root, i, stats, input_scale=scale, refine=refine)
+                rows.append(score_scene(scene, lpips=lpips))
                 if bar is not None:
                     bar.update()
     finally:
@@ -443,19 +484,23 @@ def _pool_rows(indices: list[int], jobs: int, init: tuple, bar) -> list[dict[str
 _WORKER: dict[str, Any] = {}
 
 
-def _worker_init(checkpoint_path: str, variant: str, root: str, stats: dict, lpips: bool, device: str) -> None:
+def _worker_init(
+    checkpoint_path: str, variant: str, root: str, stats: dict, lpips: bool, device: str, refine: bool = False
+) -> None:
     """Load the model once per worker process on ``device``, with one torch thread (the workers share the cores)."""
     from .checkpoint import load_checkpoint  # noqa: PLC0415
 
     torch.set_num_threads(1)
     model, ckpt = load_checkpoint(checkpoint_path)
     model.to(device)
-    _WORKER.update(model=model, variant=variant, scale=ckpt["input_scale"], root=Path(root), stats=stats, lpips=lpips)
+    _WORKER.update(model=model, variant=variant, scale=ckpt["input_scale"], root=Path(root), stats=stats, lpips=lpips,
+                   refine=refine)  # fmt: skip
 
 
 def _worker_row(index: int) -> dict[str, Any]:
     w = _WORKER
-    scene = predict_scene(w["model"], w["variant"], w["root"], index, w["stats"], input_scale=w["scale"])
+    scene = predict_scene(w["model"], w["variant"], w["root"], index, w["stats"], input_scale=w["scale"],
+                          refine=w["refine"])  # fmt: skip
     return score_scene(scene, lpips=w["lpips"])
 
 
@@ -488,7 +533,8 @@ def summary_table(result: Mapping[str, Any], key: str = "mean") -> tuple[list[st
     if scored and scored < (result["methods"]["constant"]["roughness_rmse"].get("count") or 0):
         labels["object_mean"] += f" ({scored} textured scenes)"
     header = ["method"] + [h for _, h in cols]
-    shown = [m for m in METHODS if m != "object_mean" or scored]
+    refined = result["methods"].get("refined", {}).get("normal_mae", {}).get("count") or 0
+    shown = [m for m in METHODS if (m != "object_mean" or scored) and (m != "refined" or refined)]
     rows = [[labels[m]] + [_cell(result["methods"][m][k], key, digits.get(k, 3)) for k, _ in cols] for m in shown]
     return header, rows
 
@@ -508,6 +554,14 @@ def results_markdown(result: Mapping[str, Any]) -> str:
     if result.get("per_object") and result.get("objects", 0) > result["scenes"]:
         per = {"methods": result["per_object"], "lpips": False, "model": result.get("model")}
         lines += _markdown_table(f"Per-object mean [95 % CI] ({result['objects']} objects)", *summary_table(per))
+    if result.get("paired"):
+        cols = [(k, h) for k, h, _ in METRICS if k in ("normal_mae", "albedo_psnr", "albedo_si_psnr", "roughness_rmse")]
+        cells = [_cell(result["paired"][k], "mean", 2) for k, _ in cols]
+        t = result.get("refine_seconds") or {}
+        title = (f"Refinement minus network, paired per-scene mean [95 % CI] (refined {t.get('refined')} of "
+                 f"{result['scenes']} scenes; {t.get('median', 0):.1f} s median, "
+                 f"{t.get('max', 0):.1f} s max)")  # fmt: skip
+        lines += _markdown_table(title, [h for _, h in cols], [cells])
     iou = result["mask_iou"]
     lines.append(f"Automatic foreground mask vs object coverage: IoU {_cell(iou, 'mean', 3)} (per-scene mean).")
     lines.append("")

@@ -23,6 +23,7 @@ from pbrdf.data.capture import DEFAULT_DISTANCE_M
 from pbrdf.data.predictions import OUTPUT_CHANNELS
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.io.errors import NothingToReconstruct
+from pbrdf.sensor.rig import Rig
 
 from .data import exposure_radiance, input_radiance, normalize_maps
 from .inputs import apply_inputs
@@ -65,7 +66,8 @@ class InferenceInput:
         intrinsics: ``K (3, 3)`` of the maps' grid.
         distance_m: the capture's object distance in m, or None (a sample's own depth is ground
             truth, not an input).
-        rig: the capture's or sample's rig (:class:`pbrdf.sensor.rig.Rig`), for the light input.
+        rig: the capture's or sample's rig (:class:`pbrdf.sensor.rig.Rig`), for the light input and
+            :mod:`network.refine`'s re-rendering; None where the input has none.
     """
 
     maps: np.ndarray
@@ -73,7 +75,7 @@ class InferenceInput:
     radiance: float | None
     intrinsics: np.ndarray
     distance_m: float | None = None
-    rig: object = None
+    rig: Rig | None = None
 
 
 def load_input(path: str | Path, *, require_object: bool = False) -> InferenceInput:

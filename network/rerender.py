@@ -70,6 +70,8 @@ __all__ = [
     "PATCH_COLUMNS",
     "WIDEN",
     "DEFAULT_PATCHES",
+    "DIFFUSE_MODELS",
+    "PLASTIC_IOR",
     "Patches",
     "display_patches",
     "pixel_rays",
@@ -85,6 +87,11 @@ PATCH_COLUMNS = ("x", "y", "z", "nx", "ny", "nz", "area", "radiance_r", "radianc
 WIDEN = 1.0 / 24.0
 #: Default patches per colour region ``(nx, ny)``: 3 x 144 = 432 patches (module docs for the accuracy).
 DEFAULT_PATCHES = (12, 12)
+#: Diffuse lobes: ``"burley"`` (Disney, the training loss's) or ``"fresnel"`` (Lambert times the
+#: dielectric Fresnel transmission in and out, as Mitsuba's ``pplastic`` that renders the data).
+DIFFUSE_MODELS = ("burley", "fresnel")
+#: Refractive index of the ``"fresnel"`` diffuse lobe's coating (the renderer's ``pplastic`` default).
+PLASTIC_IOR = 1.5
 
 _EPS = 1e-12
 
@@ -191,8 +198,24 @@ def _safe_normalize(x: Tensor) -> Tensor:
     return x * torch.rsqrt((x * x).sum(-1, keepdim=True).clamp_min(_EPS))
 
 
+def _transmission(cos: Tensor, eta: float) -> Tensor:
+    """Unpolarized Fresnel transmittance ``1 - (r_s^2 + r_p^2) / 2`` from air into index ``eta > 1``."""
+    cos = cos.clamp(0.0, 1.0)
+    cos_t = (1.0 - (1.0 - cos * cos) / (eta * eta)).clamp_min(_EPS).sqrt()
+    rs = (cos - eta * cos_t) / (cos + eta * cos_t)
+    rp = (eta * cos - cos_t) / (eta * cos + cos_t)
+    return 1.0 - 0.5 * (rs * rs + rp * rp)
+
+
 def _shade(
-    normal: Tensor, albedo: Tensor, roughness: Tensor, metallic: Tensor, points: Tensor, patches: Patches, widen: float
+    normal: Tensor,
+    albedo: Tensor,
+    roughness: Tensor,
+    metallic: Tensor,
+    points: Tensor,
+    patches: Patches,
+    widen: float,
+    diffuse: str = "burley",
 ) -> tuple[Tensor, Tensor]:
     """``(unpol, lp)`` sums over the patches; pixel-last inputs ``(B, P, C)`` -> ``(B, P, 3)`` each."""
     p = points[:, :, None, :]  # (B, P, 1, 3)
@@ -212,6 +235,10 @@ def _shade(
     fd, fs = disney_lobes(
         n, l_dir, v, albedo[:, :, None, :], rough, metallic[..., 0][:, :, None], specular_roughness=spec_rough
     )
+    if diffuse == "fresnel":  # pplastic: Lambert attenuated by the coating's smooth refraction in and out
+        cos_o = (n * v).sum(-1).clamp_min(0.0)
+        t = _transmission(cos_i, PLASTIC_IOR) * _transmission(cos_o, PLASTIC_IOR) * (cos_o > 0)
+        fd = albedo[:, :, None, :] * ((1.0 - metallic[..., 0][:, :, None]) * t / math.pi)[..., None]
     light = patches.radiance[:, None] * (cos_i * solid)[..., None]  # (B, P, N, 3)
     diffuse = (fd * light).sum(2)
     spec = fs * light
@@ -235,6 +262,7 @@ def rerender(
     *,
     widen: float = WIDEN,
     chunk: int = 256,
+    diffuse: str = "burley",
 ) -> dict[str, Tensor]:
     """Re-render the unpol (diffuse) and LP (specular) maps at P pixels under the display.
 
@@ -247,13 +275,16 @@ def rerender(
         patches: :class:`Patches` of shape ``(N, .)`` (shared) or ``(B, N, .)``.
         widen: lobe widening ``kappa`` (module docs); 0 evaluates the plain lobe at the centres.
         chunk: pixels per evaluation block (memory ``~ B chunk N`` floats per intermediate).
+        diffuse: the diffuse lobe, one of :data:`DIFFUSE_MODELS`.
 
     Returns:
         ``{"unpol": (B, 3, P), "lp": (B, 3, P)}`` in the display's radiance units.
 
     Raises:
-        ValueError: on mismatched shapes.
+        ValueError: on mismatched shapes or an unknown ``diffuse``.
     """
+    if diffuse not in DIFFUSE_MODELS:
+        raise ValueError(f"diffuse must be one of {', '.join(DIFFUSE_MODELS)}; got {diffuse!r}")
     b, _, p = normal.shape
     for name, x, c in (("normal", normal, 3), ("albedo", albedo, 3), ("roughness", roughness, 1),
                        ("metallic", metallic, 1), ("points", points, 3)):  # fmt: skip
@@ -272,9 +303,9 @@ def rerender(
     for s in range(0, p, chunk):
         block = [x[:, s : s + chunk] for x in args]
         if grad:
-            u, q = checkpoint(_shade, *block, pt, widen, use_reentrant=False)
+            u, q = checkpoint(_shade, *block, pt, widen, diffuse, use_reentrant=False)
         else:
-            u, q = _shade(*block, pt, widen)
+            u, q = _shade(*block, pt, widen, diffuse)
         unpol.append(u)
         lp.append(q)
     return {"unpol": torch.cat(unpol, 1).transpose(1, 2), "lp": torch.cat(lp, 1).transpose(1, 2)}
@@ -288,6 +319,7 @@ def rerender_dense(
     *,
     widen: float = WIDEN,
     chunk: int = 4096,
+    diffuse: str = "burley",
 ) -> dict[str, Tensor]:
     """Re-render full unpol and LP maps from dense predicted maps (evaluation).
 
@@ -299,6 +331,7 @@ def rerender_dense(
         patches: :class:`Patches`, ``(N, .)`` or ``(B, N, .)``.
         widen: see :func:`rerender`.
         chunk: pixels per block.
+        diffuse: see :func:`rerender`.
 
     Returns:
         ``{"unpol": (B, 3, H, W), "lp": (B, 3, H, W)}``, zero outside the mask. Runs under the
@@ -306,6 +339,8 @@ def rerender_dense(
     """
     b, _, h, w = mask.shape
     flat = {k: pred[k].reshape(b, pred[k].shape[1], h * w) for k in ("normal", "albedo", "roughness", "metallic")}
-    out = rerender(**flat, points=points.reshape(b, 3, h * w), patches=patches, widen=widen, chunk=chunk)
+    out = rerender(
+        **flat, points=points.reshape(b, 3, h * w), patches=patches, widen=widen, chunk=chunk, diffuse=diffuse
+    )
     m = mask.reshape(b, 1, h * w).to(out["unpol"].dtype)
     return {k: (v * m).reshape(b, 3, h, w) for k, v in out.items()}

@@ -134,12 +134,15 @@ def command_line(
     checkpoint: str | os.PathLike | None = None,
     module: str = SCRIPT_MODULE,
     distance: float | None = None,
+    refine: bool = False,
 ) -> list[str]:
     """The command that reconstructs ``capture`` into ``out`` (never ``--blend``); ``distance`` (m) -> ``--distance``.
 
     Example:
         >>> " ".join(command_line("py", "cap", "o", card=True, checkpoint="m.pt"))
         'py -m headless.infer --input cap --out o --quiet --progress-lines --card --checkpoint m.pt'
+        >>> command_line("py", "cap", "o", refine=True)[-1]
+        '--refine'
     """
     cmd = [str(python), "-m", module, "--input", str(capture), "--out", str(out), "--quiet", "--progress-lines"]
     if card:
@@ -148,6 +151,8 @@ def command_line(
         cmd += ["--checkpoint", str(checkpoint)]
     if distance:
         cmd += ["--distance", f"{distance:g}"]
+    if refine:  # test-time refinement against the capture (network/refine.py)
+        cmd.append("--refine")
     return cmd
 
 
@@ -243,6 +248,7 @@ class ReconstructJob:
         distance: the object distance in m (``--distance``); None or 0: capture.json's, else the default.
         repo_root: the repository to run from (:func:`repository_root`); None: the installed project.
         module: the module run with ``-m`` (tests substitute a stand-in).
+        refine: run the test-time refinement (``--refine``).
 
     Attributes:
         state: ``"new"``, ``"running"``, ``"done"``, ``"failed"`` or ``"cancelled"``.
@@ -262,6 +268,7 @@ class ReconstructJob:
         repo_root: str | os.PathLike | None = None,
         module: str = SCRIPT_MODULE,
         distance: float | None = None,
+        refine: bool = False,
     ) -> None:
         self.distance = distance or None
         self.capture = check_capture_folder(capture)
@@ -271,7 +278,7 @@ class ReconstructJob:
         if self.out.exists() and not self.out.is_dir():
             raise ValueError(f"{self.out}: exists and is not a folder; choose another output folder")
         self.name = self.capture.name
-        self.python, self.card, self.module = Path(python), card, module
+        self.python, self.card, self.module, self.refine = Path(python), card, module, refine
         self.checkpoint = checkpoint if checkpoint is not None and str(checkpoint).strip() else None
         self.repo_root = Path(repo_root) if repo_root is not None else None
         self.state, self.fraction, self.stage, self.error = "new", 0.0, "", ""
@@ -294,7 +301,8 @@ class ReconstructJob:
     def command(self) -> list[str]:
         """The command line (after :meth:`start`, with the staging folder as ``--out``)."""
         return command_line(self.python, self.capture, self._staging or self.out, card=self.card,
-                            checkpoint=self.checkpoint, module=self.module, distance=self.distance)  # fmt: skip
+                            checkpoint=self.checkpoint, module=self.module, distance=self.distance,
+                            refine=self.refine)  # fmt: skip
 
     def start(self) -> None:
         """Create the staging folder and start the process (OSError: it cannot start; nothing left behind)."""

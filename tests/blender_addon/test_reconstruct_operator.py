@@ -222,7 +222,8 @@ def reconstruct(bpy, monkeypatch):
 def _stub(reconstruct, **props):
     """An object with the operator's properties and a ``report`` that records, for calling ``execute`` directly."""
     reports = []
-    values = {"capture_dir": "", "output_dir": "", "mesh": "RELIEF", "checkpoint": "", "distance": 0.0} | props
+    values = {"capture_dir": "", "output_dir": "", "mesh": "RELIEF", "checkpoint": "", "distance": 0.0,
+              "refine": False} | props
     op = types.SimpleNamespace(**values, report=lambda kind, text: reports.append((set(kind), text)))
     return op, reports
 
@@ -404,10 +405,12 @@ def test_panel_shows_the_settings_or_the_running_job(bpy, reconstruct, monkeypat
     log = []
     panel = types.SimpleNamespace(layout=_Layout(log))
     reconstruct.PDIR_PT_reconstruct.draw(panel, bpy.context)
-    assert [e[1] for e in log if e[0] == "prop"] == ["capture_dir", "output_dir", "mesh", "checkpoint", "distance"]
+    assert [e[1] for e in log if e[0] == "prop"] == [
+        "capture_dir", "output_dir", "mesh", "checkpoint", "distance", "refine"
+    ]
     ((_, idname, op),) = [e for e in log if e[0] == "operator"]
     assert idname == "pdir.reconstruct_capture"
-    assert (op.capture_dir, op.mesh, op.output_dir, op.checkpoint) == (str(EXAMPLE), "CARD", "", "")
+    assert (op.capture_dir, op.mesh, op.output_dir, op.checkpoint, op.refine) == (str(EXAMPLE), "CARD", "", "", False)
     assert not [e for e in log if e[0] == "label"]  # Blender's Python here has torch: no how-to line
     monkeypatch.setattr(reconstruct, "_job", types.SimpleNamespace(name="mug", fraction=0.4, stage="predicting"))
     log.clear()

@@ -164,3 +164,26 @@ def test_sequence_writes_numbered_frames_and_its_speed(tmp_path, toy):
     proc = _infer("--checkpoint", str(toy[0]), "--input", str(seq), "--out", str(tmp_path / "bad"), "--blend")
     _assert_one_error_line(proc, "--blend saves one capture's asset")
     assert not (tmp_path / "bad").exists()
+
+
+def test_refine_changes_only_the_albedo_and_says_so(tmp_path):
+    """--refine on examples/capture (calibrated, with distance_m): the albedo is rescaled by one factor
+    per object, the other maps are the network's; without --quiet it reports the fit and its time."""
+    from pbrdf.io.exr import read_exr
+
+    def maps(folder, key):
+        chans = read_exr(folder / f"capture_{key}.exr")
+        return np.stack([chans[c] for c in sorted(chans)], -1)
+
+    base, refined = tmp_path / "base", tmp_path / "refined"
+    assert _infer("--input", "examples/capture", "--out", str(base), "--card").returncode == 0
+    proc = subprocess.run([sys.executable, "headless/infer.py", "--input", "examples/capture", "--out", str(refined),
+                           "--card", "--refine"], cwd=ROOT, capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    assert "refined the albedo scale of 1 object" in proc.stdout, proc.stdout + proc.stderr
+    for k in ("normal", "roughness", "metallic"):
+        np.testing.assert_array_equal(maps(base, k), maps(refined, k))
+    a, b = maps(base, "albedo"), maps(refined, "albedo")
+    sel = (a > 0.02) & (b < 0.999)  # lit, not clipped at 1
+    ratio = b[sel] / a[sel]
+    assert ratio.max() - ratio.min() < 1e-3 and abs(ratio.mean() - 1.0) > 1e-3

@@ -33,8 +33,10 @@ def test_every_row_is_scored_on_the_object_coverage(test_split):
     model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
     result = evaluation.evaluate_dataset(model, ckpt, test_split, STATS, lpips=False)
     assert result["split"] == "test-procedural" and result["scenes"] == 3
-    assert set(result["methods"]) == {"ours", "baseline", "constant", "object_mean"}
+    assert set(result["methods"]) == {"ours", "baseline", "constant", "object_mean", "refined"}
     assert result["methods"]["object_mean"]["roughness_rmse"]["count"] == 0  # uniform objects: no oracle row
+    assert result["methods"]["refined"]["normal_mae"]["count"] == 0 and "paired" not in result  # not asked for
+    assert "refinement" not in evaluation.results_markdown(result)
     for row in result["per_scene"]:
         s, _ = psample.read_sample(test_split, row["index"], keys=("normal", "object"))
         region = s["object"] >= 0
@@ -47,6 +49,21 @@ def test_every_row_is_scored_on_the_object_coverage(test_split):
         assert row["baseline"]["roughness_rmse"] is None  # photometric stereo predicts no roughness
     ours = result["methods"]["ours"]["normal_mae"]
     assert ours["ci"][0] <= ours["mean"] <= ours["ci"][1]
+
+
+def test_refinement_row_is_paired_with_the_network(test_split):
+    model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
+    result = evaluation.evaluate_dataset(model, ckpt, test_split, STATS, lpips=False, refine=True, limit=2)
+    for row in result["per_scene"]:
+        assert set(row["refine"]) == {"refined", "seconds", "message"}
+        # The refinement changes the albedo scale only: normals and roughness are the network's.
+        assert row["refined"]["normal_mae"] == row["ours"]["normal_mae"]
+        assert row["refined"]["roughness_rmse"] == row["ours"]["roughness_rmse"]
+        assert row["refined"]["albedo_si_psnr"] == pytest.approx(row["ours"]["albedo_si_psnr"], abs=0.3)
+    want = np.mean([r["refined"]["albedo_psnr"] - r["ours"]["albedo_psnr"] for r in result["per_scene"]])
+    assert result["paired"]["albedo_psnr"]["mean"] == pytest.approx(want)
+    text = evaluation.results_markdown(result)
+    assert "Ours + refinement" in text and "Refinement minus network" in text
 
 
 def test_cli_writes_strict_json_and_refuses_other_splits(test_split, tmp_path):

@@ -288,6 +288,38 @@ def test_matches_mitsuba_sphere_under_display(mitsuba_llvm_rgb, roughness, metal
     np.testing.assert_allclose(ours.sum(0), ref.sum(0), rtol=0.01)  # no bias: 0.1-0.3 % measured
 
 
+def test_fresnel_diffuse_matches_mitsuba_pplastic_sphere(mitsuba_llvm_rgb):
+    """The ``"fresnel"`` diffuse lobe against Mitsuba's ``pplastic`` (the renderer's plastic) with no specular
+    part: Lambert times the coating's transmission in and out. Burley is biased against it (the floor, issue 27)."""
+    rig = Rig()
+    centre, radius = np.array([0.03, -0.02, -0.6]), 0.08
+    bsdf = {"type": "pplastic", "diffuse_reflectance": {"type": "rgb", "value": ALBEDO.tolist()}, "alpha": 0.3,
+            "specular_reflectance": 0.0, "int_ior": rr.PLASTIC_IOR}  # fmt: skip
+    ref, p, n = _mitsuba_sphere(mitsuba_llvm_rgb, rig, bsdf, centre, radius)
+    fresnel, _ = _render(rig, n, ALBEDO, 0.5, 0.0, p, diffuse="fresnel")
+    burley, _ = _render(rig, n, ALBEDO, 0.5, 0.0, p)
+    lit = ref > 0.02 * ref.max()
+    assert lit.sum() > 300
+    assert (np.abs(fresnel - ref)[lit] / ref[lit]).mean() < 0.015
+    np.testing.assert_allclose(fresnel.sum(0), ref.sum(0), rtol=0.01)
+    assert np.all(burley.sum(0) / ref.sum(0) > 1.05)  # what the Fresnel factor corrects
+
+
+def test_fresnel_transmission_equals_the_polarimetric_fresnel():
+    from pbrdf.polar.fresnel import fresnel_reflectance
+
+    cos = torch.linspace(0.0, 1.0, 101, dtype=torch.float64, requires_grad=True)
+    t = rr._transmission(cos, 1.5)
+    np.testing.assert_allclose(t.detach().numpy(), 1.0 - fresnel_reflectance(cos.detach().numpy(), 1.5), atol=1e-9)
+    t.sum().backward()
+    assert torch.isfinite(cos.grad).all()
+
+
+def test_unknown_diffuse_model_is_refused():
+    with pytest.raises(ValueError, match="diffuse must be one of"):
+        _render(Rig(), np.array([[0.0, 0.0, 1.0]]), ALBEDO, 0.5, 0.0, np.array([[0.0, 0.0, -0.7]]), diffuse="x")
+
+
 # --------------------------------------------------------------------------- rendered sample, dataset, loss
 
 
