@@ -222,8 +222,14 @@ def reconstruct(bpy, monkeypatch):
 def _stub(reconstruct, **props):
     """An object with the operator's properties and a ``report`` that records, for calling ``execute`` directly."""
     reports = []
-    values = {"capture_dir": "", "output_dir": "", "mesh": "RELIEF", "checkpoint": "", "distance": 0.0,
-              "refine": False} | props
+    values = {
+        "capture_dir": "",
+        "output_dir": "",
+        "mesh": "RELIEF",
+        "checkpoint": "",
+        "distance": 0.0,
+        "refine": False,
+    } | props
     op = types.SimpleNamespace(**values, report=lambda kind, text: reports.append((set(kind), text)))
     return op, reports
 
@@ -406,7 +412,12 @@ def test_panel_shows_the_settings_or_the_running_job(bpy, reconstruct, monkeypat
     panel = types.SimpleNamespace(layout=_Layout(log))
     reconstruct.PDIR_PT_reconstruct.draw(panel, bpy.context)
     assert [e[1] for e in log if e[0] == "prop"] == [
-        "capture_dir", "output_dir", "mesh", "checkpoint", "distance", "refine"
+        "capture_dir",
+        "output_dir",
+        "mesh",
+        "checkpoint",
+        "distance",
+        "refine",
     ]
     ((_, idname, op),) = [e for e in log if e[0] == "operator"]
     assert idname == "pdir.reconstruct_capture"
