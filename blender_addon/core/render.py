@@ -14,6 +14,7 @@ truth.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import time
@@ -42,6 +43,8 @@ from .spectral import render_stokes_spectral
 from .texture_truth import mapped_normals, needs_truth_pass, truth_pass
 
 if TYPE_CHECKING:
+    from collections.abc import Iterator
+
     from .spec import SceneSpec
 
 __all__ = [
@@ -65,6 +68,14 @@ log = logging.getLogger(__name__)
 #: tables still compiled its own) and its larger trees compiled and rendered slower
 #: (docs/measurements/headless.md, 2026-11-27).
 CANONICAL_TREES = False
+#: Render the colour passes of textured scenes with Dr.Jit's wavefront (non-symbolic) calls and
+#: loops. Symbolic mode compiles one megakernel per combination of BSDF trees, and textured
+#: scenes rarely share one: each sample compiled its own (20-50 s at 128 px on 2 cores). Wavefront
+#: mode compiles small per-instance kernels that later scenes reuse, renders the same images bit
+#: for bit, and costs about as much per pass (docs/measurements/headless.md, 2026-11-27). The
+#: truth pass stays symbolic: its AOV integrator's shading normal comes out wrong in wavefront
+#: mode (measured: x component off, ``|n|`` 0.977) on Mitsuba 3.9.
+WAVEFRONT_TEXTURED = True
 
 
 def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> RenderResult:
@@ -110,7 +121,8 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
         return result
     window = render_window(spec, settings, meshes)
     scenes = _ChannelScenes(spec, meshes, window, settings, max_depth, integrator, polarized_emitter)
-    stokes, aovs, seconds = _render_channels(mi, scenes)
+    with _wavefront(textured and WAVEFRONT_TEXTURED):
+        stokes, aovs, seconds = _render_channels(mi, scenes)
     truth = None
     if textured:  # the material maps of what was rendered (:mod:`.texture_truth`)
         seed = (int(spec.seed) * 3) % 2**32  # the first colour pass's: its sample positions
@@ -240,6 +252,25 @@ def _plain_integrator(integrator: str, max_depth: int):
     if key not in _PLAIN_INTEGRATORS:
         _PLAIN_INTEGRATORS[key] = mi.load_dict(ms.integrator_dict(integrator, max_depth, aovs=False))
     return _PLAIN_INTEGRATORS[key]
+
+
+@contextlib.contextmanager
+def _wavefront(on: bool) -> Iterator[None]:
+    """Dr.Jit's symbolic calls and loops off inside the block (:data:`WAVEFRONT_TEXTURED`), restored after."""
+    if not on:
+        yield
+        return
+    import drjit as dr  # noqa: PLC0415
+
+    flags = (dr.JitFlag.SymbolicCalls, dr.JitFlag.SymbolicLoops)
+    was = [bool(dr.flag(f)) for f in flags]
+    try:
+        for f in flags:
+            dr.set_flag(f, False)
+        yield
+    finally:
+        for f, w in zip(flags, was, strict=True):
+            dr.set_flag(f, w)
 
 
 class _CompileTimer:
