@@ -23,8 +23,9 @@ one material whose maps are Blender image sequences read from the files (``image
 ``frame_duration`` n, ``frame_start`` 1, auto refresh), with the scene's frame range set to
 1..n: playing the timeline plays the frames. Blender numbers a sequence by the last digits of a
 file name, so ``_0001_normal`` works. The EXR normals hold ``n`` itself: a Multiply Add node
-encodes ``0.5 + 0.5 n`` for the Normal Map node. With depth maps, scene frame f shows frame f's
-relief (each frame's normal, mask and depth are read and validated, and must be frame 1's size):
+encodes ``0.5 + 0.5 n`` for the Normal Map node. Every frame's normal, mask and depth maps are
+read and validated: they must have frame 1's size, and a frame's own camera file frame 1's
+intrinsics (one camera serves the sequence). With depth maps, scene frame f shows frame f's relief:
 shape keys on one mesh when every frame's relief has the same vertices and triangles, else one
 object per frame shown only at its frame (:mod:`.sequence_mesh`). Without depth maps (``--card``)
 frame 1's plane serves every frame. Frame rate: the sequence file records no capture rate (its
@@ -331,7 +332,8 @@ def import_pbr_maps(
     Raises:
         FileNotFoundError: missing folder, file, normal map or frame.
         ValueError: ambiguous names, bad values, a malformed camera or sequence file (one line
-            naming the file and the field), a sequence frame of another size, bad camera or arguments.
+            naming the file and the field), a sequence frame of another size or camera, bad camera or
+            arguments.
     """
     options = ImportOptions() if options is None else options
     sequence_file = map_names.find_sequence(source)
@@ -361,11 +363,9 @@ def _import_sequence(context, sequence: map_names.SequenceFiles, options: Import
     """A sequence: per-frame relief geometry (or one plane), image sequences in the material, frames 1..n."""
     files = _used_files(sequence.first, options)
     maps = _load(files)  # the other frames' textures: Blender reads them as they play
-    later = (
-        []
-        if maps.depth is None
-        else [_frame_maps(sequence, i, options, maps.shape) for i in range(2, sequence.frames + 1)]
-    )
+    first_camera = map_names.camera_file(files.files) if options.use_camera_file else None
+    k = None if first_camera is None else read_camera_json(first_camera).intrinsics
+    later = [_frame_maps(sequence, i, options, maps.shape, k) for i in range(2, sequence.frames + 1)]
     camera, frustum, camera_path = _place_camera(context.scene, camera, files, maps, options)
     name = name or sequence.name
     reliefs = [] if maps.depth is None else [_relief(f, m, frustum) for f, m in [(files, maps), *later]]
@@ -396,21 +396,31 @@ def _import_sequence(context, sequence: map_names.SequenceFiles, options: Import
     return _tag(context, objects[0], maps, str(sequence.path), normal_space, camera_path, frames=sequence.frames)
 
 
-def _frame_maps(sequence: map_names.SequenceFiles, i: int, options: ImportOptions, shape: tuple[int, int]):
-    """Frame ``i``'s normal, mask and depth maps (what its relief needs), checked to be frame 1's size ``shape``.
+def _frame_maps(sequence: map_names.SequenceFiles, i: int, options: ImportOptions, shape: tuple[int, int], k):
+    """Frame ``i``'s normal, mask and depth maps (what its relief needs), checked against frame 1's.
+
+    Args:
+        sequence: the sequence's files.
+        i: the frame (2..n).
+        options: the import's options (``use_depth``).
+        shape: frame 1's ``(H, W)``: every frame must have it.
+        k: frame 1's camera intrinsics ``(3, 3)``, or None: a frame's own camera file must agree.
 
     Returns:
         ``(files, maps)`` as :func:`_relief` takes them.
     """
     frame = _used_files(sequence.frame(i), options).files
-    files = map_names.MapFiles({k: p for k, p in frame.items() if k in ("normal", "mask", "depth")})
+    files = map_names.MapFiles({kind: p for kind, p in frame.items() if kind in ("normal", "mask", "depth")})
     maps = _load(files)
     if maps.shape != shape:
         (h, w), (h1, w1) = maps.shape, shape
         raise ValueError(
-            f"{files.files['depth']}: frame {i} is {w} x {h}, but frame 1 is {w1} x {h1}; "
+            f"{files.files['normal']}: frame {i} is {w} x {h}, but frame 1 is {w1} x {h1}; "
             f"a sequence's frames must share one size"
         )
+    camera = map_names.camera_file(files.files) if k is not None else None
+    if camera is not None and not np.allclose(read_camera_json(camera).intrinsics, k, rtol=1e-6, atol=0.0):
+        raise ValueError(f"{camera}: intrinsics differ from frame 1's; one camera serves the whole sequence")
     return files, maps
 
 

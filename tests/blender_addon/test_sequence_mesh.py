@@ -27,10 +27,10 @@ def _disc(normal, point, radius=0.4, mask=None):
     return np.where(mask[..., None], n, 0.0).astype(np.float32), mask, np.where(mask, depth, np.inf)
 
 
-def _write_sequence(folder, frames):
-    """``mov_NNNN_*`` maps, camera files and ``mov_sequence.json`` as ``headless/infer.py`` writes them."""
+def _write_sequence(folder, frames, *, card=False):
+    """``mov_NNNN_*`` maps, camera files and ``mov_sequence.json`` as ``headless/infer.py`` writes them (``--card``)."""
     for i, (n, mask, depth) in enumerate(frames, start=1):
-        write_pbr_maps(folder, n, mask=mask, depth=depth, prefix=f"mov_{i:04d}")
+        write_pbr_maps(folder, n, mask=mask, depth=None if card else depth, prefix=f"mov_{i:04d}")
         camera = {"intrinsics": K.tolist(), "width": W, "height": H, "distance_m": 2.0}
         (folder / f"mov_{i:04d}_camera.json").write_text(json.dumps(camera))
     doc = {"name": "mov", "frames": [{"frame": i, "prefix": f"mov_{i:04d}"} for i in range(1, len(frames) + 1)]}
@@ -111,12 +111,35 @@ def test_changing_mask_moves_by_one_object_per_frame(clean_file, tmp_path):
     assert (scene.frame_start, scene.frame_end) == (1, 3)
 
 
-def test_frames_of_another_size_are_refused(clean_file, tmp_path):
-    folder = _write_sequence(tmp_path / "seq", [_disc((0.2, 0.1, 1.0), (0.0, 0.0, -2.0))] * 2)
-    small = _disc((0.2, 0.1, 1.0), (0.0, 0.0, -2.0))
-    write_pbr_maps(folder, *(a[::2, ::2] for a in small[:1]), mask=small[1][::2, ::2], depth=small[2][::2, ::2],
-                   prefix="mov_0002")  # fmt: skip
-    with pytest.raises(ValueError, match=r"mov_0002_depth.exr: frame 2 is 16 x 12, but frame 1 is 32 x 24") as e:
+def test_card_sequence_keeps_one_plane(clean_file, tmp_path):
+    frames = [_disc((0.2, 0.1, 1.0), (0.0, 0.0, -2.0)), _disc((0.0, 0.3, 1.0), (0.1, 0.0, -1.8))]
+    folder = _write_sequence(tmp_path / "seq", frames, card=True)
+    obj = pbr_import.import_pbr_maps(bpy.context, folder)
+    assert (obj["pdir_geometry"], obj["pdir_frame_objects"], len(obj.data.vertices)) == ("plane", "mov", 4)
+    assert obj.data.shape_keys is None and obj.animation_data is None
+
+
+@pytest.mark.parametrize("card", [False, True])
+def test_frames_of_another_size_are_refused(clean_file, tmp_path, card):
+    disc = _disc((0.2, 0.1, 1.0), (0.0, 0.0, -2.0))
+    folder = _write_sequence(tmp_path / "seq", [disc] * 2, card=card)
+    small = [a[::2, ::2] for a in disc]
+    write_pbr_maps(folder, small[0], mask=small[1], depth=None if card else small[2], prefix="mov_0002")
+    with pytest.raises(ValueError, match=r"mov_0002_normal.exr: frame 2 is 16 x 12, but frame 1 is 32 x 24") as e:
         pbr_import.import_pbr_maps(bpy.context, folder)
     assert "\n" not in str(e.value)
     assert not [o for o in clean_file.objects if o.type == "MESH"]  # nothing half-built
+
+
+def test_frame_with_another_camera_is_refused(clean_file, tmp_path):
+    folder = _write_sequence(tmp_path / "seq", [_disc((0.2, 0.1, 1.0), (0.0, 0.0, -2.0))] * 2)
+    camera = {"intrinsics": (K * [[1.1], [1.1], [1.0]]).tolist(), "width": W, "height": H}
+    (folder / "mov_0002_camera.json").write_text(json.dumps(camera))
+    with pytest.raises(ValueError, match=r"mov_0002_camera.json: intrinsics differ from frame 1's"):
+        pbr_import.import_pbr_maps(bpy.context, folder)
+    assert not [o for o in clean_file.objects if o.type == "MESH"]
+    # without the capture camera the frames' camera files are not used, so not compared
+    obj = pbr_import.import_pbr_maps(
+        bpy.context, folder, pbr_import.ImportOptions(normal_space="OBJECT", use_camera_file=False)
+    )
+    assert obj["pdir_geometry"] == "shape_keys"
