@@ -19,12 +19,19 @@ with those intrinsics, keeps the capture's shape and its vertices project onto t
 centres. Intrinsics with ``fx != fy`` use ``fx`` for both axes, with a warning.
 
 Sequences: a folder with ``<name>_sequence.json`` (``<name>_NNNN_<map>.exr`` per frame) gives
-frame 1's mesh and one material whose maps are Blender image sequences read from the files
-(``image_user``: ``frame_duration`` n, ``frame_start`` 1, auto refresh), with the scene's frame
-range set to 1..n: playing the timeline plays the frames. Blender numbers a sequence by the last
-digits of a file name, so ``_0001_normal`` works. The EXR normals hold ``n`` itself: a Multiply
-Add node encodes ``0.5 + 0.5 n`` for the Normal Map node. Only frame 1 is read and validated
-here; the other frames must exist and are read by Blender as they play.
+one material whose maps are Blender image sequences read from the files (``image_user``:
+``frame_duration`` n, ``frame_start`` 1, auto refresh), with the scene's frame range set to
+1..n: playing the timeline plays the frames. Blender numbers a sequence by the last digits of a
+file name, so ``_0001_normal`` works. The EXR normals hold ``n`` itself: a Multiply Add node
+encodes ``0.5 + 0.5 n`` for the Normal Map node. Every frame's normal, mask and depth maps are
+read and validated: they must have frame 1's size, and a frame's own camera file frame 1's
+intrinsics (one camera serves the sequence). With depth maps, scene frame f shows frame f's relief:
+shape keys on one mesh when every frame's relief has the same vertices and triangles, else one
+object per frame shown only at its frame (:mod:`.sequence_mesh`). Without depth maps (``--card``)
+frame 1's plane serves every frame. Frame rate: the sequence file records no capture rate (its
+``frames_per_second`` is the prediction's throughput), so the scene keeps its own frame rate,
+Blender's default 24 fps in a new file. The other maps (albedo, roughness, metallic) of later
+frames must exist and are read by Blender as they play.
 
 Normals: the mesh is parented to the camera with an identity local rotation, so its object frame
 IS the camera frame, and for the plane (facing the camera, UVs aligned with the image) the
@@ -57,6 +64,7 @@ from mathutils import Matrix, Vector
 
 from pbrdf.data.predictions import MAP_NAMES
 
+from . import sequence_mesh
 from .core import map_io, map_names
 from .core.frustum import BlenderCamera, Frustum, blender_frustum, depth_mesh, read_camera_json
 from .images import image_from_array, read_channels, sequence_image
@@ -316,13 +324,16 @@ def import_pbr_maps(
     Returns:
         The new object. Custom properties ``pdir_maps`` / ``pdir_missing`` list the imported
         and missing kinds, ``pdir_camera`` the camera file used (empty: none), ``pdir_frames``
-        the number of frames (1 without a sequence). Clipped values or a changed normal space
-        are reported as :class:`PBRImportWarning`.
+        the number of frames (1 without a sequence); a sequence's object (frame 1's) also has
+        ``pdir_geometry`` (``plane``, ``relief``, ``shape_keys`` or ``objects``) and
+        ``pdir_frame_objects`` (the names of the frames' objects). Clipped values or a changed
+        normal space are reported as :class:`PBRImportWarning`.
 
     Raises:
         FileNotFoundError: missing folder, file, normal map or frame.
         ValueError: ambiguous names, bad values, a malformed camera or sequence file (one line
-            naming the file and the field), bad camera or arguments.
+            naming the file and the field), a sequence frame of another size or camera, bad camera or
+            arguments.
     """
     options = ImportOptions() if options is None else options
     sequence_file = map_names.find_sequence(source)
@@ -349,23 +360,80 @@ def _import_view(context, files: map_names.MapFiles, options: ImportOptions, cam
 
 
 def _import_sequence(context, sequence: map_names.SequenceFiles, options: ImportOptions, camera, name: str | None):
-    """A sequence: frame 1's mesh, image sequences in the material, the scene's frame range 1..n."""
+    """A sequence: per-frame relief geometry (or one plane), image sequences in the material, frames 1..n."""
     files = _used_files(sequence.first, options)
-    maps = _load(files)  # frame 1 only: Blender reads the others as they play
+    maps = _load(files)  # the other frames' textures: Blender reads them as they play
+    first_camera = map_names.camera_file(files.files) if options.use_camera_file else None
+    k = None if first_camera is None else read_camera_json(first_camera).intrinsics
+    later = [_frame_maps(sequence, i, options, maps.shape, k) for i in range(2, sequence.frames + 1)]
     camera, frustum, camera_path = _place_camera(context.scene, camera, files, maps, options)
     name = name or sequence.name
+    reliefs = [] if maps.depth is None else [_relief(f, m, frustum) for f, m in [(files, maps), *later]]
     mesh, local, normal_space = _asset_mesh(name, files, maps, frustum, options, custom_normals=False)
-    obj = _link(context, name, mesh, camera, local)
+    objects = [_link(context, name, mesh, camera, local)]
+    geometry = "plane" if maps.depth is None else "shape_keys" if len(reliefs) > 1 else "relief"
+    if len(reliefs) > 1 and sequence_mesh.same_topology(reliefs):
+        sequence_mesh.key_shapes(objects[0], reliefs)
+    elif len(reliefs) > 1:
+        geometry = "objects"
+        for i, r in enumerate(reliefs[1:], start=2):
+            frame_mesh = _mesh(f"{name}_{i:04d}", r.vertices, r.faces, r.uvs)
+            objects.append(_link(context, frame_mesh.name, frame_mesh, camera, local))
+        sequence_mesh.key_visibility(objects)
     images = {k: sequence_image(p, k) for k, p in files.files.items() if k != "depth"}
     normal_raw = files.files["normal"].suffix.lower() == ".exr"
-    mesh.materials.append(build_material(
+    material = build_material(
         name, images, normal_space=normal_space, use_alpha="mask" in images, frames=sequence.frames,
         normal_raw=normal_raw,
-    ))  # fmt: skip
+    )  # fmt: skip
+    for obj in objects:
+        obj.data.materials.append(material)
     scene = context.scene
     scene.frame_start, scene.frame_end = 1, sequence.frames
     scene.frame_set(1)
-    return _tag(context, obj, maps, str(sequence.path), normal_space, camera_path, frames=sequence.frames)
+    objects[0]["pdir_geometry"] = geometry
+    objects[0]["pdir_frame_objects"] = ",".join(o.name for o in objects)
+    return _tag(context, objects[0], maps, str(sequence.path), normal_space, camera_path, frames=sequence.frames)
+
+
+def _frame_maps(sequence: map_names.SequenceFiles, i: int, options: ImportOptions, shape: tuple[int, int], k):
+    """Frame ``i``'s normal, mask and depth maps (what its relief needs), checked against frame 1's.
+
+    Args:
+        sequence: the sequence's files.
+        i: the frame (2..n).
+        options: the import's options (``use_depth``).
+        shape: frame 1's ``(H, W)``: every frame must have it.
+        k: frame 1's camera intrinsics ``(3, 3)``, or None: a frame's own camera file must agree.
+
+    Returns:
+        ``(files, maps)`` as :func:`_relief` takes them.
+    """
+    frame = _used_files(sequence.frame(i), options).files
+    files = map_names.MapFiles({kind: p for kind, p in frame.items() if kind in ("normal", "mask", "depth")})
+    maps = _load(files)
+    if maps.shape != shape:
+        (h, w), (h1, w1) = maps.shape, shape
+        raise ValueError(
+            f"{files.files['normal']}: frame {i} is {w} x {h}, but frame 1 is {w1} x {h1}; "
+            f"a sequence's frames must share one size"
+        )
+    camera = map_names.camera_file(files.files) if k is not None else None
+    if camera is not None and not np.allclose(read_camera_json(camera).intrinsics, k, rtol=1e-6, atol=0.0):
+        raise ValueError(f"{camera}: intrinsics differ from frame 1's; one camera serves the whole sequence")
+    return files, maps
+
+
+def _relief(files: map_names.MapFiles, maps: map_io.PBRMaps, frustum: Frustum) -> sequence_mesh.Relief:
+    """The depth mesh of ``maps`` one pixel past its mask (module docstring), as a :class:`~.sequence_mesh.Relief`.
+
+    Raises:
+        ValueError: the depth map gives no triangles (names the depth file).
+    """
+    vertices, faces, uvs = depth_mesh(maps.depth, map_io.dilate(maps.valid), frustum)
+    if len(faces) == 0:
+        raise ValueError(f"{files.files['depth']}: the depth map gives no triangles inside the mask")
+    return sequence_mesh.Relief(vertices, faces, uvs)
 
 
 def _used_files(files: map_names.MapFiles, options: ImportOptions) -> map_names.MapFiles:
@@ -436,13 +504,10 @@ def _asset_mesh(name: str, files: map_names.MapFiles, maps: map_io.PBRMaps, frus
         d = options.distance
         local = Matrix.Translation(Vector((frustum.center_x * d, frustum.center_y * d, -d)))
         return _plane(name, frustum, d), local, options.normal_space
-    support = map_io.dilate(maps.valid)  # one pixel past the outline, cut by the mask as alpha
-    vertices, faces, uvs = depth_mesh(maps.depth, support, frustum)
-    if len(faces) == 0:
-        raise ValueError(f"{files.files['depth']}: the depth map gives no triangles inside the mask")
-    mesh = _mesh(name, vertices, faces, uvs)
+    relief = _relief(files, maps, frustum)
+    mesh = _mesh(name, relief.vertices, relief.faces, relief.uvs)
     if custom_normals:
-        _vertex_normals(mesh, maps.normal[support])
+        _vertex_normals(mesh, maps.normal[map_io.dilate(maps.valid)])  # the relief's support, vertex order
     if options.normal_space != "OBJECT":
         warnings.warn(
             "depth mesh: normals use OBJECT space (tangent frames of a curved mesh are not the camera frame)",
@@ -549,7 +614,7 @@ class PDIR_OT_import_pbr(bpy.types.Operator, ImportHelper):
             if issubclass(w.category, PBRImportWarning):
                 self.report({"WARNING"}, str(w.message))
         missing = obj["pdir_missing"] or "none"
-        frames = f"; {obj['pdir_frames']} frames" if obj["pdir_frames"] > 1 else ""
+        frames = f"; {obj['pdir_frames']} frames ({obj['pdir_geometry']})" if obj["pdir_frames"] > 1 else ""
         camera = f"; camera from {Path(obj['pdir_camera']).name}" if obj["pdir_camera"] else ""
         self.report({"INFO"}, f"imported {obj.name!r}: maps {obj['pdir_maps']}; missing {missing}{frames}{camera}")
         return {"FINISHED"}

@@ -338,6 +338,16 @@ class SequenceFiles:
     first: MapFiles
     camera: Path | None = None
 
+    def frame(self, i: int) -> MapFiles:
+        """Frame ``i``'s maps (1..``frames``): frame 1's files with Blender's frame number i in their names.
+
+        Raises:
+            ValueError: ``i`` outside 1..``frames``.
+        """
+        if not 1 <= i <= self.frames:
+            raise ValueError(f"frame must be in 1..{self.frames}, got {i}")
+        return MapFiles({kind: _frame_file(p, i) for kind, p in self.first.files.items()}, ())
+
 
 def _frame_number(path: Path) -> tuple[str, str, str]:
     """``(head, digits, tail)`` of a file name as Blender splits it: the last digits before the suffix."""
@@ -346,6 +356,12 @@ def _frame_number(path: Path) -> tuple[str, str, str]:
     if m is None:
         return stem, "", suffix
     return stem[: m.start()], m.group(1), m.group(2) + suffix
+
+
+def _frame_file(path: Path, i: int) -> Path:
+    """Frame ``i``'s file of frame 1's ``path``: its last digits replaced by i, zero-padded as they were."""
+    head, digits, tail = _frame_number(path)
+    return path.with_name(head + str(i).zfill(len(digits)) + tail)
 
 
 def match_sequence_files(path: str | os.PathLike, *, required: Iterable[str] = ("normal",)) -> SequenceFiles:
@@ -392,8 +408,7 @@ def match_sequence_files(path: str | os.PathLike, *, required: Iterable[str] = (
                 f"{path}: frames[{i - 1}].prefix: {prefix!r}, but Blender reads frame {i} from {expected!r}"
             )
         for p in first.files.values():
-            h, d, tail = _frame_number(p)
-            frame_file = p.with_name(h + str(i).zfill(len(d)) + tail)
+            frame_file = _frame_file(p, i)
             if not frame_file.is_file():
                 raise FileNotFoundError(f"{path}: frame {i} has no {frame_file.name} (frame 1 has {p.name})")
     return SequenceFiles(path, name, len(prefixes), first, camera_file(first.files))

@@ -157,6 +157,11 @@ class TestSequence:
             "mask": "face_0001_mask.exr",
         }
         assert seq.camera.name == "face_0001_camera.json"
+        third = seq.frame(3).files  # frame 3's maps: the names Blender's image sequences read at frame 3
+        assert {k: p.name for k, p in third.items()} == {k: f"face_0003_{k}.exr" for k in ("normal", "albedo", "mask")}
+        assert all(p.is_file() for p in third.values())
+        with pytest.raises(ValueError, match=r"frame must be in 1\.\.3, got 4"):
+            seq.frame(4)
 
     def test_not_a_sequence(self, tmp_path):
         _touch(tmp_path, "cap_normal.exr")
