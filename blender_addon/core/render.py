@@ -121,8 +121,7 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
         return result
     window = render_window(spec, settings, meshes)
     scenes = _ChannelScenes(spec, meshes, window, settings, max_depth, integrator, polarized_emitter)
-    with _wavefront(textured and WAVEFRONT_TEXTURED):
-        stokes, aovs, seconds = _render_channels(mi, scenes)
+    stokes, aovs, seconds = _render_channels(mi, scenes, wavefront=textured and WAVEFRONT_TEXTURED)
     truth = None
     if textured:  # the material maps of what was rendered (:mod:`.texture_truth`)
         seed = (int(spec.seed) * 3) % 2**32  # the first colour pass's: its sample positions
@@ -200,11 +199,16 @@ def _bsdf_dict(material, channel: int, linear_light: bool, canonical: bool) -> d
     return ms.bsdf_dict(material, channel, linear_light=linear_light)
 
 
-def _render_channels(mi, scenes: _ChannelScenes) -> tuple[NDArray[np.float32], dict[str, NDArray], dict[str, float]]:
+def _render_channels(
+    mi, scenes: _ChannelScenes, *, wavefront: bool = False
+) -> tuple[NDArray[np.float32], dict[str, NDArray], dict[str, float]]:
     """The three colour passes: Stokes ``(H, W, 3, 4)``, the AOVs of the first pass, and the seconds spent.
 
     A scene that cannot be switched by parameter updates is freed before the next one is built, so that
-    Dr.Jit's registry hands out the same instance ids, which its kernels depend on.
+    Dr.Jit's registry hands out the same instance ids, which its kernels depend on. With ``wavefront``
+    (:data:`WAVEFRONT_TEXTURED`) the colour passes run without AOVs in wavefront mode and the AOVs come
+    from a symbolic AOV-only pass at the first pass's seed: the same sample positions, so the same
+    values, with a small kernel that does not evaluate BSDFs.
     """
     spec, settings = scenes.spec, scenes.settings
     seconds: dict[str, float] = {}
@@ -228,15 +232,23 @@ def _render_channels(mi, scenes: _ChannelScenes) -> tuple[NDArray[np.float32], d
                     params.update(updates)
             # The AOVs come from the first pass; the others skip them (a primary ray and seven
             # film channels less per sample).
-            integ = None if c == 0 else _plain_integrator(scenes.integrator, scenes.max_depth)
-            img = np.asarray(
-                mi.render(scene, integrator=integ, seed=(int(spec.seed) * 3 + c) % 2**32, spp=settings.spp)
-            )
+            with_aovs = c == 0 and not wavefront
+            integ = None if with_aovs else _plain_integrator(scenes.integrator, scenes.max_depth)
+            with _wavefront(wavefront):
+                img = np.asarray(
+                    mi.render(scene, integrator=integ, seed=(int(spec.seed) * 3 + c) % 2**32, spp=settings.spp)
+                )
             # Mono layout: [Y, S0 x3, S1 x3, S2 x3, S3 x3, AOVs (first pass)...].
             stokes[:, :, c, :] = img[:, :, [1, 4, 7, 10]]
-            if c == 0:  # AOVs from the first pass, with that scene's shape ids
+            if with_aovs:  # AOVs from the first pass, with that scene's shape ids
                 aovs = aov_result(img[:, :, 13:], scene, spec, scenes.names, [m[3] for m in scenes.meshes])
             seconds[f"pass_{'RGB'[c]}"] = time.perf_counter() - t0
+        if wavefront:  # the AOVs are the same in every channel's scene; its shape ids come with it
+            t0 = time.perf_counter()
+            img = np.asarray(mi.render(scene, integrator=_aov_integrator(), seed=int(spec.seed) * 3 % 2**32,
+                                       spp=settings.spp))  # fmt: skip
+            aovs = aov_result(img[:, :, 13:], scene, spec, scenes.names, [m[3] for m in scenes.meshes])
+            seconds["aovs"] = time.perf_counter() - t0
     seconds["jit_compile"] = compile_timer.seconds
     return stokes, aovs, seconds
 
@@ -251,6 +263,21 @@ def _plain_integrator(integrator: str, max_depth: int):
     key = (mi.variant(), integrator, max_depth)
     if key not in _PLAIN_INTEGRATORS:
         _PLAIN_INTEGRATORS[key] = mi.load_dict(ms.integrator_dict(integrator, max_depth, aovs=False))
+    return _PLAIN_INTEGRATORS[key]
+
+
+def _aov_integrator():
+    """The AOVs of the first pass without its BSDF evaluations, one integrator per variant.
+
+    ``aov`` around Mitsuba's ``depth`` integrator (no BSDF or emitter calls): the film layout and the
+    AOV channels equal those of ``aov`` around the colour integrator.
+    """
+    import mitsuba as mi  # noqa: PLC0415
+
+    key = (mi.variant(), "aovs only", 0)
+    if key not in _PLAIN_INTEGRATORS:
+        aov = {"type": "aov", "aovs": ms.AOVS, "integrator": {"type": "depth"}}
+        _PLAIN_INTEGRATORS[key] = mi.load_dict({"type": "stokes", "nested": aov})
     return _PLAIN_INTEGRATORS[key]
 
 
