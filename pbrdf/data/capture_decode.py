@@ -164,6 +164,8 @@ def decode_capture(
         min_signal: pixels whose total ``s0`` is not above this are left out of ``mask`` (and
             their maps are 0), as in :func:`pbrdf.sensor.decode.decode`.
 
+    The capture's dark frames (``dark_files``), if any, are subtracted before the inversion.
+
     Returns:
         :class:`DecodedCapture` with ``maps`` ``(H', W', 9)`` float32, ``mask`` ``(H', W')`` bool
         and ``stokes`` ``(H', W', 3, 3)`` float32 exactly as :func:`pbrdf.sensor.decode.decode`
@@ -178,7 +180,7 @@ def decode_capture(
         validate_capture(cap)
     _check_sensor_size(cap)
     # Decode without a signal threshold (the measured pixels), then apply it exactly as decode().
-    dec = decode(cap.raws, cap.model, grid=grid, eps=eps, min_signal=-np.inf)
+    dec = decode(cap.raws, cap.model, grid=grid, eps=eps, min_signal=-np.inf, dark=cap.dark)
     measured = dec.mask
     st = np.moveaxis(dec.stokes, (2, 3), (0, 1))  # decode()'s own (colour, component, H', W') layout
     mask = measured & (st[:, 0].sum(axis=0) > min_signal)
