@@ -88,6 +88,7 @@ __all__ = [
     "CaptureMeta",
     "parse_intrinsics",
     "read_capture_meta",
+    "read_capture_files",
     "save_capture",
     "load_capture",
     "validate_capture",
@@ -464,13 +465,9 @@ def load_capture(folder: str | os.PathLike) -> Capture:
     root = _capture_folder(folder)
     jpath = root / CAPTURE_JSON
     model, names, metadata, meta, dark_names = _parse_capture_json(jpath)
-    raws = _read_frames(root, names, model)
+    frames = _read_frames(root, names + (dark_names or []), model)  # dark frames: the raws' size too
+    raws, dark = frames[: len(names)], frames[len(names) :] if dark_names else None
     _check_order(raws, model, names, jpath)
-    dark = None if dark_names is None else _read_frames(root, dark_names, model)
-    if dark is not None and dark.shape != raws.shape:
-        raise ValueError(
-            f"{jpath}: dark frames are {dark.shape[2]}x{dark.shape[1]}; the raws {raws.shape[2]}x{raws.shape[1]}"
-        )
     return Capture(raws=raws, model=model, folder=root, metadata=metadata, raw_files=tuple(names), meta=meta, dark=dark)
 
 
@@ -500,6 +497,12 @@ def read_capture_meta(folder: str | os.PathLike) -> CaptureMeta:
         ValueError: invalid JSON or content (the message names the file).
     """
     return _parse_capture_json(_capture_folder(folder) / CAPTURE_JSON)[3]
+
+
+def read_capture_files(folder: str | os.PathLike) -> tuple[tuple[float, ...], list[str]]:
+    """Exposure times (ascending) and raw file names of a capture folder, checked as in :func:`load_capture`."""
+    model, names, *_ = _parse_capture_json(_capture_folder(folder) / CAPTURE_JSON)
+    return model.exposures, names
 
 
 def _capture_folder(folder: str | os.PathLike) -> Path:

@@ -15,7 +15,6 @@ is found from the capture alone.
 
 from __future__ import annotations
 
-import json
 import os
 import warnings
 from collections.abc import Sequence
@@ -25,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, validate_capture
+from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, read_capture_files, validate_capture
 from pbrdf.data.raw_files import open_image
 from pbrdf.io.errors import NothingToReconstruct
 from pbrdf.sensor.decode import Decoded, decode
@@ -279,10 +278,8 @@ def check_sequence(folders: Sequence[str | os.PathLike]) -> None:
     first = None
     for folder in map(Path, folders):
         try:
-            doc = json.loads((folder / CAPTURE_JSON).read_text())
-            exposures = sorted(float(t) for t in doc["exposures_s"])
-            names = [str(n) for n in doc["raw_files"]]
-        except (OSError, ValueError, TypeError, KeyError):
+            exposures, names = read_capture_files(folder)
+        except (OSError, ValueError):
             continue  # load_capture says what is wrong with it
         missing = [n for n in names if not (folder / n).is_file()]
         if missing:

@@ -10,6 +10,7 @@ import pytest
 
 from pbrdf.data.capture import load_capture, save_capture
 from pbrdf.data.capture_decode import decode_capture
+from pbrdf.data.raw_files import write_raw
 from pbrdf.sensor.camera import CameraModel, expose, mosaic, simulate_capture
 from pbrdf.sensor.decode import decode, hdr_merge
 from pbrdf.sensor.imperfections import vignetting_map
@@ -83,6 +84,12 @@ def test_capture_folder_carries_dark_frames(tmp_path):
     np.testing.assert_array_equal(cap.dark, dark)
     got = decode_capture(cap).maps
     np.testing.assert_allclose(_inner(got[..., :6]), _inner(_hand_maps(s)[..., :6]), atol=2e-3)
+    write_raw(folder / doc["dark_files"][1], dark[1, :16], "png")  # a dark frame of another size
+    with pytest.raises(ValueError, match="differs from"):
+        load_capture(folder)
+    (folder / doc["dark_files"][1]).unlink()
+    with pytest.raises(FileNotFoundError, match=doc["dark_files"][1]):
+        load_capture(folder)
     doc["dark_files"] = doc["dark_files"][:2]
     (folder / "capture.json").write_text(json.dumps(doc))
     with pytest.raises(ValueError, match="dark_files must be a list of 4"):
