@@ -11,6 +11,7 @@ A capture folder holds
       "format": "pdir-capture/1",
       "exposures_s": [0.01, 0.02, 0.1, 0.2],
       "raw_files": ["raw_0010.0ms.png", "raw_0020.0ms.png", "raw_0100.0ms.png", "raw_0200.0ms.png"],
+      "dark_files": ["dark_0010.0ms.png", "dark_0020.0ms.png", "dark_0100.0ms.png", "dark_0200.0ms.png"],
       "black_level": 16.0,
       "white_level": 4095,
       "bits": 12,
@@ -24,7 +25,9 @@ A capture folder holds
     }
 
 ``exposures_s`` and ``raw_files`` are required and correspond one to one (any order; they are
-sorted by exposure on load). ``black_level``, ``white_level``, ``bits`` and ``pattern_offset``
+sorted by exposure on load). The optional ``dark_files``, one per exposure in the order of
+``exposures_s``, are dark frames (display off: ambient light and sensor offset) that the decoder
+subtracts (:func:`pbrdf.sensor.decode.decode`). ``black_level``, ``white_level``, ``bits`` and ``pattern_offset``
 are optional and, where present, override the same quantities inside ``camera_model`` (the
 :meth:`pbrdf.sensor.camera.CameraModel.to_dict` of the calibrated rig, itself optional: defaults are
 used for what it does not give). ``white_level`` must be ``2**bits - 1``: the decoder assumes
@@ -85,6 +88,7 @@ __all__ = [
     "CaptureMeta",
     "parse_intrinsics",
     "read_capture_meta",
+    "read_capture_files",
     "save_capture",
     "load_capture",
     "validate_capture",
@@ -103,6 +107,7 @@ _RESERVED_KEYS = (
     "format",
     "exposures_s",
     "raw_files",
+    "dark_files",
     "black_level",
     "white_level",
     "bits",
@@ -168,6 +173,7 @@ class Capture:
             date, rig notes, ...).
         raw_files: file names of the raws inside ``folder``, in the order of ``raws``.
         meta: the radiometry and geometry keys (defaults for an in-memory capture).
+        dark: ``(E, H, W)`` uint16 dark frames (display off) in the order of ``raws``, or None.
     """
 
     raws: NDArray[np.uint16]
@@ -176,6 +182,7 @@ class Capture:
     metadata: dict[str, Any] = field(default_factory=dict)
     raw_files: tuple[str, ...] = ()
     meta: CaptureMeta = field(default_factory=CaptureMeta)
+    dark: NDArray[np.uint16] | None = None
 
 
 def _raw_file_name(exposure: float, suffix: str) -> str:
@@ -237,6 +244,12 @@ def validate_capture(capture: Capture) -> None:
     for k in range(raws.shape[0]):
         _check_frame(raws[k], f"{where} (raw {k})", model.sensor.white_level)
     _check_order(raws, model, [f"raw {k}" for k in range(raws.shape[0])], where)
+    if capture.dark is not None:
+        dark = np.asarray(capture.dark)
+        if dark.shape != raws.shape:
+            raise ValueError(f"{where}: dark frames have shape {dark.shape}; the raws {raws.shape}")
+        for k in range(dark.shape[0]):
+            _check_frame(dark[k], f"{where} (dark {k})", model.sensor.white_level)
 
 
 def _check_levels(black_level: float, white_level: int, where: str) -> None:
@@ -252,6 +265,7 @@ def save_capture(
     file_format: str = "png",
     extra: dict[str, Any] | None = None,
     overwrite: bool = False,
+    dark: ArrayLike | None = None,
 ) -> Path:
     """Write a capture folder atomically: raws (one file per exposure) plus ``capture.json``.
 
@@ -270,6 +284,7 @@ def save_capture(
         extra: further JSON-serialisable keys for ``capture.json`` (returned as
             :attr:`Capture.metadata` by :func:`load_capture`); may not use the format's keys.
         overwrite: replace an existing non-empty folder.
+        dark: ``(E, H, W)`` dark frames (display off) in the order of ``raws``, or None.
 
     Returns:
         The path of the written folder.
@@ -288,10 +303,12 @@ def save_capture(
         raise ValueError(f"extra may not set the capture format keys {clash}")
     r = np.asarray(raws)
     order = np.argsort(np.asarray(model.exposures, dtype=np.float64), kind="stable")
+    d = None if dark is None else np.asarray(dark)
     if r.ndim == 3 and r.shape[0] == len(order):
         r = r[order]
+        d = d[order] if d is not None and d.shape == r.shape else d
     model = model.replace(exposures=tuple(model.exposures[i] for i in order))
-    capture = Capture(raws=r, model=model, folder=None)
+    capture = Capture(raws=r, model=model, folder=None, dark=d)
     validate_capture(capture)
     r = r.astype(np.uint16, copy=False)
 
@@ -302,6 +319,7 @@ def save_capture(
         "format": CAPTURE_FORMAT,
         "exposures_s": list(model.exposures),
         "raw_files": names,
+        **({} if d is None else {"dark_files": ["dark" + n[3:] for n in names]}),
         "black_level": model.sensor.black_level,
         "white_level": model.sensor.white_level,
         "bits": model.sensor.bits,
@@ -325,6 +343,8 @@ def save_capture(
     with atomic_folder(target) as tmp:
         for name, raw in zip(names, r, strict=True):
             write_raw(tmp / name, raw, file_format)
+        for name, frame in zip(names if d is not None else [], d if d is not None else [], strict=True):
+            write_raw(tmp / ("dark" + name[3:]), frame.astype(np.uint16), file_format)
         (tmp / CAPTURE_JSON).write_text(text + "\n", encoding="utf-8")
     return target
 
@@ -444,7 +464,15 @@ def load_capture(folder: str | os.PathLike) -> Capture:
     """
     root = _capture_folder(folder)
     jpath = root / CAPTURE_JSON
-    model, names, metadata, meta = _parse_capture_json(jpath)
+    model, names, metadata, meta, dark_names = _parse_capture_json(jpath)
+    frames = _read_frames(root, names + (dark_names or []), model)  # dark frames: the raws' size too
+    raws, dark = frames[: len(names)], frames[len(names) :] if dark_names else None
+    _check_order(raws, model, names, jpath)
+    return Capture(raws=raws, model=model, folder=root, metadata=metadata, raw_files=tuple(names), meta=meta, dark=dark)
+
+
+def _read_frames(root: Path, names: list[str], model: CameraModel) -> NDArray[np.uint16]:
+    """The listed raw files of a capture folder, checked, as ``(E, H, W)`` uint16."""
     frames = []
     for n in names:
         path = root / n
@@ -456,9 +484,7 @@ def load_capture(folder: str | os.PathLike) -> Capture:
         if frames and frame.shape != frames[0].shape:
             raise ValueError(f"{path}: raw shape {frame.shape} differs from {frames[0].shape} of {root / names[0]}")
         frames.append(frame)
-    raws = np.stack(frames)
-    _check_order(raws, model, names, jpath)
-    return Capture(raws=raws, model=model, folder=root, metadata=metadata, raw_files=tuple(names), meta=meta)
+    return np.stack(frames)
 
 
 def read_capture_meta(folder: str | os.PathLike) -> CaptureMeta:
@@ -473,6 +499,12 @@ def read_capture_meta(folder: str | os.PathLike) -> CaptureMeta:
     return _parse_capture_json(_capture_folder(folder) / CAPTURE_JSON)[3]
 
 
+def read_capture_files(folder: str | os.PathLike) -> tuple[tuple[float, ...], list[str]]:
+    """Exposure times (ascending) and raw file names of a capture folder, checked as in :func:`load_capture`."""
+    model, names, *_ = _parse_capture_json(_capture_folder(folder) / CAPTURE_JSON)
+    return model.exposures, names
+
+
 def _capture_folder(folder: str | os.PathLike) -> Path:
     root = Path(folder)
     if not root.exists():
@@ -482,8 +514,8 @@ def _capture_folder(folder: str | os.PathLike) -> Path:
     return root
 
 
-def _parse_capture_json(jpath: Path) -> tuple[CameraModel, list[str], dict[str, Any], CaptureMeta]:
-    """``capture.json`` parsed and checked: camera model, raw files (by exposure), metadata and meta."""
+def _parse_capture_json(jpath: Path) -> tuple[CameraModel, list[str], dict[str, Any], CaptureMeta, list[str] | None]:
+    """``capture.json`` parsed and checked: camera model, raw files (by exposure), metadata, meta, dark files."""
     meta = read_json_object(jpath, CAPTURE_FORMAT, what="capture sidecar")
     for key in ("exposures_s", "raw_files"):
         if key not in meta:
@@ -500,18 +532,23 @@ def _parse_capture_json(jpath: Path) -> tuple[CameraModel, list[str], dict[str, 
     for t in exposures:
         if not lo <= t <= hi:
             raise ValueError(f"{jpath}: exposures_s entry {t:g} s is outside the valid range [{lo:g}, {hi:g}] s")
-    for n in names:
-        if not isinstance(n, str) or not n or n in (".", "..") or Path(n).name != n or "\\" in n or len(n) > 255:
-            raise ValueError(f"{jpath}: raw_files entries must be plain file names in the folder; got {_short(n, 60)}")
-    if len(set(names)) != len(names):
-        raise ValueError(f"{jpath}: raw_files lists a file more than once: {names}")
+    dark = meta.get("dark_files")
+    if dark is not None and (not isinstance(dark, list) or len(dark) != len(names)):
+        raise ValueError(f"{jpath}: dark_files must be a list of {len(names)} file names, one per exposures_s entry")
+    for key, files in (("raw_files", names), ("dark_files", dark or [])):
+        for n in files:
+            if not isinstance(n, str) or not n or n in (".", "..") or Path(n).name != n or "\\" in n or len(n) > 255:
+                raise ValueError(f"{jpath}: {key} entries must be plain file names in the folder; got {_short(n, 60)}")
+        if len(set(files)) != len(files):
+            raise ValueError(f"{jpath}: {key} lists a file more than once: {files}")
 
     order = sorted(range(len(exposures)), key=lambda k: exposures[k])
     exposures = [exposures[k] for k in order]
     names = [names[k] for k in order]
+    dark = None if dark is None else [dark[k] for k in order]
     model = _model_from_meta(meta, tuple(exposures), jpath)
     metadata = {k: v for k, v in meta.items() if k not in _RESERVED_KEYS}
-    return model, names, metadata, _capture_meta(metadata, jpath)
+    return model, names, metadata, _capture_meta(metadata, jpath), dark
 
 
 def _capture_meta(metadata: dict[str, Any], where: Path) -> CaptureMeta:

@@ -15,7 +15,6 @@ is found from the capture alone.
 
 from __future__ import annotations
 
-import json
 import os
 import warnings
 from collections.abc import Sequence
@@ -25,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, validate_capture
+from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, read_capture_files, validate_capture
 from pbrdf.data.raw_files import open_image
 from pbrdf.io.errors import NothingToReconstruct
 from pbrdf.sensor.decode import Decoded, decode
@@ -164,6 +163,8 @@ def decode_capture(
         min_signal: pixels whose total ``s0`` is not above this are left out of ``mask`` (and
             their maps are 0), as in :func:`pbrdf.sensor.decode.decode`.
 
+    The capture's dark frames (``dark_files``), if any, are subtracted before the inversion.
+
     Returns:
         :class:`DecodedCapture` with ``maps`` ``(H', W', 9)`` float32, ``mask`` ``(H', W')`` bool
         and ``stokes`` ``(H', W', 3, 3)`` float32 exactly as :func:`pbrdf.sensor.decode.decode`
@@ -178,7 +179,7 @@ def decode_capture(
         validate_capture(cap)
     _check_sensor_size(cap)
     # Decode without a signal threshold (the measured pixels), then apply it exactly as decode().
-    dec = decode(cap.raws, cap.model, grid=grid, eps=eps, min_signal=-np.inf)
+    dec = decode(cap.raws, cap.model, grid=grid, eps=eps, min_signal=-np.inf, dark=cap.dark)
     measured = dec.mask
     st = np.moveaxis(dec.stokes, (2, 3), (0, 1))  # decode()'s own (colour, component, H', W') layout
     mask = measured & (st[:, 0].sum(axis=0) > min_signal)
@@ -277,10 +278,8 @@ def check_sequence(folders: Sequence[str | os.PathLike]) -> None:
     first = None
     for folder in map(Path, folders):
         try:
-            doc = json.loads((folder / CAPTURE_JSON).read_text())
-            exposures = sorted(float(t) for t in doc["exposures_s"])
-            names = [str(n) for n in doc["raw_files"]]
-        except (OSError, ValueError, TypeError, KeyError):
+            exposures, names = read_capture_files(folder)
+        except (OSError, ValueError):
             continue  # load_capture says what is wrong with it
         missing = [n for n in names if not (folder / n).is_file()]
         if missing:

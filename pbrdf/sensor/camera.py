@@ -37,6 +37,13 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pbrdf.polar import mueller
+from pbrdf.sensor.imperfections import (
+    IDENTITY3,
+    IMPERFECTION_RANGES,
+    apply_rig_imperfections,
+    check_crosstalk,
+    check_vignetting_poly,
+)
 
 __all__ = [
     "ANGLES_DEG",
@@ -208,6 +215,15 @@ class CameraModel:
         sensor: the linear sensor model.
         pattern_offset: (row, col) of raw pixel (0, 0) inside the 4x4 IMX250MYR table; two
             integers, taken modulo 4.
+        ambient: unpolarized ambient radiance per camera channel (R, G, B), added to ``s0``;
+            ``[0, 1e4]``, nominal 0. The decoder removes it with a dark frame.
+        crosstalk: 3 x 3 spectral mixing, rows camera channel, columns display colour region;
+            entries in ``[0, 1]``, condition number <= 100, nominal identity.
+        vignetting_focal_px: focal length in pixels of the cos^4 falloff; ``[1, inf]``, nominal
+            ``inf`` (none).
+        vignetting_poly: ``(k1, k2, k3)`` of the falloff polynomial in the normalised radius;
+            each in ``[-10, 10]`` and the polynomial >= 0.05 over the frame; nominal 0.
+        (The three imperfection terms: :mod:`pbrdf.sensor.imperfections`.)
     """
 
     qwp_angle: float = 0.0
@@ -217,8 +233,13 @@ class CameraModel:
     exposures: tuple[float, ...] = (0.010, 0.020, 0.100, 0.200)
     sensor: SensorParams = field(default_factory=SensorParams)
     pattern_offset: tuple[int, int] = (0, 0)
+    ambient: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    crosstalk: tuple[tuple[float, ...], ...] = IDENTITY3
+    vignetting_focal_px: float = math.inf
+    vignetting_poly: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
     def __post_init__(self) -> None:
+        self._check_imperfections()
         rng = CAMERA_RANGES
         object.__setattr__(self, "qwp_angle", _real(self.qwp_angle, "qwp_angle (radians)", *rng["qwp_angle"]))
         ret = _rgb(self.qwp_retardance, "qwp_retardance (radians)", *rng["qwp_retardance"])
@@ -257,6 +278,29 @@ class CameraModel:
                 f"qwp_retardance {self.qwp_retardance} too far from pi/2: s3 is not measurable (needs |sin| >= 0.1)"
             )
 
+    def _check_imperfections(self) -> None:
+        rng = IMPERFECTION_RANGES
+        object.__setattr__(self, "ambient", _rgb(self.ambient, "ambient", *rng["ambient"]))
+        object.__setattr__(self, "crosstalk", check_crosstalk(self.crosstalk))
+        focal = _real(self.vignetting_focal_px, "vignetting_focal_px", *rng["vignetting_focal_px"])
+        object.__setattr__(self, "vignetting_focal_px", focal)
+        poly = self.vignetting_poly
+        if not isinstance(poly, list | tuple | np.ndarray) or len(poly) != 3:
+            raise ValueError(f"vignetting_poly must be three numbers (k1, k2, k3); got {_short(poly)}")
+        poly = tuple(_real(k, f"vignetting_poly[{i}]", *rng["vignetting_poly"]) for i, k in enumerate(poly))
+        check_vignetting_poly(poly)
+        object.__setattr__(self, "vignetting_poly", poly)
+
+    @property
+    def nominal_rig(self) -> bool:
+        """True when ambient, cross-talk and vignetting are all nominal (the decoder skips them)."""
+        return (
+            not any(self.ambient)
+            and self.crosstalk == IDENTITY3
+            and math.isinf(self.vignetting_focal_px)
+            and not any(self.vignetting_poly)
+        )
+
     def replace(self, **changes) -> CameraModel:
         """Return a copy with some fields changed (dataclasses.replace)."""
         return dataclasses.replace(self, **changes)
@@ -265,6 +309,8 @@ class CameraModel:
         """JSON-friendly dictionary (inverse of :meth:`from_dict`)."""
         d = dataclasses.asdict(self)
         d["extinction_ratio"] = [v if np.isfinite(v) else "inf" for v in self.extinction_ratio]
+        d["vignetting_focal_px"] = self.vignetting_focal_px if np.isfinite(self.vignetting_focal_px) else "inf"
+        d["crosstalk"] = [list(row) for row in self.crosstalk]
         return d
 
     @classmethod
@@ -288,6 +334,9 @@ class CameraModel:
             er = d["extinction_ratio"]
             er = er if isinstance(er, list | tuple) else [er]
             d["extinction_ratio"] = [math.inf if isinstance(v, str) and v.strip().lower() == "inf" else v for v in er]
+        vf = d.get("vignetting_focal_px")
+        if isinstance(vf, str) and vf.strip().lower() == "inf":
+            d["vignetting_focal_px"] = math.inf
         if "exposures" in d and not isinstance(d["exposures"], list | tuple | np.ndarray):
             d["exposures"] = [d["exposures"]]  # one exposure given as a bare number
         return cls(**d)
@@ -407,7 +456,8 @@ def simulate_capture(
     Args:
         stokes_rgb: Stokes images per colour channel in linear radiance units, ``(H, W, 3, 4)``
             with H and W multiples of 4.
-        model: camera model (optics, sensor, exposure bracket).
+        model: camera model (optics, sensor, exposure bracket, rig imperfections: the Stokes colour
+            axis is then the display colour region, see :mod:`pbrdf.sensor.imperfections`).
         rng: random generator (required when ``noise`` is True).
         noise: draw Poisson-Gaussian noise.
 
@@ -417,5 +467,6 @@ def simulate_capture(
     s = np.asarray(stokes_rgb)
     if not np.all(np.isfinite(s)):
         raise ValueError("stokes images contain NaN or Inf")
-    irr = mosaic(s, model)
+    _check_stokes_image(s)
+    irr = mosaic(s if model.nominal_rig else apply_rig_imperfections(s, model), model)
     return np.stack([expose(irr, t, model.sensor, rng=rng, noise=noise) for t in model.exposures])

@@ -35,6 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from pbrdf.sensor.camera import CameraModel, SensorParams, measurement_matrix, mosaic, mosaic_indices
+from pbrdf.sensor.imperfections import IDENTITY3, vignetting_map
 
 __all__ = [
     "NINE_MAP_NAMES",
@@ -44,6 +45,7 @@ __all__ = [
     "stokes_from_intensities",
     "nine_maps",
     "decode",
+    "subtract_dark",
     "estimate_pattern_offset",
 ]
 
@@ -454,12 +456,19 @@ def decode(
     grid: str = "half",
     eps: float = 1e-6,
     min_signal: float = 0.0,
+    dark: ArrayLike | None = None,
 ) -> Decoded:
     """Raw HDR bracket -> nine maps, measured Stokes and validity mask.
+
+    Rig imperfections of ``model`` are inverted (:mod:`pbrdf.sensor.imperfections`): the dark
+    frames are subtracted per exposure, vignetting is divided out of the merged mosaic and the
+    channels are unmixed with the inverse cross-talk. ``model.ambient`` itself is not subtracted
+    (only a dark frame measures it with the vignetting and sensor offset that go with it).
 
     Args:
         raws: ``(E, H, W)`` raw frames, one per exposure of ``model.exposures``.
         model: the calibrated camera model.
+        dark: ``(E, H, W)`` dark frames (display off, same bracket), or None.
         grid: output grid, ``"half"`` (default, ``(H/2, W/2)``) or ``"full"`` (``(H, W)``).
         eps: CP regulariser (:func:`nine_maps`).
         min_signal: pixels whose total ``s0`` (summed over the colours) is not above this are
@@ -470,10 +479,16 @@ def decode(
         ``(H', W', 3, 3)``.
     """
     r, t = _checked_bracket(raws, model.exposures)
+    if dark is not None:
+        r = subtract_dark(r, dark, model.sensor)
     h, w = r.shape[1:]
     dec = _decoding_matrix(model)
     interp = _Interpolator((h, w), grid, model.pattern_offset, dec)
     padded, valid_b = _merge_padded(r, t, model.sensor, model.pattern_offset, _PAD)
+    unmix = None if model.crosstalk == IDENTITY3 else np.linalg.inv(np.asarray(model.crosstalk)).astype(np.float32)
+    if np.isfinite(model.vignetting_focal_px) or any(model.vignetting_poly):
+        padded[_PAD:-_PAD, _PAD:-_PAD] /= vignetting_map((h, w), model.vignetting_focal_px, model.vignetting_poly)
+        _fill_pad(padded, _PAD)
     hh, ww = interp.out_h, interp.out_w
     st = np.empty((3, 3, hh, ww), dtype=np.float32)  # colour, (s0, s1, s3)
     maps = np.empty((hh, ww, 9), dtype=np.float32)
@@ -484,10 +499,12 @@ def decode(
     all_valid = bool(block_valid.all())
     if not all_valid:
         block_valid = _erode_blocks(block_valid)
-    finite = _maps_surely_finite(r, t, model.sensor, dec)
+    finite = _maps_surely_finite(r, t, model.sensor, dec) and model.nominal_rig
     planes = np.empty((3, 3, interp.strip_rows, ww), dtype=np.float32)  # kind, colour
     for y0, y1 in interp.strips(padded, st):
         s, m = st[:, :, y0:y1], planes[:, :, : y1 - y0]
+        if unmix is not None:  # camera channel c = sum_r M[c, r] region r  ->  regions = M^-1 channels
+            s[...] = np.einsum("rc,c...->r...", unmix, s)
         _maps_planar(s[:, 0], s[:, 1], s[:, 2], m, eps)
         ok = mask[y0:y1]
         np.greater(s[0, 0] + s[1, 0] + s[2, 0], min_signal, out=ok)
@@ -499,6 +516,31 @@ def decode(
             np.copyto(m, 0.0, where=~ok)
         np.copyto(maps[y0:y1], np.moveaxis(m.reshape(9, y1 - y0, ww), 0, -1))
     return Decoded(maps=maps, mask=mask, stokes=np.moveaxis(st, (0, 1), (2, 3)))
+
+
+def subtract_dark(raws: ArrayLike, dark: ArrayLike, sensor: SensorParams) -> NDArray[np.float32]:
+    """Raws minus their dark frames in DN, black level kept: ``raw - dark + black_level`` (float32).
+
+    Pixels saturated in the raw stay at the white level, so the HDR merge still rejects them.
+
+    Args:
+        raws: ``(E, H, W)`` raw frames.
+        dark: ``(E, H, W)`` dark frames of the same bracket (display off: ambient and sensor offset).
+        sensor: the sensor (black and white level, saturation).
+
+    Returns:
+        ``(E, H, W)`` float32 raws for :func:`hdr_merge` / :func:`decode`.
+    """
+    r = np.asarray(raws)
+    d = np.asarray(dark)
+    if d.shape != r.shape:
+        raise ValueError(f"dark frames must have the shape of the raws {r.shape}; got {d.shape}")
+    if d.dtype.kind == "f" and not np.all(np.isfinite(d)):
+        raise ValueError("dark frames contain NaN or Inf")
+    out = r.astype(np.float32) - d.astype(np.float32) + np.float32(sensor.black_level)
+    saturated = r >= sensor.saturation * sensor.white_level
+    out[saturated] = sensor.white_level
+    return out
 
 
 def _upsample2(a: NDArray) -> NDArray:
