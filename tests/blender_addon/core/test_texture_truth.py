@@ -139,3 +139,27 @@ def test_table_mixture_truth_mixes_the_tables_fitted_parameters(mono, uv_slab, t
     np.testing.assert_allclose(gt["metallic"][top], 1 - w, atol=1e-4)
     np.testing.assert_allclose(gt["albedo"][bottom], np.broadcast_to([0.5, 0.1, 0.1], (int(bottom.sum()), 3)),
                                atol=1e-4)  # fmt: skip
+
+
+def test_wavefront_colour_passes_render_what_the_symbolic_ones_render(mono, uv_slab, tmp_path, monkeypatch):
+    """render.WAVEFRONT_TEXTURED changes how Dr.Jit compiles, not what is rendered (the symbolic render)."""
+    tex = MaterialTextures(albedo=TextureSpec(checker(tmp_path, "c.png", (200, 40, 40), (30, 30, 200))),
+                           normal=TextureSpec(png(tmp_path, "n.png", (160, 128, 240), (128, 150, 240))))  # fmt: skip
+    mats = (MaterialSpec("t", "pplastic", (0.5,) * 3, 0.3, 0.0, ior=1.5, textures=tex),
+            MaterialSpec("m", "pplastic", (0.9, 0.6, 0.3), 0.25, 0.0, ior=1.5))  # fmt: skip
+    objs = (ObjectSpec("a", uv_slab, pose(25, "x"), "t"), ObjectSpec("b", uv_slab, pose(-35, "y"), "m"))
+    spec = SceneSpec(rig=Rig(), objects=objs, materials=mats)
+    settings = render.RenderSettings(resolution=32, spp=4)
+    runs = {}
+    for on in (False, True):
+        monkeypatch.setattr(render, "WAVEFRONT_TEXTURED", on)
+        runs[on] = render.render_stokes(spec, settings)
+    ref, wave = runs[False], runs[True]
+    assert "aovs" in wave.seconds and "aovs" not in ref.seconds  # the AOV-only pass ran
+    assert ref.mask.any() and np.abs(ref.normal[ref.mask][:, 0]).max() > 0.2  # tilted: normals have an x part
+    np.testing.assert_array_equal(wave.object_index, ref.object_index)
+    np.testing.assert_allclose(wave.coverage, ref.coverage, atol=1e-6)
+    np.testing.assert_allclose(wave.normal, ref.normal, atol=1e-5)
+    np.testing.assert_allclose(wave.depth, ref.depth, atol=1e-6)
+    scale = np.abs(ref.stokes[..., 0]).max()
+    np.testing.assert_allclose(wave.stokes, ref.stokes, atol=1e-3 * scale)
