@@ -130,8 +130,9 @@ test-sets: setup  ## render the test splits (48 scenes each, raw brackets kept) 
 	$(PY) headless/render.py --split test-textured --pbrdfs $(SPLITS_DIR)/pbrdfs-test --out $(SPLITS_DIR)/test-textured --resume --quiet
 
 # The data engine's training data (pbrdf/data/splits.py train-engine, val-engine): 2,000 + 64
-# scenes of 1-3 objects at 192 px, half the materials expanded pBRDF tables. Long: every command
-# resumes where a killed run stopped. SHARD=K/N renders one shard (run N machines or processes).
+# scenes of 1-3 objects at 192 px, half the materials expanded pBRDF tables, half seeded procedural
+# textures (from 2026-11-27; a folder rendered before refuses to resume). Long: every command resumes
+# where a killed run stopped. SHARD=K/N renders one shard (run N machines or processes).
 SHARD ?= 0/1
 train-data: setup  ## render the data engine's train-engine and val-engine splits (resumable; SHARD=K/N)
 	$(PY) headless/expand_pbrdf.py --out $(SPLITS_DIR)/pbrdfs-train --count 200 --seed 12000 --quiet
