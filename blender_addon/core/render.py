@@ -63,11 +63,6 @@ __all__ = [
 
 log = logging.getLogger(__name__)
 
-#: Build every object of a textured scene as its kind's canonical tree (:mod:`.textured_bsdf`).
-#: Off: measured on test-textured scenes, it did not make scenes share kernels (each scene with
-#: tables still compiled its own) and its larger trees compiled and rendered slower
-#: (docs/measurements/headless.md, 2026-11-27).
-CANONICAL_TREES = False
 #: Render the colour passes of textured scenes with Dr.Jit's wavefront (non-symbolic) calls and
 #: loops. Symbolic mode compiles one megakernel per combination of BSDF trees, and textured
 #: scenes rarely share one: each sample compiled its own (20-50 s at 128 px on 2 cores). Wavefront
@@ -151,9 +146,6 @@ class _ChannelScenes:
         self.names = [f"object_{i}" for i in range(len(self.spec.objects))]
         # Direct light only comes from the linearly polarized display (S3 = 0): tables skip a column.
         self.linear_light = self.integrator == "direct"
-        # With CANONICAL_TREES and a texture, every object is its kind's canonical tree, wrapped in
-        # ``twosided`` (a closed mesh's front faces see the same BSDF).
-        self.canonical = CANONICAL_TREES and needs_truth_pass(self.spec)
 
     def build(self, channel: int):
         """The loaded scene of ``channel``."""
@@ -162,8 +154,8 @@ class _ChannelScenes:
         objs = {
             name: ms.mesh_object(
                 name, m[0], m[1], m[2],
-                _bsdf_dict(self.materials[obj.material], channel, self.linear_light, self.canonical),
-                two_sided=m[3] or self.canonical, uvs=m[4] if len(m) > 4 else None,
+                _bsdf_dict(self.materials[obj.material], channel, self.linear_light),
+                two_sided=m[3], uvs=m[4] if len(m) > 4 else None,
             )
             for name, obj, m in zip(self.names, self.spec.objects, self.meshes, strict=True)
         }  # fmt: skip
@@ -181,9 +173,8 @@ class _ChannelScenes:
         updates = ms.display_updates(self.spec.rig.display, channel, params)
         for name, obj, mesh in zip(self.names, self.spec.objects, self.meshes, strict=True):
             mat = self.materials[obj.material]
-            if self.canonical or textured_bsdf.has_textures(mat):
-                prefix = f"{name}.bsdf.brdf_0" if mesh[3] or self.canonical else f"{name}.bsdf"
-                u = textured_bsdf.channel_updates(mat, channel, prefix, canonical=self.canonical)
+            if textured_bsdf.has_textures(mat):
+                u = textured_bsdf.channel_updates(mat, channel, f"{name}.bsdf.brdf_0" if mesh[3] else f"{name}.bsdf")
             else:
                 u = ms.channel_updates(name, mat, channel, two_sided=mesh[3])
             if u is None or updates is None or not all(k in params for k in u):
@@ -192,10 +183,10 @@ class _ChannelScenes:
         return updates
 
 
-def _bsdf_dict(material, channel: int, linear_light: bool, canonical: bool) -> dict:
-    """The material's BSDF for one colour channel: :mod:`.textured_bsdf`'s (canonical or not), or its constants."""
-    if canonical or textured_bsdf.has_textures(material):
-        return textured_bsdf.bsdf_dict(material, channel, linear_light=linear_light, canonical=canonical)
+def _bsdf_dict(material, channel: int, linear_light: bool) -> dict:
+    """The material's BSDF for one colour channel: :mod:`.textured_bsdf` with textures, else its constants."""
+    if textured_bsdf.has_textures(material):
+        return textured_bsdf.bsdf_dict(material, channel, linear_light=linear_light)
     return ms.bsdf_dict(material, channel, linear_light=linear_light)
 
 

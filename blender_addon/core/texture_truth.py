@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from . import mitsuba_scene as ms
 from . import texel_grid as tg
-from .textured_bsdf import CONSTANT_TEXELS, bitmap, has_textures
+from .textured_bsdf import bitmap, has_textures
 
 if TYPE_CHECKING:
     from .passes import RenderSettings
@@ -38,6 +38,9 @@ __all__ = ["PASSES", "mapped_normals", "needs_truth_pass", "rgb_variant", "truth
 
 #: The two passes: an RGB albedo pass, and roughness, metallic and a constant 1 (the coverage).
 PASSES = (("albedo_r", "albedo_g", "albedo_b"), ("roughness", "metallic", "coverage"))
+#: Side of the bitmap an untextured material's constants become: Dr.Jit compiles a 1-texel bitmap
+#: (or a float) into other kernels than a larger one, a bitmap's size and values into none.
+CONSTANT_TEXELS = 2
 _FULL_AOVS = "ab:albedo,uv:uv,du:dp_du,nn:sh_normal"
 _INTEGRATORS: dict[tuple[str, str], object] = {}
 
@@ -70,7 +73,7 @@ def _integrator(aovs: str):
 def _stacks(spec: SceneSpec) -> list[tuple[NDArray, NDArray]]:
     """Per object: ``(H, W, 6)`` planes (albedo RGB, roughness, metallic, 1) and their ``to_uv``.
 
-    An untextured material's constants are a :data:`.textured_bsdf.CONSTANT_TEXELS`-square plane:
+    An untextured material's constants are a :data:`CONSTANT_TEXELS`-square plane:
     every object is then the same ``diffuse`` of a bitmap, whose kernels one compile serves.
     """
     materials = {m.name: m for m in spec.materials}

@@ -26,23 +26,6 @@ the nested BSDFs' Mueller matrices: docs/textured_rendering.md says why each cho
 
 Between colour channels only bitmap data, constants and table data change
 (:func:`channel_updates`).
-
-Canonical trees (``canonical=True``; :mod:`.render` builds them for every object of a scene
-with textures where its ``CANONICAL_TREES`` is on, off by default: measured, they did not make
-scenes share kernels, docs/measurements/headless.md): Dr.Jit compiles a scene's kernels per
-*set of distinct BSDF trees* (Mitsuba dispatches over every BSDF of the scene; identical trees
-share one body whatever their data),
-and a float constant, a 1-texel bitmap, a larger bitmap, a blend or a normal map each make a
-different tree; the bitmaps' sizes and values do not, their ``to_uv`` does (it is compiled in).
-So a canonical tree has one structure per material kind (:mod:`.render` also wraps every
-object of such a scene in ``twosided``): every texture parameter a bitmap
-(constants become :data:`CONSTANT_TEXELS`-square bitmaps), ``pplastic`` and ``conductor`` both
-the ``blendbsdf`` of the dielectric and the metal (weight the metallic texture, or 0 / 1), the
-``normalmap`` always present (flat where the material has none), a table mixture padded to
-:data:`CANONICAL_TABLES` tables with zero weights and always with the zero BSDF of the albedo
-scale. Each choice renders what the plain tree renders (a blend with weight 0 or 1 is its one
-BSDF, a flat normal map keeps the shading normal, zero-weight tables add nothing); it costs the
-evaluation of the unused BSDFs. docs/measurements/headless.md has the kernel counts and times.
 """
 
 from __future__ import annotations
@@ -61,22 +44,10 @@ from . import texel_grid as tg
 if TYPE_CHECKING:
     from .spec import MaterialSpec
 
-__all__ = [
-    "CANONICAL_TABLES",
-    "CONSTANT_TEXELS",
-    "DIELECTRIC_IOR",
-    "bitmap",
-    "bsdf_dict",
-    "channel_updates",
-    "has_textures",
-]
+__all__ = ["DIELECTRIC_IOR", "bitmap", "bsdf_dict", "channel_updates", "has_textures"]
 
 #: IOR of the dielectric a ``metallic`` texture mixes into a ``conductor`` material (which has none).
 DIELECTRIC_IOR = 1.5
-#: Side of the bitmap a constant becomes in a canonical tree (a 1-texel bitmap compiles other kernels).
-CONSTANT_TEXELS = 2
-#: Tables of a canonical table mixture: the own table and up to two more (:mod:`.random_textures`' draws).
-CANONICAL_TABLES = 3
 
 #: Marks a tree that changes with the channel only by a rebuild (``measured_polarized`` has no parameters).
 REBUILD = "<rebuild>"
@@ -105,16 +76,13 @@ def bitmap(plane: NDArray, to_uv: NDArray) -> dict:
 class _Tree:
     """Builds one channel's BSDF dict and records which parameters change with the channel."""
 
-    def __init__(self, grid: tg.MaterialGrid, channel: int, canonical: bool) -> None:
+    def __init__(self, grid: tg.MaterialGrid, channel: int) -> None:
         self.grid = grid
         self.channel = channel
-        self.canonical = canonical
         self.varying: list[tuple[str, _Value]] = []  # (parameter key below the BSDF, value of a channel)
 
     def leaf(self, key: str, value: _Value, *, varies: bool) -> Any:
-        """A texture parameter: a bitmap for a plane, a float for a constant (a bitmap too in a canonical tree)."""
-        if self.canonical:
-            value = _as_plane(value)
+        """A texture parameter: a bitmap for a plane, a float for a constant."""
         v = value(self.channel)
         if isinstance(v, np.ndarray) and v.ndim >= 2:
             if varies:
@@ -127,20 +95,6 @@ class _Tree:
     def data(self, key: str, value: _Value) -> None:
         """A non-texture parameter that changes with the channel (a table's data)."""
         self.varying.append((key, value))
-
-
-def _as_plane(value: _Value) -> _Value:
-    """``value`` with constants and 1-texel planes as :data:`CONSTANT_TEXELS`-square planes."""
-
-    def plane(c: int):
-        v = np.asarray(value(c), np.float32)
-        if v.ndim < 2:
-            return np.full((CONSTANT_TEXELS, CONSTANT_TEXELS), v, np.float32)
-        if v.shape[:2] == (1, 1):
-            return np.ascontiguousarray(np.broadcast_to(v, (CONSTANT_TEXELS, CONSTANT_TEXELS, *v.shape[2:])))
-        return v
-
-    return plane
 
 
 def _channel_plane(grid_plane: NDArray | None, constant) -> _Value:
@@ -205,11 +159,8 @@ def _analytic(t: _Tree, key: str, material: MaterialSpec) -> dict:
         eta = _channel_plane(None, material.eta)
         k = _metal_k(albedo, eta) if grid.albedo is not None else _channel_plane(None, material.k)
         ior = DIELECTRIC_IOR
-    weight = grid.metallic
-    if weight is None and t.canonical:  # the blend with weight 0 or 1 is its one BSDF
-        weight = np.float32(0.0 if material.kind == "pplastic" else 1.0)
-    if weight is not None:
-        return _blend(t, key, weight, lambda k_: _plastic(t, k_, material, albedo, ior),
+    if grid.metallic is not None:
+        return _blend(t, key, grid.metallic, lambda k_: _plastic(t, k_, material, albedo, ior),
                       lambda k_: _metal(t, k_, material, eta, k))  # fmt: skip
     if material.kind == "pplastic":
         return _plastic(t, key, material, albedo, ior)
@@ -234,11 +185,10 @@ def _tables(t: _Tree, key: str, material: MaterialSpec, *, linear_light: bool) -
             return lambda c: weights[..., i] * np.minimum(1.0, grid.albedo[..., c] / a[c])
 
         comps = [scaled(i) for i in range(len(grid.tables))]
-    else:
-        comps = [_plane_of(weights, i) for i in range(len(grid.tables))]
-    if grid.albedo is not None or t.canonical:  # without an albedo texture the zero BSDF's weight is 0
         parts.append((lambda k: {"type": "diffuse", "reflectance": 0.0},
                       lambda c: np.clip(1.0 - sum(f(c) for f in comps), 0.0, 1.0)))  # fmt: skip
+    else:
+        comps = [_plane_of(weights, i) for i in range(len(grid.tables))]
 
     def table(path: str) -> Callable[[str], dict]:
         def build(k: str) -> dict:
@@ -256,9 +206,6 @@ def _tables(t: _Tree, key: str, material: MaterialSpec, *, linear_light: bool) -
         return build
 
     parts += [(table(p), comps[i]) for i, p in enumerate(grid.tables)]
-    if t.canonical:  # padded with the own table at weight 0
-        zero = np.zeros(weights.shape[:2], np.float32)
-        parts += [(table(grid.tables[0]), lambda c: zero)] * max(CANONICAL_TABLES - len(grid.tables), 0)
     return _mixture(t, key, parts)
 
 
@@ -283,69 +230,46 @@ def _mixture(t: _Tree, key: str, parts: list[tuple[Callable[[str], dict], _Value
     }  # fmt: skip
 
 
-def _grid(material: MaterialSpec) -> tg.MaterialGrid:
-    """The material's texel grid; an untextured material's (every slot constant) for a canonical tree."""
-    if has_textures(material):
-        return tg.material_grid(material)
-    return _constant_grid(material)
-
-
-@functools.lru_cache(maxsize=64)
-def _constant_grid(material: MaterialSpec) -> tg.MaterialGrid:
-    tables = (str(material.table),) if material.kind == "measured" else ()
-    return tg.MaterialGrid(to_uv=np.eye(3), tables=tables)
-
-
-def _tree(
-    material: MaterialSpec, channel: int, *, linear_light: bool, canonical: bool
-) -> tuple[dict, list[tuple[str, _Value]]]:
-    grid = _grid(material)
-    t = _Tree(grid, channel, canonical)
-    normal = grid.normal
-    if normal is None and canonical:  # flat: the shading frame unchanged
-        normal = np.broadcast_to(np.float32([0.0, 0.0, 1.0]), (CONSTANT_TEXELS, CONSTANT_TEXELS, 3))
-    key = "nested_bsdf" if normal is not None else ""
+def _tree(material: MaterialSpec, channel: int, *, linear_light: bool) -> tuple[dict, list[tuple[str, _Value]]]:
+    grid = tg.material_grid(material)
+    t = _Tree(grid, channel)
+    key = "nested_bsdf" if grid.normal is not None else ""
     if material.kind == "measured":
         d = _tables(t, key, material, linear_light=linear_light)
     else:
         d = _analytic(t, key, material)
-    if normal is not None:
-        d = {"type": "normalmap", "normalmap": bitmap((normal + 1.0) / 2.0, grid.to_uv), "bsdf": d}
+    if grid.normal is not None:
+        d = {"type": "normalmap", "normalmap": bitmap((grid.normal + 1.0) / 2.0, grid.to_uv), "bsdf": d}
     return d, [(k.lstrip("."), v) for k, v in t.varying]
 
 
-def bsdf_dict(material: MaterialSpec, channel: int, *, linear_light: bool = False, canonical: bool = False) -> dict:
-    """The material's BSDF dict for colour channel ``channel`` (0, 1, 2): its textures, or constants.
+def bsdf_dict(material: MaterialSpec, channel: int, *, linear_light: bool = False) -> dict:
+    """The textured material's BSDF dict for colour channel ``channel`` (0, 1, 2).
 
     ``linear_light``: the tables skip their Mueller matrices' last column (:mod:`.table_bsdf`).
-    ``canonical``: the material kind's one tree (module docstring); else only what the material
-    has (an untextured material is then its constants' plain plugin, as :func:`.mitsuba_scene.bsdf_dict`).
     """
-    return _tree(material, channel, linear_light=linear_light, canonical=canonical)[0]
+    return _tree(material, channel, linear_light=linear_light)[0]
 
 
-def _varying(material: MaterialSpec, canonical: bool) -> list[tuple[str, _Value]]:
+def _varying(material: MaterialSpec) -> list[tuple[str, _Value]]:
     """The parameters that change with the channel, cached per material and texture file version."""
-    return _varying_cached(material, _grid(material), canonical)
+    return _varying_cached(material, tg.material_grid(material))
 
 
-@functools.lru_cache(maxsize=64)
-def _varying_cached(material: MaterialSpec, grid: tg.MaterialGrid, canonical: bool) -> list[tuple[str, _Value]]:
-    return _tree(material, 0, linear_light=False, canonical=canonical)[1]
+@functools.lru_cache(maxsize=16)
+def _varying_cached(material: MaterialSpec, grid: tg.MaterialGrid) -> list[tuple[str, _Value]]:
+    return _tree(material, 0, linear_light=False)[1]
 
 
-def channel_updates(
-    material: MaterialSpec, channel: int, prefix: str, *, canonical: bool = False
-) -> dict[str, Any] | None:
+def channel_updates(material: MaterialSpec, channel: int, prefix: str) -> dict[str, Any] | None:
     """Scene-parameter updates (keys under ``prefix``, the BSDF's key) that switch the BSDF to ``channel``.
 
-    ``canonical`` as the tree was built (:func:`bsdf_dict`). None where the scene must be rebuilt:
-    a table on a non-uniform grid (``measured_polarized``).
+    None where the scene must be rebuilt: a table on a non-uniform grid (``measured_polarized``).
     """
     import mitsuba as mi  # noqa: PLC0415
 
     out: dict[str, Any] = {}
-    varying = _varying(material, canonical)
+    varying = _varying(material)
     if any(key == REBUILD for key, _ in varying):
         return None
     for key, value in varying:

@@ -97,6 +97,20 @@ def test_untextured_scenes_keep_per_object_constants(mono, uv_slab):
     np.testing.assert_array_equal(gt["albedo"][sel], np.broadcast_to(np.float32([0.3, 0.4, 0.5]), (int(sel.sum()), 3)))
 
 
+def test_truth_pass_reports_an_untextured_objects_constants(mono, uv_slab, monkeypatch):
+    """In a textured scene an untextured object's truth is its constants (a 2 x 2 bitmap in the truth pass)."""
+    mat = MaterialSpec.metal("m", (0.2, 0.5, 1.1), (3.0, 2.5, 2.0), 0.3)
+    monkeypatch.setattr(render, "needs_truth_pass", lambda spec: True)  # as beside a textured object
+    spec = SceneSpec(rig=Rig(), objects=(ObjectSpec("o", uv_slab, pose(20.0), "m"),), materials=(mat,))
+    res = render.render_stokes(spec, render.RenderSettings(resolution=32, spp=4))
+    region = res.mask
+    assert res.truth is not None and region.sum() > 100
+    n = int(region.sum())
+    np.testing.assert_allclose(res.truth["albedo"][region], np.broadcast_to(mat.albedo, (n, 3)), rtol=1e-5)
+    np.testing.assert_allclose(res.truth["roughness"][region], mat.roughness, rtol=1e-5)
+    np.testing.assert_allclose(res.truth["metallic"][region], mat.metallic, rtol=1e-5)
+
+
 def test_normal_map_truth_is_the_tilted_normal(mono, uv_slab, tmp_path):
     theta = math.radians(20)
     enc = tuple(int(round(255 * (c + 1) / 2)) for c in (0.0, math.sin(theta), math.cos(theta)))

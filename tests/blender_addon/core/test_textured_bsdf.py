@@ -195,25 +195,3 @@ def test_textured_table_on_a_non_uniform_grid_uses_the_plugin_and_rebuilds(mono,
     scale = np.array([102 / 255 / 0.8, 77 / 255 / 0.6, 51 / 255 / 0.4])
     a, b = res.stokes[region].mean(0), ref.stokes[region].mean(0) * scale[:, None]
     np.testing.assert_allclose(a / b[:, :1], b / b[:, :1], atol=0.04)
-
-
-@pytest.mark.parametrize("kind", ["pplastic", "conductor"])
-def test_canonical_tree_renders_what_the_plain_tree_renders(mono, uv_slab, monkeypatch, kind):
-    """An untextured material as its kind's canonical tree (blend at weight 0 or 1, flat normal map, 2x2 bitmaps)."""
-    if kind == "pplastic":
-        mat = MaterialSpec.plastic("c", (0.7, 0.4, 0.2), 0.35, ior=1.5)
-    else:
-        mat = MaterialSpec.metal("c", (0.2, 0.5, 1.1), (3.0, 2.5, 2.0), 0.3)
-    plain = render_one(uv_slab, mat)
-    assert plain.truth is None
-    monkeypatch.setattr(render, "needs_truth_pass", lambda spec: True)  # as in a scene with a texture
-    monkeypatch.setattr(render, "CANONICAL_TREES", True)
-    tree = textured_bsdf.bsdf_dict(mat, 0, canonical=True)
-    assert tree["type"] == "normalmap" and tree["bsdf"]["type"] == "blendbsdf"
-    canonical = render_one(uv_slab, mat)
-    region = canonical.mask & plain.mask
-    assert_same_region(canonical, plain, region, rel=0.03)
-    # The truth pass reports the constants wherever the object covers the pixel.
-    np.testing.assert_allclose(canonical.truth["albedo"][region], np.broadcast_to(mat.albedo, (region.sum(), 3)),
-                               rtol=1e-5)  # fmt: skip
-    np.testing.assert_allclose(canonical.truth["roughness"][region], mat.roughness, rtol=1e-5)
