@@ -328,7 +328,8 @@ def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
         "mesh": (scene.meta.get("objects") or [{}])[0].get("mesh"),
         "materials": sorted({m.get("kind", "?") for m in (scene.meta.get("materials") or {}).values()}),
     }
-    for m in METHODS:
+    scored = [m for m in METHODS if m != "refined" or scene.refine is not None]  # refined: only when asked
+    for m in scored:
         row[m] = score(scene.preds[m], scene.gt, scene.region, lpips=lpips, intrinsics=scene.intrinsics)
     if scene.refine is not None:
         row["refine"] = scene.refine
@@ -342,7 +343,7 @@ def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
             spec = specs[i] if 0 <= i < len(specs) else {}
             obj = {"id": int(i), "pixels": int(sel.sum()), "mesh": spec.get("mesh"),
                    "material": (mats.get(spec.get("material")) or {}).get("kind")}  # fmt: skip
-            for m in METHODS:
+            for m in scored:
                 obj[m] = score(scene.preds[m], scene.gt, sel, lpips=False)
             row["objects"].append(obj)
     return row
@@ -351,7 +352,8 @@ def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
 def summarize_rows(rows: list[Mapping[str, Any]]) -> dict[str, Any]:
     """Per method and metric :func:`~network.statistics.summarize` of the rows, and the mask IoU."""
     weights = [r["pixels"] for r in rows]
-    methods = {m: {k: summarize([r[m][k] for r in rows], weights) for k, _, _ in METRICS} for m in METHODS}
+    scored = [m for m in METHODS if all(m in r for r in rows)]  # the refined row only where it ran
+    methods = {m: {k: summarize([r[m][k] for r in rows], weights) for k, _, _ in METRICS} for m in scored}
     out = {"methods": methods, "mask_iou": summarize([r["mask_iou"] for r in rows])}
     if any(r.get("refine") for r in rows):  # paired per-scene differences, refinement minus network
         out["paired"] = {
@@ -368,7 +370,7 @@ def summarize_rows(rows: list[Mapping[str, Any]]) -> dict[str, Any]:
         w = [o["pixels"] for o in objs]
         out["objects"] = len(objs)
         out["per_object"] = {
-            m: {k: summarize([o[m][k] for o in objs], w) for k, _, _ in METRICS if k != "albedo_lpips"} for m in METHODS
+            m: {k: summarize([o[m][k] for o in objs], w) for k, _, _ in METRICS if k != "albedo_lpips"} for m in scored
         }
     return out
 
