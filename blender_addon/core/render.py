@@ -71,6 +71,11 @@ log = logging.getLogger(__name__)
 #: truth pass stays symbolic: its AOV integrator's shading normal comes out wrong in wavefront
 #: mode (measured: x component off, ``|n|`` 0.977) on Mitsuba 3.9.
 WAVEFRONT_TEXTURED = True
+#: Wavefront mode keeps every lane's state in memory between its kernels (about 2 KB per camera
+#: sample): renders with more samples than this (width x height x spp) stay symbolic. A 192 px
+#: dataset sample at 16 spp has 0.6 M; a 384 px 1024-spp reference in 64-spp chunks (9.4 M) ran
+#: out of the 24 GB of a 2-core machine.
+WAVEFRONT_MAX_SAMPLES = 2**21
 
 
 def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> RenderResult:
@@ -116,7 +121,9 @@ def render_stokes(spec: SceneSpec, settings: RenderSettings | None = None) -> Re
         return result
     window = render_window(spec, settings, meshes)
     scenes = _ChannelScenes(spec, meshes, window, settings, max_depth, integrator, polarized_emitter)
-    stokes, aovs, seconds = _render_channels(mi, scenes, wavefront=textured and WAVEFRONT_TEXTURED)
+    lanes = window.size[0] * window.size[1] * settings.spp
+    wavefront = textured and WAVEFRONT_TEXTURED and lanes <= WAVEFRONT_MAX_SAMPLES
+    stokes, aovs, seconds = _render_channels(mi, scenes, wavefront=wavefront)
     truth = None
     if textured:  # the material maps of what was rendered (:mod:`.texture_truth`)
         seed = (int(spec.seed) * 3) % 2**32  # the first colour pass's: its sample positions
