@@ -49,9 +49,10 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (see the module docstring)."""
     parser = _Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--input", type=Path, metavar="DIR", help="dataset folder from headless/render.py (required)")
+    parser.add_argument("--input", type=Path, metavar="DIR",
+                        help="dataset folder from headless/render.py or its pack (headless/pack.py); required")  # fmt: skip
     parser.add_argument("--real", type=Path, help="folder of real captures (capture folders and/or samples)")
-    parser.add_argument("--val", type=Path, help="held-out rendered dataset: normal MAE every --val-every steps")
+    parser.add_argument("--val", type=Path, help="held-out dataset (or pack): normal MAE every --val-every steps")
     parser.add_argument("--config", default="toy", choices=["toy", "small", "paper"], help="model size (default toy)")
     parser.add_argument(
         "--overrides", nargs="+", type=model_override, default=[], metavar="KEY=VALUE",
@@ -85,7 +86,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--val-every", type=int, default=0, help="steps between validations (default: checkpoints)")
     parser.add_argument("--val-samples", type=int, default=8, help="validation samples (default 8)")
     parser.add_argument("--max-skipped", type=int, default=10, help="non-finite steps tolerated (default 10)")
-    parser.add_argument("--workers", type=int, default=0, help="data-loading processes per loader (default 0)")
+    parser.add_argument("--workers", type=int, default=0, help="data-loading processes per loader (default 0: the "
+                        "main process; the batches do not depend on it)")  # fmt: skip
     parser.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard events")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--init-from", type=Path, metavar="CKPT",
