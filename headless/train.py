@@ -49,8 +49,12 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (see the module docstring)."""
     parser = _Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--input", type=Path, metavar="DIR",
-                        help="dataset folder from headless/render.py or its pack (headless/pack.py); required")  # fmt: skip
+    parser.add_argument(
+        "--input",
+        type=Path,
+        metavar="DIR",
+        help="dataset folder (headless/render.py) or its pack (headless/pack.py); required",
+    )
     parser.add_argument("--real", type=Path, help="folder of real captures (capture folders and/or samples)")
     parser.add_argument("--val", type=Path, help="held-out dataset (or pack): normal MAE every --val-every steps")
     parser.add_argument("--config", default="toy", choices=["toy", "small", "paper"], help="model size (default toy)")
