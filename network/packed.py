@@ -242,6 +242,7 @@ def _start_index(source: Path, out: Path, size: int | None, dtype: str, resume: 
             keep.append(shard)
         else:  # its samples are packed again below, into a new shard
             warnings.warn(f"{problem}; its samples are packed again", stacklevel=3)
+            (out / shard["file"]).unlink(missing_ok=True)
     index["shards"] = keep
     return index
 
