@@ -193,7 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--count", type=int, default=40, help="tables generated to time the expansion (default 40)")
     _common(q, repeat=3)
     nb = add("network", "time and memory per model config; stride error of the shipped model", "network.bench.model")
-    nb.add_argument("--configs", nargs="+", default=["toy", "small"], choices=["toy", "small", "paper"])
+    nb.add_argument("--configs", nargs="+", default=["toy", "small"], choices=["toy", "small", "medium", "paper"])
     nb.add_argument("--paper", action="store_true", help="also run the paper config (minutes on a CPU)")
     nb.add_argument("--size", type=int, help="input size (default: the config's)")
     nb.add_argument("--mask-fraction", type=float, default=0.5, help="image fraction inside the mask (default 0.5)")

@@ -1,6 +1,6 @@
 """Train the feed-forward network on rendered samples (and real captures).
 
-    python headless/train.py --input DIR [--real DIR] --config toy|small|paper --out DIR [--steps N] [--resume]
+    python headless/train.py --input DIR [--real DIR] --config toy|small|medium|paper --out DIR [--steps N] [--resume]
 
 Writes OUT/checkpoint.pt (model, optimizer, step, per-rank RNG states; resumable), OUT/model.pt
 (state dict, config and input variant: what infer.py loads), OUT/log.csv (one row per step:
@@ -57,7 +57,9 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--real", type=Path, help="folder of real captures (capture folders and/or samples)")
     parser.add_argument("--val", type=Path, help="held-out dataset (or pack): normal MAE every --val-every steps")
-    parser.add_argument("--config", default="toy", choices=["toy", "small", "paper"], help="model size (default toy)")
+    parser.add_argument(
+        "--config", default="toy", choices=["toy", "small", "medium", "paper"], help="model size (default toy)"
+    )
     parser.add_argument(
         "--overrides", nargs="+", type=model_override, default=[], metavar="KEY=VALUE",
         help="ModelConfig fields to replace, e.g. image_size=128 train_pixels=1024 (JSON values)",

@@ -89,7 +89,7 @@ class TrainConfig:
             :mod:`network.packed`).
         indices: train on these sample indices of ``data`` only (None: every completed sample).
         out: output folder (checkpoint, model, logs).
-        config: model preset (``toy``, ``small``, ``paper``); ``overrides`` replace fields of it.
+        config: model preset (``toy``, ``small``, ``medium``, ``paper``); ``overrides`` replace fields of it.
         steps: total optimizer steps of the run (a resumed run continues up to it).
         stop_after: end this invocation after that many completed steps (with a checkpoint), without
             changing the schedules, which still span ``steps``: one chunk of a long run (None: ``steps``).
