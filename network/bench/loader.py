@@ -14,7 +14,9 @@ The model rows time one training step as :class:`network.train.Trainer` runs it 
 pixels drawn from the batch's mask, forward at those pixels, the synthetic loss, backward, gradient
 clipping, AdamW) on a batch from the pack, randomly initialised weights (cost only), at each
 batch size; samples per second = batch / median seconds. ``headroom`` is a loader row's rate over
-the model's at the same size: above 1 the loader keeps up.
+the model's at the same size: above 1 the loader keeps up. The ``item`` rows time ``dataset[i]``
+alone in one thread (CPU time, so they hold on a shared machine): ``items_per_cpu_second`` times the
+cores a machine gives the workers bounds what its loader can deliver.
 """
 
 from __future__ import annotations
@@ -125,6 +127,39 @@ def _loader_row(ds, s: LoaderBench, workers: int, what: str) -> dict:
     return {**timing.to_dict(), "workers": workers, "samples_per_second": block * s.batch / timing.median}
 
 
+def _item_rows(datasets: dict, s: LoaderBench, size: int) -> dict:
+    """CPU seconds per item in one thread (as in a loader worker), EXR and pack alternating (robust to sharing)."""
+    import torch  # noqa: PLC0415
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # what a DataLoader worker runs with
+    try:
+        cpu: dict[str, list[float]] = {kind: [] for kind in datasets}
+        wall: dict[str, list[float]] = {kind: [] for kind in datasets}
+        for _ in range(s.repeat):
+            for i in range(len(datasets["exr"])):
+                for kind, ds in datasets.items():
+                    c0, w0 = time.thread_time(), time.perf_counter()
+                    ds[i]
+                    cpu[kind].append(time.thread_time() - c0)
+                    wall[kind].append(time.perf_counter() - w0)
+    finally:
+        torch.set_num_threads(threads)
+    rows = {}
+    for kind in datasets:
+        med = float(np.median(cpu[kind]))
+        rows[kind] = {
+            "what": f"dataset[i] at {size} px ({kind}), calibrated, 1 torch thread; CPU time of this thread "
+            f"(time.thread_time) and wall time, {s.repeat} passes over the {len(datasets[kind])} samples",
+            "cpu_seconds_median": med,
+            "wall_seconds_median": float(np.median(wall[kind])),
+            "cpu_seconds_all": cpu[kind],
+            "items_per_cpu_second": 1.0 / med,
+        }
+    rows["pack_over_exr_cpu"] = rows["exr"]["cpu_seconds_median"] / rows["pack"]["cpu_seconds_median"]
+    return rows
+
+
 def _model_rows(pack: Path, s: LoaderBench, size: int) -> dict:
     """One training step per batch size, as the trainer runs it, on a batch from the pack."""
     import torch  # noqa: PLC0415
@@ -197,6 +232,7 @@ def _size_entry(s: LoaderBench, size: int, work: Path) -> dict:
         "open_seconds": {"exr (hash every EXR)": exr_open, "pack (hash every shard)": pack_open},
         "loader": {},
     }
+    entry["item"] = _item_rows(datasets, s, size)
     for kind, ds in datasets.items():
         name = "SampleDataset (EXR decode, check_item" if kind == "exr" else "PackedDataset (memmap slice, float16"
         for w in s.workers:

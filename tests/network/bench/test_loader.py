@@ -28,6 +28,11 @@ def test_loader_bench_quick_rows(tmp_path, capsys):
         )
         ratio = row["samples_per_second"] / entry["model"]["batch_2"]["samples_per_second"]
         assert math.isclose(entry["headroom_over_model_batch_2"][key], ratio)
+    item = entry["item"]
+    assert len(item["exr"]["cpu_seconds_all"]) == len(item["pack"]["cpu_seconds_all"]) == 2  # --repeat 1, 2 samples
+    assert math.isclose(
+        item["pack_over_exr_cpu"], item["exr"]["cpu_seconds_median"] / item["pack"]["cpu_seconds_median"]
+    )
     assert "batch 2" in entry["model"]["batch_2"]["what"] and entry["model"]["batch_2"]["repeats"] == 1
     # the copies are 64 px samples; the pack holds 17 float16 channels (maps, targets) and a uint8 mask
     assert entry["pack_bytes_per_sample"] == 64 * 64 * (17 * 2 + 1)
