@@ -8,7 +8,8 @@ losses, learning rate, real-loss weight, gradient norm), OUT/val.csv (with --val
 TensorBoard events in OUT/tb (when tensorboard is installed). --resume continues a killed run
 exactly where its last checkpoint was (network.train); at the final step it rewrites a missing or
 stale model.pt from the checkpoint. Every run removes the temporary files (.NAME.tmp-PID-HEX) a
-killed run left beside these files.
+killed run left beside these files. --input and --val may be packs (headless/pack.py: memory-mapped
+shards, recognised by their index.json); --workers N loads batches in N processes without changing them.
 
 Several GPUs or machines: launch the same command with torchrun, e.g.
 
