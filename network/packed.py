@@ -355,6 +355,7 @@ class PackedDataset(Dataset):
         done = sorted(self.where)
         self.indices = done if indices is None else [i for i in indices if i in self.where]
         self._maps: dict[int, np.ndarray] = {}
+        self._radiance: dict[int, float] = {}
 
     def __getstate__(self) -> dict[str, Any]:
         state = dict(self.__dict__)
@@ -367,7 +368,8 @@ class PackedDataset(Dataset):
     def _arrays(self, s: int, j: int) -> dict[str, np.ndarray]:
         mm = self._maps.get(s)
         if mm is None:
-            mm = self._maps[s] = np.memmap(self.root / self.files[s], dtype=np.uint8, mode="r")
+            # copy-on-write: writable views for torch.from_numpy; nothing writes them, so nothing is copied
+            mm = self._maps[s] = np.memmap(self.root / self.files[s], dtype=np.uint8, mode="c")
         base = j * self.record["bytes"]
         out = {}
         for name, spec in self.record["arrays"].items():
@@ -380,10 +382,14 @@ class PackedDataset(Dataset):
         s, j = self.where[self.indices[i]]
         meta = self.meta[s][j]
         where = f"{self.root / self.files[s]} (sample {meta['index']}, from {meta['exr']})"
-        t = {name: torch.from_numpy(a.astype(np.float32)) for name, a in self._arrays(s, j).items()}
+        t = {name: torch.from_numpy(a).to(torch.float32, copy=True) for name, a in self._arrays(s, j).items()}
         if self.size is not None and t["maps"].shape[-1] != self.size:
             t = resize_batch(t, self.size)
-        radiance = pcapture.display_radiance(meta, where) if self.input_scale == "calibrated" else None
+        radiance = None
+        if self.input_scale == "calibrated":  # parsing the rig costs as much as the rest of the item: once per sample
+            if meta["index"] not in self._radiance:
+                self._radiance[meta["index"]] = pcapture.display_radiance(meta, where)
+            radiance = self._radiance[meta["index"]]
         t["maps"] = normalize_maps(t["maps"], t["mask"], radiance=radiance)
         if self.light_input:
             if meta["distance"] is None:
