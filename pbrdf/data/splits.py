@@ -144,6 +144,8 @@ class Split:
 #: before that refuses ``--resume`` with one line (:data:`blender_addon.core.generate.SCENE_FIELDS`).
 _ENGINE = {"resolution": 192, "spp": 16, "shapes": "train", "pbrdfs": True, "objects": (1, 3), "table_fraction": 0.5,
            "texture_fraction": 0.5}  # fmt: skip
+#: The lighting-aware input's splits (issue 27): the engine's scenes over a wider distance range.
+_LIGHT = {**_ENGINE, "distance": (0.35, 1.6)}
 
 #: Every split of the project. Train and val reproduce the first (128-px, superseded) model's data;
 #: the test seeds are far from both.
@@ -197,19 +199,10 @@ SPLITS: dict[str, Split] = {
             "train",
             seed=32_000,
             count=2000,
-            distance=(0.35, 1.6),
             description="as train-engine at 0.35-1.6 m (lighting-aware input)",
-            **_ENGINE,
+            **_LIGHT,
         ),
-        Split(
-            "val-light",
-            "val",
-            seed=33_000,
-            count=64,
-            distance=(0.35, 1.6),
-            description="as train-light (selection)",
-            **_ENGINE,
-        ),
+        Split("val-light", "val", seed=33_000, count=64, description="as train-light (selection)", **_LIGHT),
         Split(
             "test-scenes",
             "test",

@@ -36,6 +36,7 @@ __all__ = [
     "MAX_METAL_R0",
     "METAL_N",
     "conductor_extinction",
+    "dielectric_transmittance",
     "fresnel_amplitudes",
     "fresnel_reflectance",
     "reflection_mueller",
@@ -162,6 +163,34 @@ def fresnel_reflectance(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
     """
     r_s, r_p, _ = fresnel_amplitudes(cos_theta_i, eta)
     return np.clip(0.5 * (np.abs(r_s) ** 2 + np.abs(r_p) ** 2), 0.0, 1.0)
+
+
+def dielectric_transmittance(cos_theta_i, eta: float):
+    """Unpolarized Fresnel transmittance ``1 - (r_s^2 + r_p^2) / 2`` from air into a real index, array or tensor.
+
+    The same physics as ``1 - fresnel_reflectance(cos, eta)`` for a real ``eta >= 1``, written with
+    operators only so that a torch tensor stays a differentiable tensor (the re-renderer's diffuse
+    lobe of a coated plastic) and a numpy array stays an array. No range checks: a hot path.
+
+    Args:
+        cos_theta_i: cosine of the incidence angle, shape ``(...)``, a numpy array or torch tensor;
+            clipped to [0, 1] (light from below is treated as grazing).
+        eta: real relative index of refraction, ``>= 1``.
+
+    Returns:
+        the transmittance, the input's type and shape, in [0, 1]: ``4 eta / (1 + eta)^2`` at normal
+        incidence, 0 at grazing.
+
+    Example:
+        >>> round(float(dielectric_transmittance(np.array(1.0), 1.5)), 6)
+        0.96
+    """
+    c = cos_theta_i.clip(0.0, 1.0)
+    # clip before the root: a tiny positive floor keeps the torch gradient finite at grazing
+    c_t = (1.0 - (1.0 - c * c) / (eta * eta)).clip(1e-12, None) ** 0.5
+    r_s = (c - eta * c_t) / (c + eta * c_t)
+    r_p = (eta * c - c_t) / (eta * c + c_t)
+    return 1.0 - 0.5 * (r_s * r_s + r_p * r_p)
 
 
 def reflection_mueller(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
