@@ -11,7 +11,7 @@ MODELS_STAMP := $(VENV)/.testmodels-ok
 BLENDER_STAMP := $(VENV)/.blender-ok
 OUT ?= out
 
-.PHONY: setup demo test test-fast bench lint format clean help addon test-sets train-data train-engine-model ship-engine-model light-data train-light-model ablation-data ablation
+.PHONY: setup demo test test-fast bench lint format clean help addon test-sets train-data train-engine-model ship-engine-model light-data train-light-model ship-light-model ablation-data ablation
 
 help:  ## list targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -107,6 +107,17 @@ train-light-model: setup  ## fine-tune small with the light input (resumable chu
 	    --lr-warmup 100 --min-lr-ratio 0.1 --seed 0 --input-scale calibrated --checkpoint-every 100 --val-samples 16 \
 	    --out $(LIGHT_RUN) --resume --quiet
 	$(PY) tools/plot_training.py $(LIGHT_RUN) --out docs/measurements/curves/light-small
+# The shipped model's scores on the test splits (re-made when the shipped model changes), and the gate:
+# a candidate replaces it only when headless/compare.py finds no split and metric worse (paired, 95 %).
+SHIPPED_EVAL := $(OUT)/eval-shipped
+$(SHIPPED_EVAL)/test_splits.json: models/small/model.pt
+	$(PY) headless/evaluate.py --split test --input $(SPLITS_DIR) --out $(SHIPPED_EVAL) --quiet
+ship-light-model: setup $(SHIPPED_EVAL)/test_splits.json  ## score the light run's best.pt; ship it only if no test split gets worse
+	$(PY) headless/evaluate.py --split test --input $(SPLITS_DIR) --checkpoint $(LIGHT_RUN)/best.pt --out $(LIGHT_RUN)/eval-test --quiet
+	$(PY) headless/compare.py --before $(SHIPPED_EVAL) --after $(LIGHT_RUN)/eval-test --out $(LIGHT_RUN)/compare.md --gate
+	$(PY) headless/evaluate.py --write-train-stats $(LIGHT_RUN)/train_stats.json --input $(SPLITS_DIR)/train-light
+	cp $(LIGHT_RUN)/best.pt models/small/model.pt
+	cp $(LIGHT_RUN)/train_stats.json models/small/train_stats.json
 
 # The paper's Table 3 at this scale (network/ablation.py): six runs with one budget, scored on
 # test-scenes (white: its white twin). Resumable; ABLATION_SCENES training scenes per run.
