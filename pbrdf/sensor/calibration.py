@@ -213,13 +213,18 @@ def _merged(target: Target, dark: Target | None, what: str, *, lit: bool = True)
     model = target.model
     raws = subtract_dark(target.raws, _dark_frames(target, dark), model.sensor)
     merged, valid = hdr_merge(raws, model.exposures, model.sensor, pattern_offset=model.pattern_offset)
-    if valid.mean() < MIN_VALID_FRACTION:
+    color, _ = mosaic_indices(model.pattern_offset)
+    h, w = valid.shape
+    fraction = np.bincount(np.tile(color, (h // 4, w // 4)).ravel(), valid.ravel(), 3) / (h * w / np.array([4, 2, 4]))
+    if fraction.min() < MIN_VALID_FRACTION:
+        c = int(np.argmin(fraction))
         raise ValueError(
-            f"{target.name}: {what} saturated in every exposure at {100 * (1 - valid.mean()):.0f} % of the pixels "
-            "(shorten the exposures)"
+            f"{target.name}: {what} saturated in every exposure at {100 * (1 - fraction[c]):.0f} % of the "
+            f"{CHANNELS[c]} pixels (shorten the exposures)"
         )
-    if lit:
-        _check_visible(target.name, what, float(np.median(merged[valid])) if valid.any() else 0.0, model)
+    if lit:  # the brightest colour channel (a primary alone lights one channel only)
+        level = _lattice_means(merged, valid, model.pattern_offset).mean(axis=-1).max()
+        _check_visible(target.name, what, float(level), model)
     return merged, valid
 
 
@@ -268,20 +273,27 @@ def _polarizer_fit(intensity: NDArray, phi: NDArray, transmittance: float) -> tu
     return float(fit.x[0]), fit.x[1:4], fit.x[4:7]
 
 
-def _display_fit(brightness: NDArray, phi: NDArray) -> tuple[float, float, float]:
-    """Display DoP, angle and DoP standard error from the brightness ``(K,)`` behind the polarizer at ``phi``.
+def _display_fit(brightness: NDArray, phi: NDArray, se: NDArray) -> tuple[float, float, float]:
+    """Display DoP, angle and DoP standard error from the brightness ``(K,)`` (standard errors ``se``) at ``phi``.
 
     ``b = A + B cos 2 phi + C sin 2 phi`` by least squares; ``DoP = sqrt(B^2 + C^2) / A``,
-    ``psi = atan2(C, B) / 2`` in ``[0, pi)``.
+    ``psi = atan2(C, B) / 2`` in ``[0, pi)``. The standard error comes from the measurement noise
+    alone (not from the misfit: a display that drifted between captures must not widen it).
     """
     design = np.stack([np.ones_like(phi), np.cos(2 * phi), np.sin(2 * phi)], axis=-1)
     coef, *_ = np.linalg.lstsq(design, brightness, rcond=None)
     a, b, c = coef
     dop = math.hypot(b, c) / a
     psi = (0.5 * math.atan2(c, b)) % math.pi
-    dof = len(phi) - 3
-    rms = float(np.sqrt(np.sum((design @ coef - brightness) ** 2) / dof)) if dof > 0 else 0.0
-    return dop, psi, rms / a
+    return dop, psi, math.sqrt(2.0 / len(phi) * float(np.mean(se**2))) / a
+
+
+def _mean_se(merged: NDArray, valid: NDArray) -> float:
+    """Standard error of the frame's mean from the pixel noise (differences along each lattice's rows)."""
+    d = merged[:, 4:] - merged[:, :-4]
+    ok = valid[:, 4:] & valid[:, :-4]
+    n = max(int(ok.sum()), 1)
+    return math.sqrt(float(np.sum(d[ok].astype(np.float64) ** 2)) / 2.0 / n / n)
 
 
 def _polarizers(targets: list[Target], dark: Target | None) -> dict[str, Any]:
@@ -292,9 +304,10 @@ def _polarizers(targets: list[Target], dark: Target | None) -> dict[str, Any]:
     if distinct.size < 3:
         raise ValueError(f"need polarizer targets at >= 3 distinct angles (mod 180 deg); got {distinct.tolist()} deg")
     model = targets[0].model
-    intensity = np.stack(
-        [_lattice_means(*_merged(t, dark, "display", lit=False), t.model.pattern_offset) for t in targets]
-    )  # (K, 3, 4); a capture near the crossed position may be dark, the brightest must not be
+    merged = [_merged(t, dark, "display", lit=False) for t in targets]
+    # (K, 3, 4); a capture near the crossed position may be dark, the brightest must not be
+    intensity = np.stack([_lattice_means(*mv, t.model.pattern_offset) for mv, t in zip(merged, targets, strict=True)])
+    mean_se = np.array([_mean_se(*mv) for mv in merged])  # of each capture's mean intensity
     brightest = int(np.argmax(intensity.sum(axis=(1, 2))))
     _check_visible(targets[brightest].name, "display (through the polarizer)", float(intensity[brightest].max()), model)
     theta, delta, leak = _polarizer_fit(intensity, phi, model.analyzer_transmittance)
@@ -303,7 +316,9 @@ def _polarizers(targets: list[Target], dark: Target | None) -> dict[str, Any]:
     stokes = np.stack([np.ones_like(phi), np.cos(2 * phi), np.sin(2 * phi), np.zeros_like(phi)], axis=-1)
     pred = np.einsum("cak,nk->nca", rows, stokes)
     gain = (pred * intensity).sum(-1) / (pred * pred).sum(-1)  # (K, 3)
-    dop, psi, dop_se = _display_fit(gain.sum(axis=-1), phi)
+    brightness = gain.sum(axis=-1)
+    per_mean = brightness.sum() / intensity.mean(axis=(1, 2)).sum()  # brightness per unit of mean intensity
+    dop, psi, dop_se = _display_fit(brightness, phi, mean_se * per_mean)
     return {"qwp_angle": theta, "qwp_retardance": delta, "leak": leak, "dop": dop, "psi": psi, "dop_se": dop_se}
 
 
@@ -338,8 +353,10 @@ def _white_samples(target: Target, dark: Target | None, leak: NDArray) -> tuple[
     return q[ok], colour[ok], rho2[ok], d2[ok]
 
 
-def _vignetting_fit(samples: list[tuple], focal: float) -> tuple[NDArray, NDArray, float]:
-    """Cross-talk ``(3, 3)`` and polynomial ``(3,)`` with the cos^4 term of ``focal``; relative RMS residual.
+def _vignetting_fit(samples: list[tuple], focal: float) -> tuple[NDArray, NDArray, float, NDArray]:
+    """Cross-talk ``(3, 3)``, polynomial ``(3,)``, relative RMS residual and the entries' standard errors ``(3, 3)``.
+
+    The cos^4 term has the focal length ``focal`` (px; ``inf``: none).
 
     ``q[c, r](p) = M[c, r] cos^4(p) (1 + k1 rho^2 + k2 rho^4 + k3 rho^6)``: least squares over
     ``k`` with ``M`` solved in closed form for each ``k`` (variable projection).
@@ -361,9 +378,14 @@ def _vignetting_fit(samples: list[tuple], focal: float) -> tuple[NDArray, NDArra
         return y - m[group] * poly
 
     k = least_squares(residual, np.zeros(3), x_scale=0.1).x
-    m, _ = scale(k)
-    rms = float(np.sqrt(np.mean(residual(k) ** 2) / np.mean(y**2)))
-    return m.reshape(3, 3), k, rms
+    m, poly = scale(k)
+    res = residual(k)
+    rms = float(np.sqrt(np.mean(res**2) / np.mean(y**2)))
+    # Standard error of each entry: its samples' residual spread over the root of their count.
+    n = np.maximum(np.bincount(group, minlength=9), 1)
+    mean_poly2 = np.maximum(np.bincount(group, poly**2, 9) / n, 1e-300)
+    se = np.sqrt(np.bincount(group, res**2, 9) / n / n / mean_poly2)
+    return m.reshape(3, 3), k, rms, se.reshape(3, 3)
 
 
 def _whites(targets: list[Target], dark: Target | None, leak: NDArray) -> dict[str, Any]:
@@ -384,8 +406,8 @@ def _whites(targets: list[Target], dark: Target | None, leak: NDArray) -> dict[s
     samples = [_white_samples(by_channel[r], dark, leak) for r in range(3)]
     focal = float(_intrinsics(by_channel[0])[0, 0])
     fits = [(_vignetting_fit(samples, f), f) for f in (math.inf, focal)]
-    (m, poly, rms), f = min(fits, key=lambda x: x[0][2])
-    return {"crosstalk": m, "vignetting_poly": poly, "vignetting_focal_px": f, "rms": rms}
+    (m, poly, rms, se), f = min(fits, key=lambda x: x[0][2])
+    return {"crosstalk": m, "vignetting_poly": poly, "vignetting_focal_px": f, "rms": rms, "se": se}
 
 
 # ---------------------------------------------------------------------------- dark: ambient and offset
@@ -476,11 +498,10 @@ def calibrate(targets: list[Target]) -> Calibration:
         v, note = _on_bound(float(ambient[c]), 0.0, math.inf, float(ambient_se[c]), f"ambient[{CHANNELS[c]}]")
         amb.append(v)
         report[f"ambient[{CHANNELS[c]}]"] = {"value": v, "note": note}
-    dop, note = _on_bound(pol["dop"], 0.0, 1.0, max(pol["dop_se"], 2e-3), "degree_of_polarization")
+    dop, note = _on_bound(pol["dop"], 0.0, 1.0, pol["dop_se"], "degree_of_polarization")
     report["display.degree_of_polarization"] = {"value": dop, "note": note}
-    m = white["crosstalk"]
-    cross_se = max(white["rms"], 1e-3) * 0.01  # the entries average thousands of pixels
-    m = np.where((m < 0) & (m >= -NOISE_SIGMAS * cross_se), 0.0, m)
+    m, tol = white["crosstalk"], NOISE_SIGMAS * white["se"]
+    m = np.where((m < 0) & (m >= -tol), 0.0, np.where((m > 1) & (m <= 1 + tol), 1.0, m))  # bounds within noise
     er = [math.inf if u <= 0 else 1.0 / u for u in leak]
     base = whites[0]
     fields = {
