@@ -19,7 +19,8 @@ SCRIPTS = sorted(p.stem for p in (ROOT / "headless").glob("*.py") if not p.name.
 #: Scripts that draw random numbers take --seed.
 SEEDED = {"ablation", "bench", "demo", "expand_pbrdf", "optics_check", "render", "train"}
 #: Scripts that read one input file or folder take --input.
-WITH_INPUT = {"ablation", "bench", "decode", "evaluate", "expand_pbrdf", "export_gltf", "infer", "relight", "train"}
+WITH_INPUT = {"ablation", "bench", "calibrate", "decode", "evaluate", "expand_pbrdf", "export_gltf", "infer", "relight",
+              "train"}  # fmt: skip
 
 
 def _summary(script: str) -> str:
@@ -29,8 +30,8 @@ def _summary(script: str) -> str:
 
 
 def test_every_script_is_found():
-    assert {"ablation", "bench", "decode", "demo", "evaluate", "expand_pbrdf", "export_gltf", "infer", "optics_check",
-            "relight", "render", "train"} == set(SCRIPTS)  # fmt: skip
+    assert {"ablation", "bench", "calibrate", "decode", "demo", "evaluate", "expand_pbrdf", "export_gltf", "infer",
+            "optics_check", "relight", "render", "train"} == set(SCRIPTS)  # fmt: skip
     assert not (ROOT / "headless" / "pipeline.py").exists() and not (ROOT / "headless" / "report.py").exists()
 
 
