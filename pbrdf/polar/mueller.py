@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf._checks import as_float_array, check_last_dims
+from pbrdf._checks import as_float_array, check_last_dims, double_angle
 
 __all__ = [
     "apply",
@@ -46,21 +46,6 @@ def _finite(out: NDArray, what: str) -> NDArray:
     return out
 
 
-def _doubled(theta: NDArray) -> NDArray:
-    """``2 theta`` for the ``cos 2 theta``, ``sin 2 theta`` of a rotation, reduced mod ``2 pi`` where it would overflow.
-
-    ``cos`` and ``sin`` are periodic, so the reduction changes nothing but the overflow of
-    ``2 theta`` for ``|theta|`` near the largest float; NaN and Inf are refused.
-    """
-    with np.errstate(over="ignore"):
-        t2 = 2 * theta
-    if not np.isfinite(t2).all():
-        if not np.isfinite(theta).all():
-            raise ValueError("theta must be finite (radians); got NaN or Inf")
-        t2 = 2 * np.remainder(theta, np.pi)
-    return t2
-
-
 def _grid(rows: list[list[ArrayLike]]) -> NDArray:
     """Assemble a ``(..., 4, 4)`` matrix from a visible 4x4 grid of broadcastable entries."""
     flat = np.broadcast_arrays(*(as_float_array(v) for row in rows for v in row))
@@ -83,7 +68,7 @@ def rotator(theta: ArrayLike) -> NDArray:
     .. math:: R(\\theta) = [[1,0,0,0],[0,c,s,0],[0,-s,c,0],[0,0,0,1]],\\quad c=\\cos 2\\theta,\\ s=\\sin 2\\theta
     """
     t = as_float_array(theta)
-    t2 = _doubled(t)
+    t2 = double_angle(t)
     c, s = np.cos(t2), np.sin(t2)
     o, z = np.ones_like(t), np.zeros_like(t)
     return _grid([[o, z, z, z], [z, c, s, z], [z, -s, c, z], [z, z, z, o]])
@@ -117,7 +102,7 @@ def linear_diattenuator(q: ArrayLike, r: ArrayLike, theta: ArrayLike = 0.0) -> N
         c = np.sqrt(q * r)
     if not np.isfinite(c).all():
         c = np.sqrt(q) * np.sqrt(r)
-    z = np.zeros_like(a * b)
+    z = np.zeros(np.broadcast_shapes(a.shape, b.shape), dtype=np.result_type(a, b))
     m = _grid([[a, b, z, z], [b, a, z, z], [z, z, c, z], [z, z, z, c]])
     return rotate_element(m, theta)
 
@@ -143,6 +128,8 @@ def linear_polarizer(
     if not (er >= 1).all():
         raise ValueError("extinction_ratio must be >= 1 (inf: ideal); got a smaller value or NaN")
     q = as_float_array(transmittance)
+    if not np.isfinite(q).all():
+        raise ValueError("transmittance must be finite and >= 0; got NaN or Inf")
     return linear_diattenuator(q, q / er, theta)
 
 

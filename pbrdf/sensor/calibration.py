@@ -72,7 +72,7 @@ MIN_SIGNAL_DN = 20.0
 #: Least fraction of a target's pixels measured unsaturated in some exposure.
 MIN_VALID_FRACTION = 0.5
 #: Most pixel rows (and columns) of a white target used in the fit: larger frames are sampled.
-FIT_GRID = 256
+FIT_GRID = 128
 #: How far (in standard errors) an estimate may fall outside its bound and still be put on it.
 NOISE_SIGMAS = 5.0
 
