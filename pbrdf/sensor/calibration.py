@@ -35,6 +35,7 @@ entry, a DoP just above 1) are put on the bound.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from typing import Any
@@ -50,7 +51,7 @@ from pbrdf.sensor.imperfections import vignetting_map
 from pbrdf.sensor.irradiance import irradiance_vectors
 from pbrdf.sensor.patches import constant_patches
 from pbrdf.sensor.projection import pinhole_intrinsics, pixel_rays, transform_points
-from pbrdf.sensor.rig import CameraSpec, DisplaySpec, Rig
+from pbrdf.sensor.rig import Rig
 
 __all__ = [
     "TARGET_KINDS",
@@ -150,7 +151,7 @@ def white_radiance(rig: Rig, rays: NDArray, distance_m: float, albedo: float) ->
     Example:
         Straight ahead of a small display far away, ``E ~ L A / d^2``:
 
-        >>> from pbrdf.sensor.rig import CameraSpec
+        >>> from pbrdf.sensor.rig import CameraSpec, DisplaySpec
         >>> rig = Rig(DisplaySpec(width=0.01, height=0.01, center=(0.0, 0.0, 0.0)), CameraSpec())
         >>> l = white_radiance(rig, np.array([0.0, 0.0, -1.0]), 1.0, math.pi)
         >>> round(float(l) / 1e-4, 4)
@@ -158,7 +159,7 @@ def white_radiance(rig: Rig, rays: NDArray, distance_m: float, albedo: float) ->
     """
     r = np.asarray(rays, dtype=np.float64)
     points = distance_m * r.reshape(-1, 3)
-    white = constant_patches(DisplaySpec(**{**_display_fields(rig.display), "pattern": "white"}))
+    white = constant_patches(dataclasses.replace(rig.display, pattern="white"))
     verts = transform_points(rig.camera.world_to_camera(), white.vertices.reshape(-1, 3)).reshape(white.vertices.shape)
     normals = np.broadcast_to(np.array([0.0, 0.0, 1.0]), points.shape)
     phi = irradiance_vectors(verts, white.radiance[:, :1] * rig.display.radiance, points, normals)
@@ -172,10 +173,6 @@ def _intrinsics(target: Target) -> NDArray:
         return np.asarray(target.intrinsics, dtype=np.float64)
     h, w = target.raws.shape[1:]
     return pinhole_intrinsics(target.rig.camera.focal_length_px, w, h)
-
-
-def _display_fields(display: DisplaySpec) -> dict:
-    return {name: getattr(display, name) for name in display.__dataclass_fields__}
 
 
 def _analyzer_rows(theta: float, delta: NDArray, leak: NDArray, transmittance: float) -> NDArray:
@@ -522,18 +519,12 @@ def calibrate(targets: list[Target]) -> Calibration:
         if np.any(m > 1):
             hint = " (a diagonal above 1: the display is brighter than rig.display.radiance and the sensor's scale say)"
         raise ValueError(f"calibration refused, the estimate is not physical: {e}{hint}") from None
-    display = _display_fields(base.rig.display)
-    display.update(degree_of_polarization=dop, polarization_angle=pol["psi"])
     report["display.polarization_angle"] = {"value": pol["psi"], "note": "estimated"}
     try:
-        disp = DisplaySpec(**display)
+        disp = dataclasses.replace(base.rig.display, degree_of_polarization=dop, polarization_angle=pol["psi"])
     except ValueError as e:
         raise ValueError(f"calibration refused, the estimate is not physical: {e}") from None
     for name in ("analyzer_transmittance", "sensor.electrons_per_unit", "display.radiance"):
         report[name] = {"value": None, "note": "not identifiable from these targets (a common scale); kept"}
-    rig = Rig(display=disp, camera=CameraSpec(**{**_camera_fields(base.rig.camera), "model": model}))
+    rig = Rig(display=disp, camera=dataclasses.replace(base.rig.camera, model=model))
     return Calibration(rig=rig, report=report, offset_dn=tuple(float(o) for o in offset))
-
-
-def _camera_fields(camera) -> dict:
-    return {name: getattr(camera, name) for name in camera.__dataclass_fields__}

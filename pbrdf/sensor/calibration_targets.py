@@ -18,6 +18,8 @@ and the bracket, but the nominal imperfection fields.
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -25,7 +27,7 @@ from pbrdf.polar import mueller
 from pbrdf.sensor.calibration import CHANNELS, Target, white_radiance
 from pbrdf.sensor.camera import CameraModel, simulate_capture
 from pbrdf.sensor.projection import pinhole_intrinsics, pixel_rays
-from pbrdf.sensor.rig import CameraSpec, DisplaySpec, Rig
+from pbrdf.sensor.rig import Rig
 
 __all__ = ["DEFAULT_ANGLES_DEG", "target_stokes", "lab_rig", "simulate_targets"]
 
@@ -85,11 +87,8 @@ def lab_rig(rig: Rig) -> Rig:
         sensor=m.sensor,
         pattern_offset=m.pattern_offset,
     )
-    d = rig.display
-    display = DisplaySpec(**{**{n: getattr(d, n) for n in d.__dataclass_fields__}, "degree_of_polarization": 1.0,
-                             "polarization_angle": np.pi / 2})  # fmt: skip
-    c = rig.camera
-    return Rig(display, CameraSpec(**{**{n: getattr(c, n) for n in c.__dataclass_fields__}, "model": nominal}))
+    display = dataclasses.replace(rig.display, degree_of_polarization=1.0, polarization_angle=np.pi / 2)
+    return Rig(display, dataclasses.replace(rig.camera, model=nominal))
 
 
 def simulate_targets(
