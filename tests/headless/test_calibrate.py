@@ -138,3 +138,15 @@ def test_runs_as_a_script(captures, tmp_path):
                            str(out), "--quiet"], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     assert proc.stdout.strip() == str(out) and Rig.load(out).camera.model.crosstalk != Rig().camera.model.crosstalk
+
+
+def test_the_synthetic_capture_tool_writes_what_calibrate_reads(tmp_path):
+    out = tmp_path / "captures"
+    tool = subprocess.run([sys.executable, str(ROOT / "tools" / "make_calibration_captures.py"), "--out", str(out),
+                           "--size", "64", "--seed", "3"], capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert tool.returncode == 0, tool.stderr
+    assert len([p for p in out.iterdir() if p.is_dir()]) == 10 and (out / "true_rig.json").is_file()
+    assert cli.main(["--input", str(out), "--out", str(tmp_path / "rig.json"), "--quiet"]) == 0
+    est, true = Rig.load(tmp_path / "rig.json"), Rig.load(out / "true_rig.json")
+    np.testing.assert_allclose(est.camera.model.qwp_retardance, true.camera.model.qwp_retardance, atol=0.01)
+    np.testing.assert_allclose(est.camera.model.crosstalk, true.camera.model.crosstalk, atol=0.02)
