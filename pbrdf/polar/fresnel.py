@@ -75,9 +75,15 @@ def conductor_extinction(r0: ArrayLike, n: ArrayLike = METAL_N) -> tuple[NDArray
         (2.0, 0.5)
     """
     n = np.asarray(n, dtype=np.float64)
-    lo = ((n - 1) / (n + 1)) ** 2
-    r = np.clip(np.asarray(r0, dtype=np.float64), lo, MAX_METAL_R0)
-    k2 = (r * (n + 1) ** 2 - (n - 1) ** 2) / (1 - r)
+    r0 = np.asarray(r0, dtype=np.float64)
+    if not (np.isfinite(r0).all() and np.isfinite(n).all() and (n > 0).all()):
+        raise ValueError("conductor_extinction needs a finite r0 and a finite n > 0")
+    with np.errstate(over="ignore", invalid="ignore"):
+        lo = ((n - 1) / (n + 1)) ** 2
+        r = np.clip(r0, lo, MAX_METAL_R0)
+        k2 = (r * (n + 1) ** 2 - (n - 1) ** 2) / (1 - r)
+    if not np.isfinite(k2).all():
+        raise ValueError("conductor_extinction: n is too large for a finite extinction")
     return np.sqrt(np.maximum(k2, 0.0)), r
 
 
