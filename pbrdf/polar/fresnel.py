@@ -176,7 +176,8 @@ def dielectric_transmittance(cos_theta_i, eta: float):
 
     The same physics as ``1 - fresnel_reflectance(cos, eta)`` for a real ``eta >= 1``, written with
     operators only so that a torch tensor stays a differentiable tensor (the re-renderer's diffuse
-    lobe of a coated plastic) and a numpy array stays an array. No range checks: a hot path.
+    lobe of a coated plastic) and a numpy array stays an array. A numpy input must be finite; a
+    tensor is not checked (a hot path inside training, whose NaN guards are the network's own).
 
     Args:
         cos_theta_i: cosine of the incidence angle, shape ``(...)``, a numpy array or torch tensor;
@@ -187,11 +188,18 @@ def dielectric_transmittance(cos_theta_i, eta: float):
         the transmittance, the input's type and shape, in [0, 1]: ``4 eta / (1 + eta)^2`` at normal
         incidence, 0 at grazing.
 
+    Raises:
+        ValueError: if ``eta`` is not a real number in [1, 1e6], or a numpy ``cos_theta_i`` is not finite.
+
     Example:
         >>> round(float(dielectric_transmittance(np.array(1.0), 1.5)), 6)
         0.96
     """
-    c = cos_theta_i.clip(0.0, 1.0)
+    if not (isinstance(eta, (int, float)) and 1.0 <= eta <= ETA_MAX):
+        raise ValueError(f"eta must be a real index of refraction in [1, {ETA_MAX:g}], got {eta!r}")
+    if isinstance(cos_theta_i, np.ndarray | float | int) and not np.isfinite(cos_theta_i).all():
+        raise ValueError(f"cos_theta_i must be finite, got {_extremes(np.asarray(cos_theta_i))}")
+    c = np.asarray(cos_theta_i).clip(0.0, 1.0) if isinstance(cos_theta_i, float | int) else cos_theta_i.clip(0.0, 1.0)
     # clip before the root: a tiny positive floor keeps the torch gradient finite at grazing
     c_t = (1.0 - (1.0 - c * c) / (eta * eta)).clip(1e-12, None) ** 0.5
     r_s = (c - eta * c_t) / (c + eta * c_t)

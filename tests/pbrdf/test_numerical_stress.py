@@ -65,6 +65,7 @@ CASES = {
     "ellipticity_angle": (stokes.ellipticity_angle, [VEC4]),
     "is_physical_stokes": (stokes.is_physical_stokes, [VEC4]),
     "conductor_extinction": (fresnel.conductor_extinction, [S, [1.0, 0.2, 1e308, np.nan, 0.0]]),
+    "dielectric_transmittance": (lambda c, e: fresnel.dielectric_transmittance(np.asarray(c, float), e), [S, ETA_REAL]),
     "fresnel_amplitudes": (fresnel.fresnel_amplitudes, [S, ETA]),
     "fresnel_reflectance": (fresnel.fresnel_reflectance, [S, ETA]),
     "reflection_mueller": (fresnel.reflection_mueller, [S, ETA]),
