@@ -13,7 +13,8 @@ shipped meshes (:func:`test_fingerprints`). Refused files get one log line each.
 normalises every mesh to the engine's object size when it places it (:func:`.placement.place`).
 
 The listing is cached in ``index.json`` inside the folder (rebuilt when a file's size or the
-rules change), with a digest that the data engine's manifest records.
+rules change; it also keeps the usable meshes' fingerprints and every refusal), with a digest
+that the data engine's manifest records.
 """
 
 from __future__ import annotations
@@ -95,22 +96,23 @@ def _refusal(path: Path, rel: str, seen: dict[tuple, str]) -> tuple[str | None, 
     return None, fp
 
 
-def index_corpus(folder: str | os.PathLike) -> tuple[list[str], dict[str, str]]:
+def index_corpus(folder: str | os.PathLike) -> tuple[dict[str, tuple], dict[str, str]]:
     """Sort a corpus folder's mesh files into usable and refused (module docs), without the cache.
 
     Returns:
-        ``(usable files relative to folder, sorted; {relative file: the one-line reason})``.
+        ``({usable file relative to folder: its fingerprint}`` in sorted order, ``{relative file: the
+        one-line reason})``.
 
     Raises:
         FileNotFoundError: the folder is missing.
     """
     root = Path(folder)
-    usable, refused, seen = [], {}, {}
+    usable, refused, seen = {}, {}, {}
     for path in assets.list_assets(root, SUFFIXES):
         rel = path.relative_to(root).as_posix()
         why, fp = _refusal(path, rel, seen)
         if why is None:
-            usable.append(rel)
+            usable[rel] = fp
             seen[fp] = rel
         else:
             refused[rel] = why
@@ -140,7 +142,8 @@ def corpus_files(folder: str | os.PathLike) -> list[Path]:
         usable, refused = index_corpus(root)
         for rel, why in refused.items():
             log.info("mesh corpus: %s left out: %s", rel, why)
-        cached = {"rules": RULES, "sizes": sizes, "files": usable, "refused": refused}
+        cached = {"rules": RULES, "sizes": sizes, "files": list(usable), "refused": refused,
+                  "fingerprints": usable}  # fmt: skip
         try:
             atomic_write_text(index, json.dumps(cached, indent=1, sort_keys=True))
         except OSError as e:  # a read-only corpus still works, indexed per run
