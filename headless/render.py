@@ -6,7 +6,8 @@ the camera model and the decoder.
     python headless/render.py --split NAME [--out DIR] [--count N] [--resume]
     python headless/render.py --out DIR --count N [--resolution 384] [--seed S] [--spp 32]
         [--assets DIR] [--shapes SET] [--objects MIN-MAX] [--pbrdfs DIR] [--table-fraction F]
-        [--texture-fraction F] [--asset-materials] [--variant auto] [--rig FILE] [--resume]
+        [--texture-fraction F] [--asset-materials] [--variant auto] [--rig FILE] [--rig-jitter F]
+        [--corpus-fraction F] [--resume]
         [--shard K/N] [--scene SPEC.json] [--via-blender] [--npz] [--quiet]
 
 Each sample is DIR/samples/NNNNNN.exr (nine maps, mask, normal, albedo, roughness, metallic,
@@ -35,7 +36,13 @@ probability F (base colour and roughness that vary, metal segments or worn paint
 map, a mix of pBRDF tables; default 0: uniform materials; a --split's own fraction, which F
 overrides for train and val splits, never for test splits); --asset-materials keeps the materials
 of asset files that have them (glTF metallic-roughness, OBJ+MTL: one object per material, with
-its textures) instead of drawing one. --variant picks the Mitsuba variant: auto (default; cuda_ad_mono_polarized when
+its textures) instead of drawing one. --corpus-fraction F draws each object from the real-mesh
+training corpus (corpora/meshes: Debian's libcgal-demo and openscad-testing-data meshes, unpacked by
+`make setup`; no test split uses them) with probability F. --rig-jitter F renders every scene through a rig
+whose imperfections (cross-talk, ambient light, vignetting, QWP, extinction, display polarization) are
+drawn within F times the documented residual ranges and decodes it with the nominal rig
+(docs/rig_imperfections.md; a --split's own value, which F overrides for train and val splits).
+--variant picks the Mitsuba variant: auto (default; cuda_ad_mono_polarized when
 Dr.Jit has a CUDA backend, else llvm), llvm, cuda, scalar (scalar_spectral_polarized, slow) or
 any *_polarized variant name; --split renders with llvm unless --variant is given. --scene
 renders one given scene spec (e.g. exported by the Blender add-on) instead of random scenes
