@@ -76,11 +76,17 @@ def _emitter_class() -> type:
             norm = sum(x * x for x in a) ** 0.5
             self.axis = [x / norm for x in a]
             self.dop = float(props.get("dop", 1.0))
+            # A partially polarized display is the engine's drawn rig, other values every scene: the axis and
+            # DoP become kernel parameters (opaque) so scenes share compiled kernels; the default keeps literals.
+            self.partial = self.dop != 1.0
+            if self.partial:
+                self.opaque_axis = dr.opaque(mi.Vector3f, self.axis)
+                self.opaque_dop = dr.opaque(mi.Float, self.dop)
             self.m_flags = mi.EmitterFlags.Surface
 
         def _emitted(self, k, scale, active):
             """Mueller matrix whose first column is the Stokes vector emitted along ``k``, times ``scale``."""
-            u = dr.cross(k, mi.Vector3f(*self.axis))
+            u = dr.cross(k, self.opaque_axis if self.partial else mi.Vector3f(*self.axis))
             x = mi.mueller.stokes_basis(k)
             y = dr.cross(k, x)
             ux, uy = dr.dot(u, x), dr.dot(u, y)
@@ -90,8 +96,8 @@ def _emitter_class() -> type:
             m = dr.zeros(mi.Spectrum)
             s = dr.select(active, scale, 0.0)
             m[0, 0] = s
-            if self.dop != 1.0:  # partially polarized: S1, S2 scaled (a Python branch: no kernel change at 1)
-                inv = inv * self.dop
+            if self.partial:  # S1, S2 scaled (a Python branch: the fully polarized kernel is unchanged)
+                inv = inv * self.opaque_dop
             m[1, 0] = s * (ux * ux - uy * uy) * inv
             m[2, 0] = s * 2.0 * ux * uy * inv
             return m
