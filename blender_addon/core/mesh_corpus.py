@@ -154,10 +154,12 @@ def corpus_files(folder: str | os.PathLike) -> list[Path]:
 
 
 def corpus_digest(files: list[Path], root: str | os.PathLike) -> str:
-    """SHA-256 (16 hex digits) of the listing and file sizes: two machines with the same digest draw the same meshes."""
+    """SHA-256 (16 hex digits) of the listing and the files' contents: the same digest draws the same meshes."""
     h = hashlib.sha256()
     for f in files:
-        h.update(f"{Path(f).relative_to(root).as_posix()}\0{Path(f).stat().st_size}\n".encode())
+        h.update(
+            f"{Path(f).relative_to(root).as_posix()}\0{hashlib.sha256(Path(f).read_bytes()).hexdigest()}\n".encode()
+        )
     return h.hexdigest()[:16]
 
 

@@ -106,3 +106,21 @@ def test_installed_corpus_is_disjoint_from_every_test_split():
         assert mesh_corpus.fingerprint(assets.load_mesh(ref)) not in corpus, ref
     test_names = {Path(r).stem.lower() for r in test_refs} | {r.split(":")[1] for r in test_refs if ":" in r}
     assert not test_names & {f.stem.lower() for f in files}
+
+
+@pytest.mark.mitsuba
+def test_corpus_objects_render_and_another_corpus_refuses_to_resume(tmp_path):
+    pytest.importorskip("mitsuba")
+    from blender_addon.core.generate import GenerateConfig, generate
+    from pbrdf.data import sample as psample
+
+    corpus = _tiny_corpus(tmp_path / "corpus")
+    cfg = GenerateConfig(out=tmp_path / "out", count=2, resolution=32, spp=2, seed=3, corpus=corpus,
+                         corpus_fraction=1.0, shard=(0, 2))  # fmt: skip
+    report = generate(cfg, progress=False)
+    assert report.written == [0] and not report.failed
+    _, meta = psample.read_sample(tmp_path / "out", 0, keys=("mask",))
+    assert all(Path(o["mesh"]).parent == corpus for o in meta["objects"]) and meta["corpus_fraction"] == 1.0
+    trimesh.creation.capsule(height=2.0, radius=0.3, count=[16, 16]).export(corpus / "long_capsule.stl")  # one more
+    with pytest.raises(ValueError, match="corpus_digest="):
+        generate(GenerateConfig(**{**cfg.__dict__, "shard": (1, 2), "resume": True}), progress=False)
