@@ -9,7 +9,7 @@ add nothing the procedural shapes lack), it is not an earlier file's geometry ag
 mesh in another format or vertex order), and it is disjoint from the test splits: no name with a
 word of :data:`TEST_KINDS` (the kinds of shape ``test-meshes`` and ``test-scenes`` draw:
 knots, gears, spheres, cubes, the assimp models) and no geometry of a test split's built-in or
-shipped meshes (:func:`test_fingerprints`). Refused files get one log line each. The scene
+shipped meshes (:func:`held_out_fingerprints`). Refused files get one log line each. The scene
 normalises every mesh to the engine's object size when it places it (:func:`.placement.place`).
 
 The listing is cached in ``index.json`` inside the folder (rebuilt when a file's size or the
@@ -34,7 +34,7 @@ from . import assets
 from .unseen_shapes import UNSEEN_SHAPES
 
 __all__ = ["MIN_FACES", "SUFFIXES", "TEST_KINDS", "corpus_digest", "corpus_files", "fingerprint", "index_corpus",
-           "test_fingerprints"]  # fmt: skip
+           "held_out_fingerprints"]  # fmt: skip
 
 log = logging.getLogger(__name__)
 
@@ -67,7 +67,7 @@ def fingerprint(mesh) -> tuple:
 
 
 @cache
-def test_fingerprints() -> frozenset:
+def held_out_fingerprints() -> frozenset:
     """Fingerprints of the meshes the test splits draw that every clone has: the unseen shapes and the shipped glTFs."""
     from pbrdf.data.splits import ASSET_CORPORA  # noqa: PLC0415
 
@@ -89,7 +89,7 @@ def _refusal(path: Path, rel: str, seen: dict[tuple, str]) -> tuple[str | None, 
     if len(mesh.faces) < MIN_FACES:
         return f"{len(mesh.faces)} faces < {MIN_FACES}", None
     fp = fingerprint(mesh)
-    if fp in test_fingerprints():
+    if fp in held_out_fingerprints():
         return "the geometry of a test split's mesh", None
     if fp in seen:
         return f"the geometry of {seen[fp]} again", None
