@@ -55,15 +55,16 @@ def truth_maps(gt: dict[str, np.ndarray], region: np.ndarray) -> dict[str, np.nd
     return out
 
 
-def relight(maps_dir: Path, name: str, dest: Path, *, frames: int, size: int, samples: int) -> list[Path]:
+def relight(maps_dir: Path, name: str, dest: Path, *, frames: int, size: int, samples: int,
+            denoise: bool) -> list[Path]:  # fmt: skip
     """Import ``maps_dir/<name>_*`` into Blender and relight it; returns the frames (orbit, then sky).
 
     Raises:
         RuntimeError: the relight process failed (its last error line).
     """
     cmd = [sys.executable, str(RELIGHT_SCRIPT), "--input", str(maps_dir), "--name", name, "--out", str(dest),
-           "--frames", str(frames), "--size", str(size), "--samples", str(samples), "--save-blend",
-           "--quiet"]  # fmt: skip
+           "--frames", str(frames), "--size", str(size), "--samples", str(samples),
+           "--denoise" if denoise else "--no-denoise", "--save-blend", "--quiet"]  # fmt: skip
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
     if proc.returncode:
         last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
