@@ -32,7 +32,7 @@ ASSET_CENTRE_NAME = "PDIR Asset Centre"
 ARTIST_SAMPLES = 128
 #: The relit frames' defaults (``headless/relight.py`` and the demo): the cheapest measured setting whose
 #: frames are within 35 dB PSNR of a 1024-sample reference (docs/measurements/relight.md).
-SAMPLES, SIZE, DENOISE = 16, 160, False
+SAMPLES, SIZE, DENOISE = 4, 160, True
 
 
 def point_light_power(radius: float, height: float, exposure: float = 1.0) -> float:

@@ -40,9 +40,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tables", type=int, default=6, help="expanded pBRDF tables (default 6)")
     parser.add_argument("--checkpoint", type=Path, default=None, help="model.pt (default: the shipped model)")
     parser.add_argument("--relight-frames", type=int, default=6, help="point-light orbit frames (default 6)")
-    parser.add_argument("--relight-size", type=int, default=160, help="relit frame size (default 160)")
-    parser.add_argument("--relight-samples", type=int, default=16, help="Cycles samples (default 16)")
-    parser.add_argument("--relight-denoise", action=argparse.BooleanOptionalAction, default=False,
+    parser.add_argument("--relight-size", type=int, default=128, help="relit frame size (default 128, the maps')")
+    parser.add_argument("--relight-samples", type=int, default=4, help="Cycles samples (default 4)")
+    parser.add_argument("--relight-denoise", action=argparse.BooleanOptionalAction, default=True,
                         help="Cycles' denoiser on the relit frames (default: %(default)s)")  # fmt: skip
     parser.add_argument("--no-blender", action="store_true", help="skip the Blender import and relighting")
     parser.add_argument("--seed", type=int, default=0, help="seed of everything (default 0)")

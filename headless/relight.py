@@ -1,7 +1,7 @@
 """Import predicted PBR maps into Blender as a Principled BSDF asset and relight it with Cycles.
 
     python headless/relight.py --input DIR [--name NAME] --out DIR [--frames 8] [--size 160]
-        [--samples 16] [--[no-]denoise] [--hdr FILE] [--sun] [--device CPU|GPU] [--save-blend] [--quiet]
+        [--samples 4] [--[no-]denoise] [--hdr FILE] [--sun] [--device CPU|GPU] [--save-blend] [--quiet]
 
 Reads DIR/<NAME>_normal/_albedo/_roughness/_metallic/_mask.exr (what headless/infer.py writes;
 any names the add-on's "Import PBR maps" recognises), builds the camera-parented asset, then
@@ -31,7 +31,7 @@ if __name__ == "__main__":
 
 #: Frame defaults: the cheapest measured setting within 35 dB of a 1024-sample reference
 #: (docs/measurements/relight.md); equal to blender_addon.relight_job's and the demo's (tested).
-SAMPLES, SIZE, DENOISE = 16, 160, False
+SAMPLES, SIZE, DENOISE = 4, 160, True
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -87,9 +87,9 @@ class DemoConfig:
     tables: int = 6
     checkpoint: Path | None = None
     relight_frames: int = 6
-    relight_size: int = 160
-    relight_samples: int = 16
-    relight_denoise: bool = False
+    relight_size: int = 128
+    relight_samples: int = 4
+    relight_denoise: bool = True
     seed: int = 0
     blender: bool = True
     progress: bool = True
@@ -299,7 +299,7 @@ def _relight(cfg: DemoConfig, out: Path, scenes: dict, results: _Results) -> Non
             continue
         frames = relight(out / "predictions" / name, name, out / "relit" / name, **kw)
         truth = relight(out / "truth" / name, name, out / "relit_truth" / name, **kw)
-        constant = relight(out / "constant" / name, name, out / "relit_constant" / name, **kw)
+        constant = relight(out / "constant" / name, name, out / "relit_constant" / name, save_blend=False, **kw)
         if frames:
             scores = compare_relit(frames, truth)
             const = _mean_scores(compare_relit(constant, truth))
