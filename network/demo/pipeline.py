@@ -329,10 +329,11 @@ def _write_assets(out: Path, name: str, scene) -> None:
         pred["depth"] = relief_depth(pred, scene.intrinsics, distance)
     write_predictions(out / "predictions" / name, name, pred, camera)
     write_predictions(out / "truth" / name, name, truth, camera)
-    constant = {
-        k: np.where(scene.region[..., None], v, 0.0).astype(np.float32) for k, v in scene.preds["constant"].items()
-    }
-    constant["mask"] = pred["mask"]  # the same object coverage as the prediction: only the maps differ
+    # the constant maps over the prediction's own mask (the same coverage: only the maps differ)
+    inside = pred["mask"][..., 0] > 0
+    constant = {k: np.where(inside[..., None], np.asarray(v)[scene.region][0], 0.0).astype(np.float32)
+                for k, v in scene.preds["constant"].items()}  # fmt: skip
+    constant["mask"] = pred["mask"]
     if scene.intrinsics is not None:
         constant["depth"] = relief_depth(constant, scene.intrinsics, distance)
     write_predictions(out / "constant" / name, name, constant, camera)

@@ -73,6 +73,9 @@ def test_relight_stage_scores_the_constant_predictor_beside_the_prediction(tmp_p
     truth = sphere_prediction(np.random.default_rng(0), k, 32, 32, bumps=False, centre=(0, 0, -0.9), radius=0.25)
     region = truth["mask"][..., 0] > 0
     ours = {key: truth[key] for key in ("normal", "albedo", "roughness", "metallic", "mask")}  # a perfect prediction
+    ours["mask"], ours["normal"] = ours["mask"].copy(), ours["normal"].copy()
+    ours["mask"][16, 0], ours["normal"][16, 0] = 1.0, (0, 0, 1)  # but one pixel outside the object: the constant
+    # asset must take the prediction's mask (a unit normal on every one of its pixels), not the truth's
     stats = {"albedo": [0.5, 0.5, 0.5], "roughness": 0.5, "metallic": 0.0}
     scene = SimpleNamespace(ours=ours, gt=truth, region=region, intrinsics=k,
                             preds={"constant": constant_predict(stats, region)})  # fmt: skip
