@@ -31,7 +31,7 @@ ASSET_CENTRE_NAME = "PDIR Asset Centre"
 #: Cycles samples of the saved ``.blend`` (with denoising), unless the relit frames used more.
 ARTIST_SAMPLES = 128
 #: The relit frames' defaults (``headless/relight.py`` and the demo): the cheapest measured setting whose
-#: frames are within 35 dB PSNR of a 1024-sample reference (docs/measurements/relight.md).
+#: frames score a PSNR of 35 dB or more against a 1024-sample reference (docs/measurements/relight.md).
 SAMPLES, SIZE, DENOISE = 4, 160, True
 
 

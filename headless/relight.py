@@ -29,7 +29,7 @@ from headless._cli import refuse_old_blender, require, run_main, script_args  # 
 if __name__ == "__main__":
     refuse_old_blender("relight.py")  # inside the Blender binary: an old Blender is refused first
 
-#: Frame defaults: the cheapest measured setting within 35 dB of a 1024-sample reference
+#: Frame defaults: the cheapest measured setting scoring 35 dB or more against a 1024-sample reference
 #: (docs/measurements/relight.md); equal to blender_addon.relight_job's and the demo's (tested).
 SAMPLES, SIZE, DENOISE = 4, 160, True
 
