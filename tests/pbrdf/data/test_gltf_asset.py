@@ -135,6 +135,46 @@ def test_trimesh_reads_the_mesh_on_its_pixels(relief):
     np.testing.assert_array_equal(np.asarray(tex), image(doc, blob, 0))
 
 
+def test_trimesh_decodes_the_three_textures_to_the_predicted_maps(relief):
+    """Through trimesh's loader: at every mask vertex (a texel centre) each texture gives its map back to 8 bits.
+
+    trimesh keeps no TANGENT, so the normal map is decoded with trimesh's vertex normals and the
+    file's TANGENT accessor (same vertex order: process=False), ``n = T x + cross(N, T) w y + N z``.
+    """
+    trimesh = pytest.importorskip("trimesh")
+    pred, path, (doc, blob) = relief
+    scene = trimesh.load(path, process=False)
+    mesh = next(iter(scene.geometry.values()))
+    attrs, _ = attributes(doc, blob)
+    np.testing.assert_allclose(mesh.vertices, attrs["POSITION"], atol=1e-7)  # same vertices, same order
+    y0, x0, y1, x1 = _box(doc)
+    row = np.rint((1 - mesh.visual.uv[:, 1]) * (y1 - y0) - 0.5).astype(int)  # trimesh flips v to OpenGL's
+    col = np.rint(mesh.visual.uv[:, 0] * (x1 - x0) - 0.5).astype(int)
+    on = pred["mask"][row + y0, col + x0, 0] > 0
+    row, col = row[on], col[on]
+    want = {k: pred[k][row + y0, col + x0] for k in ("albedo", "roughness", "metallic", "normal")}
+    mat = mesh.visual.material
+    base = np.asarray(mat.baseColorTexture.convert("RGBA"), float)[row, col] / 255
+    mr = np.asarray(mat.metallicRoughnessTexture.convert("RGB"), float)[row, col] / 255
+    half = 0.5 / 255 + 1e-6
+    # sRGB decode of the 8-bit value: half a step times the decode's slope (and at most half a step near 0)
+    s = _srgb(want["albedo"])
+    slope = np.where(s <= 0.04045, 1 / 12.92, 2.4 / 1.055 * ((s + half + 0.055) / 1.055) ** 1.4)
+    assert (np.abs(_srgb_to_linear(base[:, :3]) - want["albedo"]) <= half * slope + 1e-7).all()
+    assert (base[:, 3] == 1).all()
+    assert np.abs(mr[:, 1] - want["roughness"][:, 0]).max() <= half  # glTF: roughness in G
+    assert np.abs(mr[:, 2] - want["metallic"][:, 0]).max() <= half  # metallic in B
+    ts = np.asarray(mat.normalTexture.convert("RGB"), float)[row, col] / 255 * 2 - 1
+    n, t = mesh.vertex_normals[on], attrs["TANGENT"][on]
+    b = np.cross(n, t[:, :3]) * t[:, 3:]
+    shading = t[:, :3] * ts[:, :1] + b * ts[:, 1:2] + n * ts[:, 2:]
+    err = _angle_deg(shading / np.linalg.norm(shading, axis=1, keepdims=True), want["normal"])
+    assert err.max() < 2.0, np.percentile(err, [50, 99, 100])
+    # the camera as trimesh reads it: the vertical field of view the capture's fy and frame give
+    hy = max(K[1, 2], H - K[1, 2])
+    assert scene.camera.fov[1] == pytest.approx(math.degrees(2 * math.atan(hy / K[1, 1])), rel=1e-6)
+
+
 def test_camera_puts_every_vertex_on_its_pixel(relief):
     pred, _, (doc, blob) = relief
     cam = doc["cameras"][0]
