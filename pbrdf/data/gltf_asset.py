@@ -275,8 +275,17 @@ def capture_camera(intrinsics: ArrayLike, shape: tuple[int, int]) -> GlbCamera:
 
 
 def write_asset(path: str | os.PathLike, asset: GltfAsset, *, name: str = "reconstruction") -> Path:
-    """Write a built asset to ``path`` (.glb) atomically; ``name`` names its mesh, node and scene."""
-    return write_glb(path, asset.mesh, asset.material, asset.camera, name=name, extras=asset.extras)
+    """Write a built asset to ``path`` (.glb) atomically; ``name`` names its mesh, node and scene.
+
+    Raises:
+        OSError: one line naming ``path`` and why it cannot be written (same type; nothing left behind).
+    """
+    try:
+        return write_glb(path, asset.mesh, asset.material, asset.camera, name=name, extras=asset.extras)
+    except OSError as exc:
+        blocked = next((p for p in Path(path).parents if p.exists()), None)  # mkdir's "File exists" says little
+        reason = f"{blocked} is a file, not a folder" if blocked and not blocked.is_dir() else exc.strerror or exc
+        raise type(exc)(f"{path}: cannot write the glTF file: {reason}") from exc
 
 
 def write_gltf_asset(

@@ -227,3 +227,25 @@ def test_bad_maps_are_one_line_errors(tmp_path):
     with pytest.raises(ValueError, match="^pred: depth: must be positive"):
         write_gltf_asset(tmp_path / "x.glb", {**pred, "depth": np.zeros_like(pred["depth"])}, K)
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_unwritable_paths_leave_nothing_behind(tmp_path, monkeypatch):
+    """A parent that is a file, a target that is a folder, a failing rename: OSError, no temporary, old file kept."""
+    pred = sphere_prediction(np.random.default_rng(1), K, H, W)
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(OSError, match=r"x.glb: cannot write the glTF file: .*a_file is a file, not a folder$"):
+        write_gltf_asset(tmp_path / "a_file" / "x.glb", pred, K)
+    (tmp_path / "taken.glb").mkdir()
+    with pytest.raises(IsADirectoryError, match="taken.glb: cannot write the glTF file: Is a directory$"):
+        write_gltf_asset(tmp_path / "taken.glb", pred, K)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a_file", "taken.glb"]
+    (tmp_path / "old.glb").write_bytes(b"old")
+
+    def disk_full(*_args):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("pbrdf.io.atomic.os.replace", disk_full)
+    with pytest.raises(OSError, match="old.glb: cannot write the glTF file: No space left on device$"):
+        write_gltf_asset(tmp_path / "old.glb", pred, K)
+    assert (tmp_path / "old.glb").read_bytes() == b"old"
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a_file", "old.glb", "taken.glb"]
