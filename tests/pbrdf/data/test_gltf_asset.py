@@ -249,3 +249,32 @@ def test_unwritable_paths_leave_nothing_behind(tmp_path, monkeypatch):
         write_gltf_asset(tmp_path / "old.glb", pred, K)
     assert (tmp_path / "old.glb").read_bytes() == b"old"
     assert sorted(p.name for p in tmp_path.rglob("*")) == ["a_file", "old.glb", "taken.glb"]
+
+
+def test_edge_inputs_give_valid_files(tmp_path):
+    """A one-pixel mask, a mask over the whole frame, values past [0, 1], normals facing away: valid, finite files."""
+    pred = sphere_prediction(np.random.default_rng(2), K, H, W)
+    speck = np.zeros_like(pred["mask"])
+    speck[20, 30] = 1
+    doc, blob = read_glb(write_gltf_asset(tmp_path / "speck.glb", {**pred, "mask": speck}, K).read_bytes())
+    attrs, faces = attributes(doc, blob)
+    assert validate(doc, blob) == [] and len(attrs["POSITION"]) == 9 and len(faces) == 8  # the 3 x 3 grown mask
+    plane = {**pred, "mask": np.ones_like(pred["mask"]), "depth": np.full_like(pred["depth"], 0.8)}
+    plane["normal"] = np.broadcast_to(np.float32([0, 0.6, 0.8]), pred["normal"].shape)
+    doc, blob = read_glb(write_gltf_asset(tmp_path / "plane.glb", plane, K).read_bytes())
+    assert validate(doc, blob) == [] and _box(doc) == [0, 0, H, W]  # nothing to extend, the box is the frame
+    covered, n = shading_normals(doc, blob)
+    assert covered.all() and _angle_deg(n, plane["normal"]).max() < 1.0
+    wild = {**pred, "albedo": pred["albedo"] * 3 - 0.5, "roughness": pred["roughness"] - 0.5,
+            "metallic": pred["metallic"] + 0.7}  # fmt: skip
+    away = pred["normal"] * [1, 1, 0] - [0, 0, 0.3]  # every normal tilted past the horizon, away from the camera
+    wild["normal"] = np.where(pred["mask"] > 0, away / np.linalg.norm(away, axis=-1, keepdims=True), 0)
+    doc, blob = read_glb(write_gltf_asset(tmp_path / "wild.glb", wild, K).read_bytes())
+    y0, x0, y1, x1 = _box(doc)
+    inside = pred["mask"][y0:y1, x0:x1, 0] > 0
+    mr = image(doc, blob, 1)[inside] / 255.0
+    np.testing.assert_allclose(mr[:, 1:], np.clip(np.concatenate([wild["roughness"], wild["metallic"]], -1)
+                                                  [y0:y1, x0:x1][inside], 0, 1), atol=0.5 / 255 + 1e-6)  # fmt: skip
+    covered, n = shading_normals(doc, blob)
+    on = inside & covered
+    assert on.mean() > 0.95 * inside.mean() and _angle_deg(n[on], wild["normal"][y0:y1, x0:x1][on]).max() < 2.0
