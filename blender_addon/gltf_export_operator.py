@@ -7,9 +7,9 @@ nor Pillow), on the map files the active object was imported from (its ``pdir_so
 by :func:`.pbr_import.import_pbr_maps` and so by "Reconstruct Capture"). The file holds what
 ``headless/infer.py --gltf`` writes (:mod:`pbrdf.data.gltf_asset`): the relief mesh when the
 object was imported with its depth map, else a card; base colour with the mask as alpha,
-metallic-roughness, a tangent-space normal map and the capture camera. The export takes about a
-second and runs synchronously; a failure is one ``ERROR`` report line and ``{'CANCELLED'}``,
-with nothing written. Sequences are refused (``infer.py --gltf`` writes one .glb per frame).
+metallic-roughness, a tangent-space normal map and the capture camera. The export runs
+synchronously (its times: docs/measurements/gltf.md); a failure is one ``ERROR`` report line and
+``{'CANCELLED'}``, with nothing written. Sequences are refused (``infer.py --gltf`` writes one .glb per frame).
 """
 
 from __future__ import annotations

@@ -24,12 +24,15 @@ from pbrdf.io.atomic import atomic_folder
 
 from . import pbr_import, relight_operator
 
-__all__ = ["relight_maps", "point_light_power", "ARTIST_SAMPLES"]
+__all__ = ["relight_maps", "relit_scene", "point_light_power", "ARTIST_SAMPLES", "SAMPLES", "SIZE", "DENOISE"]
 
 #: The orbit's target: an empty at the asset's centre.
 ASSET_CENTRE_NAME = "PDIR Asset Centre"
 #: Cycles samples of the saved ``.blend`` (with denoising), unless the relit frames used more.
 ARTIST_SAMPLES = 128
+#: The relit frames' defaults (``headless/relight.py`` and the demo): the cheapest measured setting whose
+#: frames score a PSNR of 35 dB or more against a 1024-sample reference (docs/measurements/relight.md).
+SAMPLES, SIZE, DENOISE = 4, 160, True
 
 
 def point_light_power(radius: float, height: float, exposure: float = 1.0) -> float:
@@ -54,14 +57,15 @@ def relight_maps(
     *,
     name: str = "",
     frames: int = 8,
-    size: int = 160,
-    samples: int = 16,
+    size: int = SIZE,
+    samples: int = SAMPLES,
     distance: float = 1.0,
     exposure: float = 1.0,
     hdr: str | os.PathLike | None = None,
     env_strength: float = 0.3,
     sun: bool = False,
     device: str = "CPU",
+    denoise: bool = DENOISE,
     save_blend: bool = False,
 ) -> list[Path]:
     """Import predicted maps into an empty Blender session, relight, render and optionally save.
@@ -80,6 +84,7 @@ def relight_maps(
         env_strength: environment strength.
         sun: give the procedural sky its sun disc (see :func:`blender_addon.relight_operator.add_environment`).
         device: Cycles device, ``"CPU"`` or ``"GPU"`` (falls back to the CPU).
+        denoise: denoise the rendered frames (Cycles' OpenImageDenoise).
         save_blend: also save ``OUT/<name>.blend`` (asset, camera, orbit light, environment, Cycles,
             packed images; see the module docstring).
 
@@ -92,7 +97,45 @@ def relight_maps(
     """
     if frames < 0 or size < 8 or samples < 1:
         raise ValueError(f"need frames >= 0, size >= 8 and samples >= 1, got {frames}, {size}, {samples}")
-    maps, out = Path(maps), Path(out)
+    out = Path(out)
+    scene, obj, light = relit_scene(maps, name=name, frames=frames, size=size, distance=distance, exposure=exposure)
+    out.mkdir(parents=True, exist_ok=True)
+    written: list[Path] = []
+    render = {"device": device, "samples": samples, "denoise": denoise}
+    if frames > 0:
+        written += relight_operator.render_relit(scene, out, prefix="point_", **render)
+    light.hide_render = True
+    relight_operator.add_environment(scene, hdr_path=hdr, strength=env_strength, sun=sun)
+    if frames > 0:
+        written += relight_operator.render_relit(scene, out, frames=[scene.frame_start], prefix="env_", **render)
+    light.hide_render = False
+    if save_blend:
+        _prepare_for_artists(scene, samples)
+        written.append(_save_blend(out / f"{name or obj.name}.blend"))
+    return written
+
+
+def relit_scene(
+    maps: str | os.PathLike, *, name: str = "", frames: int = 8, size: int = SIZE, distance: float = 1.0,
+    exposure: float = 1.0,
+):  # fmt: skip
+    """Empty the session, import the maps as the camera-parented asset, size the frame, add the orbit light.
+
+    Args:
+        maps: as :func:`relight_maps`.
+        name: as :func:`relight_maps`.
+        frames: orbit frames (0 still keyframes a one-frame orbit, kept in a saved ``.blend``).
+        size: longest side of the frame in pixels.
+        distance: asset plane distance from the camera in metres.
+        exposure: point-light power scale.
+
+    Returns:
+        ``(scene, asset object, point light object)``; nothing rendered yet.
+
+    Raises:
+        FileNotFoundError: no ``<name>_*.exr`` maps in ``maps``.
+    """
+    maps = Path(maps)
     bpy.ops.wm.read_factory_settings(use_empty=True)
     scene = bpy.context.scene
     files = sorted(maps.glob(f"{name}_*.exr")) if name else [maps]
@@ -103,25 +146,12 @@ def relight_maps(
     scene.render.resolution_x = max(round(scene.render.resolution_x * scale), 8)
     scene.render.resolution_y = max(round(scene.render.resolution_y * scale), 8)
     scene.render.film_transparent = False
-    out.mkdir(parents=True, exist_ok=True)
-    written: list[Path] = []
     # Orbit in front of the asset's centre (its +z faces the camera); kept in the .blend even without frames.
     radius = height = 0.6 * distance
     power = point_light_power(radius, height, exposure)
     light = relight_operator.add_point_light_orbit(scene, _asset_centre(scene, obj), radius=radius, height=height,
-                                           frames=max(frames, 1), energy=power)  # fmt: skip
-    if frames > 0:
-        written += relight_operator.render_relit(scene, out, device=device, samples=samples, prefix="point_")
-    light.hide_render = True
-    relight_operator.add_environment(scene, hdr_path=hdr, strength=env_strength, sun=sun)
-    if frames > 0:
-        written += relight_operator.render_relit(scene, out, device=device, samples=samples,
-                                         frames=[scene.frame_start], prefix="env_")  # fmt: skip
-    light.hide_render = False
-    if save_blend:
-        _prepare_for_artists(scene, samples)
-        written.append(_save_blend(out / f"{name or obj.name}.blend"))
-    return written
+                                                   frames=max(frames, 1), energy=power)  # fmt: skip
+    return scene, obj, light
 
 
 def _asset_centre(scene, obj):

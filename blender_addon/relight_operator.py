@@ -52,6 +52,9 @@ ORBIT_LIGHT_NAME = "PDIR Orbit Light"
 ENVIRONMENT_WORLD_NAME = "PDIR Environment"
 #: Output formats of :func:`render_relit`: Blender file format -> suffix.
 RELIT_FORMATS = {"PNG": ".png", "OPEN_EXR": ".exr"}
+#: Cycles' importance map of the procedural sky without its sun disc (a smooth sky needs no finer map;
+#: the automatic 1024 map is rebuilt for every render and costs seconds there, docs/measurements/relight.md).
+SKY_MAP_RESOLUTION = 256
 #: Cycles GPU backends, tried in this order.
 GPU_BACKENDS = ("OPTIX", "CUDA", "HIP", "ONEAPI", "METAL")
 
@@ -183,6 +186,9 @@ def add_environment(
         tex.sun_disc = sun
         tex.sun_elevation = sun_elevation
         tex.sun_rotation = sun_rotation
+        if not sun:  # the same image, cheaper to sample; a sun disc is small and keeps the automatic map
+            world.cycles.sampling_method = "MANUAL"
+            world.cycles.sample_map_resolution = SKY_MAP_RESOLUTION
     tex.location = (-300, 0)
     links.new(tex.outputs["Color"], bg.inputs["Color"])
     scene.world = world

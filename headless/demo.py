@@ -40,8 +40,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--tables", type=int, default=6, help="expanded pBRDF tables (default 6)")
     parser.add_argument("--checkpoint", type=Path, default=None, help="model.pt (default: the shipped model)")
     parser.add_argument("--relight-frames", type=int, default=6, help="point-light orbit frames (default 6)")
-    parser.add_argument("--relight-size", type=int, default=256, help="relit frame size (default 256)")
-    parser.add_argument("--relight-samples", type=int, default=32, help="Cycles samples (default 32)")
+    parser.add_argument("--relight-size", type=int, default=128, help="relit frame size (default 128, the maps')")
+    parser.add_argument("--relight-samples", type=int, default=4, help="Cycles samples (default 4)")
+    parser.add_argument("--relight-denoise", action=argparse.BooleanOptionalAction, default=True,
+                        help="Cycles' denoiser on the relit frames (default: %(default)s)")  # fmt: skip
     parser.add_argument("--no-blender", action="store_true", help="skip the Blender import and relighting")
     parser.add_argument("--seed", type=int, default=0, help="seed of everything (default 0)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars (the summary still prints)")
@@ -63,7 +65,8 @@ def main(argv: list[str] | None = None) -> int:
             out=args.out, scenes=args.scenes, measured_scenes=min(args.measured_scenes, args.scenes),
             resolution=args.resolution, spp=args.spp, tables=args.tables, checkpoint=args.checkpoint,
             relight_frames=args.relight_frames, relight_size=args.relight_size,
-            relight_samples=args.relight_samples, seed=args.seed, blender=not args.no_blender,
+            relight_samples=args.relight_samples, relight_denoise=args.relight_denoise, seed=args.seed,
+            blender=not args.no_blender,
             progress=not args.quiet,
         )  # fmt: skip
         summary = run_demo(cfg, render_dataset)

@@ -6,7 +6,8 @@ the camera model and the decoder.
     python headless/render.py --split NAME [--out DIR] [--count N] [--resume]
     python headless/render.py --out DIR --count N [--resolution 384] [--seed S] [--spp 32]
         [--assets DIR] [--shapes SET] [--objects MIN-MAX] [--pbrdfs DIR] [--table-fraction F]
-        [--texture-fraction F] [--asset-materials] [--variant auto] [--rig FILE] [--resume]
+        [--texture-fraction F] [--asset-materials] [--variant auto] [--rig FILE] [--rig-jitter F]
+        [--corpus-fraction F] [--resume]
         [--shard K/N] [--scene SPEC.json] [--via-blender] [--npz] [--quiet]
 
 Each sample is DIR/samples/NNNNNN.exr (nine maps, mask, normal, albedo, roughness, metallic,
@@ -35,7 +36,13 @@ probability F (base colour and roughness that vary, metal segments or worn paint
 map, a mix of pBRDF tables; default 0: uniform materials; a --split's own fraction, which F
 overrides for train and val splits, never for test splits); --asset-materials keeps the materials
 of asset files that have them (glTF metallic-roughness, OBJ+MTL: one object per material, with
-its textures) instead of drawing one. --variant picks the Mitsuba variant: auto (default; cuda_ad_mono_polarized when
+its textures) instead of drawing one. --corpus-fraction F draws each object from the real-mesh
+training corpus (corpora/meshes: Debian's libcgal-demo and openscad-testing-data meshes, unpacked by
+`make setup`; no test split uses them) with probability F. --rig-jitter F renders every scene through a rig
+whose imperfections (cross-talk, ambient light, vignetting, QWP, extinction, display polarization) are
+drawn within F times the documented residual ranges and decodes it with the nominal rig
+(docs/rig_imperfections.md; a --split's own value, which F overrides for train and val splits).
+--variant picks the Mitsuba variant: auto (default; cuda_ad_mono_polarized when
 Dr.Jit has a CUDA backend, else llvm), llvm, cuda, scalar (scalar_spectral_polarized, slow) or
 any *_polarized variant name; --split renders with llvm unless --variant is given. --scene
 renders one given scene spec (e.g. exported by the Blender add-on) instead of random scenes
@@ -114,15 +121,34 @@ def _apply_split(args: argparse.Namespace) -> str | None:
         args.texture_fraction = split.texture_fraction
     args.asset_materials = args.asset_materials or split.asset_materials
     args.distance = split.distance
+    if args.rig_jitter is not None and split.role == "test":
+        raise ValueError(f"--split {split.name} is a fixed test split: drop --rig-jitter")
+    args.rig_jitter = split.rig_jitter if args.rig_jitter is None else args.rig_jitter
+    if args.corpus_fraction is not None:
+        raise ValueError(f"--split {split.name} fixes its corpus fraction: drop --corpus-fraction")
+    args.corpus_fraction = split.corpus_fraction
+    args.corpus = split.corpus_folder()
     args.assets = split.asset_folder()
     args.variant = args.variant or "llvm"  # the variant the splits were made with, GPU or not
     args.out = args.out or Path("out/splits") / split.name
     return split.name
 
 
+def _corpus(args: argparse.Namespace) -> Path | None:
+    """The mesh corpus folder: the --split's, else the default one when --corpus-fraction asks for it."""
+    if getattr(args, "corpus", None) is not None or not args.corpus_fraction:
+        return getattr(args, "corpus", None)
+    from pbrdf.data.splits import MESH_CORPUS_DIR  # noqa: PLC0415
+
+    if not MESH_CORPUS_DIR.is_dir():
+        raise ValueError(f"--corpus-fraction needs the mesh corpus in {MESH_CORPUS_DIR} (`make setup` unpacks it)")
+    return MESH_CORPUS_DIR
+
+
 #: The GenerateConfig fields that are flags here (its errors name them as ``field=value``).
 GENERATE_FLAGS = ("count", "resolution", "seed", "spp", "shapes", "objects", "table_fraction", "variant", "assets",
-                  "pbrdfs", "rig", "pattern", "scene", "shard", "texture_fraction", "asset_materials")  # fmt: skip
+                  "pbrdfs", "rig", "pattern", "scene", "shard", "texture_fraction", "asset_materials", "rig_jitter",
+                  "corpus_fraction")  # fmt: skip
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -174,6 +200,18 @@ def build_parser() -> argparse.ArgumentParser:
         "scalar, or a *_polarized variant name",
     )
     parser.add_argument("--rig", type=Path, help="rig JSON overriding the default rig (calibrated rigs)")
+    parser.add_argument(
+        "--rig-jitter",
+        type=float,
+        help="draw the rig's imperfections per scene within F times the documented residual ranges "
+        "(docs/rig_imperfections.md), decode with the nominal rig (default 0, or the --split's; train and val only)",
+    )
+    parser.add_argument(
+        "--corpus-fraction",
+        type=float,
+        help="probability that an object is a real mesh of the training corpus (corpora/meshes, `make setup`; "
+        "default 0)",
+    )
     parser.add_argument("--pattern", help="display pattern: rgb_halves (default), white, or an image file; "
                         "the scenes stay those of --seed")  # fmt: skip
     parser.add_argument("--scene", type=Path, help="render this scene spec JSON instead of random scenes")
@@ -230,6 +268,9 @@ def main(argv: list[str] | None = None) -> int:
             texture_fraction=args.texture_fraction or 0.0,
             asset_materials=args.asset_materials,
             distance=getattr(args, "distance", None) or (0.5, 1.0),
+            rig_jitter=args.rig_jitter or 0.0,
+            corpus_fraction=args.corpus_fraction or 0.0,
+            corpus=_corpus(args),
             variant=args.variant or "auto",
             split=split,
             assets=args.assets,

@@ -31,7 +31,6 @@ metallic RMSE most) and says when one does not appear.
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -42,7 +41,7 @@ from pbrdf.data import sample as psample
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.strict_json import dumps_strict
 
-from .statistics import bootstrap_ci
+from .compare import paired_gain
 
 __all__ = [
     "DEFAULT_OVERRIDES",
@@ -50,7 +49,6 @@ __all__ = [
     "AblationConfig",
     "ablation_markdown",
     "evaluate_runs",
-    "paired_gain",
     "run_ablation",
     "run_indices",
     "scene_kind",
@@ -218,59 +216,6 @@ _COLUMNS = (
     ("roughness_rmse", "Roughness RMSE", 3),
     ("metallic_rmse", "Metallic RMSE", 3),
 )
-
-
-def _per_scene(results: Mapping[str, Any], run: str, key: str) -> dict[int, float]:
-    r = results.get(run) or {}
-    out = {}
-    for row in r.get("per_scene", ()):
-        v = (row.get("ours") or {}).get(key)
-        if v is not None and math.isfinite(v):
-            out[int(row["index"])] = float(v)
-    return out
-
-
-def _mean(results: Mapping[str, Any], run: str, key: str) -> float | None:
-    r = results.get(run)
-    v = r["methods"]["ours"][key]["mean"] if r else None
-    return v if v is not None and math.isfinite(v) else None
-
-
-def paired_gain(
-    results: Mapping[str, Any], before: str, after: str, key: str
-) -> tuple[float, tuple[float, float] | None] | None:
-    """How much run ``after`` lowers a metric against run ``before``, with a paired 95 % interval.
-
-    The runs are scored on the same scenes (``white``'s twin split has the same scene indices), so
-    the per-scene differences are paired: the interval is the bootstrap over scenes of their mean,
-    much tighter than comparing two unpaired intervals. Without per-scene rows the difference of
-    the means is returned with no interval.
-
-    Args:
-        results: ablation results (``run -> evaluate_dataset`` dict).
-        before: the run without the factor.
-        after: the run with it.
-        key: metric key of ``methods.ours`` (lower is better).
-
-    Returns:
-        ``(gain, (low, high))``, gain = before - after (positive: ``after`` is better); None when a
-        run or the metric is missing.
-
-    Example:
-        >>> def r(vals):
-        ...     return {"per_scene": [{"index": i, "ours": {"m": v}} for i, v in enumerate(vals)],
-        ...             "methods": {"ours": {"m": {"mean": sum(vals) / len(vals)}}}}
-        >>> gain, (lo, hi) = paired_gain({"a": r([3.0, 5.0, 7.0, 9.0]), "b": r([2.0, 4.1, 5.9, 8.0])}, "a", "b", "m")
-        >>> round(gain, 2), bool(0.8 < lo < hi < 1.2)
-        (1.0, True)
-    """
-    a, b = _per_scene(results, before, key), _per_scene(results, after, key)
-    common = sorted(a.keys() & b.keys())
-    if common:
-        diffs = [a[i] - b[i] for i in common]
-        return sum(diffs) / len(diffs), bootstrap_ci(diffs, seed=0)
-    va, vb = _mean(results, before, key), _mean(results, after, key)
-    return None if va is None or vb is None else (va - vb, None)
 
 
 def trend_lines(results: Mapping[str, Any]) -> list[str]:

@@ -58,7 +58,7 @@ from .infer import DEFAULT_CHECKPOINT, load_input, predict
 from .inputs import checkpoint_inputs
 from .light_input import scene_light
 from .lpips import lpips_status
-from .statistics import summarize
+from .statistics import correlation, summarize
 
 __all__ = [
     "METHODS",
@@ -345,6 +345,11 @@ def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
                    "material": (mats.get(spec.get("material")) or {}).get("kind")}  # fmt: skip
             for m in scored:
                 obj[m] = score(scene.preds[m], scene.gt, sel, lpips=False)
+            # mean roughness of the truth and of each method, and the true metallic: the per-object
+            # roughness correlation over dielectric objects (summarize_rows)
+            means = {m: scene.preds[m] for m in scored if "roughness" in scene.preds[m]} | {"truth": scene.gt}
+            obj["roughness_mean"] = {m: float(np.mean(p["roughness"][sel])) for m, p in means.items()}
+            obj["metallic_truth"] = float(np.mean(scene.gt["metallic"][sel]))
             row["objects"].append(obj)
     return row
 
@@ -371,6 +376,13 @@ def summarize_rows(rows: list[Mapping[str, Any]]) -> dict[str, Any]:
         out["objects"] = len(objs)
         out["per_object"] = {
             m: {k: summarize([o[m][k] for o in objs], w) for k, _, _ in METRICS if k != "albedo_lpips"} for m in scored
+        }
+        # Does the predicted roughness follow the truth across dielectric objects (a constant has r = None)?
+        diel = [o for o in objs if "roughness_mean" in o and o["metallic_truth"] < 0.5]
+        out["roughness_correlation"] = {
+            m: correlation([o["roughness_mean"]["truth"] for o in diel], [o["roughness_mean"].get(m) for o in diel])
+            for m in scored
+            if any(m in o["roughness_mean"] for o in diel)
         }
     return out
 
@@ -556,6 +568,13 @@ def results_markdown(result: Mapping[str, Any]) -> str:
     if result.get("per_object") and result.get("objects", 0) > result["scenes"]:
         per = {"methods": result["per_object"], "lpips": False, "model": result.get("model")}
         lines += _markdown_table(f"Per-object mean [95 % CI] ({result['objects']} objects)", *summary_table(per))
+    corr = {m: c for m, c in (result.get("roughness_correlation") or {}).items() if c.get("count")}
+    if corr:
+        cells = [f"{m} {c['r']:.2f} [{c['ci'][0]:.2f}, {c['ci'][1]:.2f}]" if c["r"] is not None
+                 else f"{m} none (constant)" for m, c in corr.items()]  # fmt: skip
+        n = max(c["count"] for c in corr.values())
+        lines += [f"Per-object roughness correlation with the truth, dielectric objects (Pearson r [95 % CI], "
+                  f"{n} objects): " + "; ".join(cells) + ".", ""]  # fmt: skip
     if result.get("paired"):
         cols = [(k, h) for k, h, _ in METRICS if k in ("normal_mae", "albedo_psnr", "albedo_si_psnr", "roughness_rmse")]
         cells = [_cell(result["paired"][k], "mean", 2) for k, _ in cols]

@@ -60,6 +60,7 @@ from torch import Tensor
 from torch.utils.checkpoint import checkpoint
 
 from pbrdf.brdf.disney import disney_lobes, roughness_to_alpha
+from pbrdf.polar.fresnel import dielectric_transmittance
 from pbrdf.sensor import projection
 from pbrdf.sensor.patches import channel_patches
 
@@ -198,15 +199,6 @@ def _safe_normalize(x: Tensor) -> Tensor:
     return x * torch.rsqrt((x * x).sum(-1, keepdim=True).clamp_min(_EPS))
 
 
-def _transmission(cos: Tensor, eta: float) -> Tensor:
-    """Unpolarized Fresnel transmittance ``1 - (r_s^2 + r_p^2) / 2`` from air into index ``eta > 1``."""
-    cos = cos.clamp(0.0, 1.0)
-    cos_t = (1.0 - (1.0 - cos * cos) / (eta * eta)).clamp_min(_EPS).sqrt()
-    rs = (cos - eta * cos_t) / (cos + eta * cos_t)
-    rp = (eta * cos - cos_t) / (eta * cos + cos_t)
-    return 1.0 - 0.5 * (rs * rs + rp * rp)
-
-
 def _shade(
     normal: Tensor,
     albedo: Tensor,
@@ -237,7 +229,7 @@ def _shade(
     )
     if diffuse == "fresnel":  # pplastic: Lambert attenuated by the coating's smooth refraction in and out
         cos_o = (n * v).sum(-1).clamp_min(0.0)
-        t = _transmission(cos_i, PLASTIC_IOR) * _transmission(cos_o, PLASTIC_IOR) * (cos_o > 0)
+        t = dielectric_transmittance(cos_i, PLASTIC_IOR) * dielectric_transmittance(cos_o, PLASTIC_IOR) * (cos_o > 0)
         fd = albedo[:, :, None, :] * ((1.0 - metallic[..., 0][:, :, None]) * t / math.pi)[..., None]
     light = patches.radiance[:, None] * (cos_i * solid)[..., None]  # (B, P, N, 3)
     diffuse = (fd * light).sum(2)

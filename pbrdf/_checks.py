@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["as_float_array", "as_unit_vectors", "check_last_dims", "safe_div"]
+__all__ = ["as_float_array", "as_unit_vectors", "check_last_dims", "double_angle", "safe_div"]
 
 
 def as_float_array(x: ArrayLike) -> NDArray[np.floating]:
@@ -66,3 +66,23 @@ def safe_div(num: NDArray, den: NDArray) -> NDArray:
     out = np.zeros(num.shape, dtype=np.result_type(num, den))
     np.divide(num, den, out=out, where=den > 0)
     return out
+
+
+def double_angle(theta: NDArray, name: str = "theta") -> NDArray:
+    """``2 theta`` for a ``cos 2 theta``, ``sin 2 theta``, reduced mod ``2 pi`` where doubling would overflow.
+
+    ``cos`` and ``sin`` are periodic, so the reduction changes nothing but the overflow of
+    ``2 theta`` for ``|theta|`` near the largest float (which made them NaN); NaN and Inf are
+    refused with a ValueError naming ``name``. One vectorised check on the hot path.
+
+    Example:
+        >>> bool(np.isfinite(np.cos(double_angle(np.array(1e308)))))
+        True
+    """
+    with np.errstate(over="ignore"):
+        t2 = 2 * theta
+    if not np.isfinite(t2).all():
+        if not np.isfinite(theta).all():
+            raise ValueError(f"{name} must be finite (radians); got NaN or Inf")
+        t2 = 2 * np.remainder(theta, np.pi)
+    return t2

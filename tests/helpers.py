@@ -172,6 +172,14 @@ def toy_model(seed=0, **overrides):
     return PolarInverseModel(get_config("toy", **overrides))
 
 
+def toy_train_config(data, out, **overrides):
+    """A :class:`network.train.TrainConfig` of the toy model on the CPU (1e-3, seed 0, no TensorBoard)."""
+    from network.train import TrainConfig
+
+    base = {"config": "toy", "lr": 1e-3, "seed": 0, "checkpoint_every": 100, "tensorboard": False, "device": "cpu"}
+    return TrainConfig(data=data, out=out, **{**base, **overrides})
+
+
 def toy_inputs(batch=1, size=64, seed=1):
     """Random maps (B, 9, size, size) and a rectangular mask with a hole (B, 1, size, size)."""
     import torch

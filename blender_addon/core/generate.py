@@ -31,8 +31,9 @@ from pbrdf.data import dataset
 from pbrdf.data import sample as psample
 from pbrdf.io.atomic import atomic_write_bytes, remove_leftovers
 from pbrdf.sensor.rig import BUILTIN_PATTERNS, Rig
+from pbrdf.sensor.rig_jitter import check_scale, draw_rig
 
-from . import assets, passes, render, scenegen
+from . import assets, mesh_corpus, passes, render, scenegen
 from .asset_materials import usable_textured_assets
 from .generated_shapes import GENERATED_SHAPES
 from .procedural import PROCEDURAL_SHAPES
@@ -101,6 +102,9 @@ class GenerateConfig:
     texture_fraction: float = 0.0
     asset_materials: bool = False
     distance: tuple[float, float] = (0.5, 1.0)
+    rig_jitter: float = 0.0
+    corpus: Path | None = None
+    corpus_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         """Check the fields; ``shapes`` None becomes ``none`` with ``assets``, else ``procedural``."""
@@ -132,6 +136,13 @@ class GenerateConfig:
             raise ValueError(f"texture_fraction={self.texture_fraction} must be in [0, 1]")
         if self.scene is not None and (self.texture_fraction > 0 or self.asset_materials):
             raise ValueError("scene renders the given scene: it cannot take texture_fraction or asset_materials")
+        object.__setattr__(self, "rig_jitter", check_scale(self.rig_jitter))
+        if not 0.0 <= self.corpus_fraction <= 1.0:
+            raise ValueError(f"corpus_fraction={self.corpus_fraction} must be in [0, 1]")
+        if (self.corpus_fraction > 0) != (self.corpus is not None):
+            raise ValueError("corpus_fraction > 0 and corpus=DIR (a mesh corpus folder) go together")
+        if self.scene is not None and (self.rig_jitter > 0 or self.corpus is not None):
+            raise ValueError("scene renders the given scene: it cannot take rig_jitter or corpus")
         if self.variant not in VARIANT_ALIASES and not self.variant.endswith("_polarized"):
             valid = f"one of {list(VARIANT_ALIASES)} or a *_polarized Mitsuba variant"
             raise ValueError(f"variant={self.variant!r} must be {valid}")
@@ -168,7 +179,8 @@ class GenerateConfig:
         except RuntimeError as e:
             raise ValueError(f"variant={self.variant!r}: {e}") from None
         settings = render.RenderSettings(resolution=self.resolution, spp=self.spp, noise=self.noise, variant=variant)
-        return GenerateInputs(rig, fixed, asset_files, materials, settings)
+        corpus = mesh_corpus.corpus_files(self.corpus) if self.corpus is not None else None
+        return GenerateInputs(rig, fixed, asset_files, materials, settings, corpus)
 
     def _asset_files(self) -> list[Path] | None:
         """The usable mesh files of ``assets`` (None without it); files the pipeline refuses are left out."""
@@ -202,6 +214,8 @@ class GenerateConfig:
             args["asset_materials"] = True
         if tuple(self.distance) != (0.5, 1.0):
             args["distance_range"] = list(self.distance)
+        if self.corpus_fraction > 0:
+            args["corpus_fraction"] = self.corpus_fraction
         return args
 
 
@@ -215,6 +229,7 @@ class GenerateInputs:
         asset_files: the usable mesh files of ``assets``, or None.
         materials: the pBRDF table library of ``pbrdfs``, or None.
         settings: the render settings (resolution, spp, noise, the chosen Mitsuba variant).
+        corpus: the usable meshes of ``corpus`` (:func:`.mesh_corpus.corpus_files`), or None.
     """
 
     rig: Rig
@@ -222,6 +237,7 @@ class GenerateInputs:
     asset_files: list[Path] | None
     materials: list | None
     settings: render.RenderSettings
+    corpus: list[Path] | None = None
 
 
 def parse_objects(value: str | int | tuple[int, int]) -> tuple[int, int]:
@@ -289,12 +305,14 @@ def render_sample(
     noise: bool = True,
     keep_stokes: bool = False,
     keep_raw: bool = False,
+    decode_model=None,
 ) -> tuple[dict, dict, dict[str, float]]:
     """Render one scene spec into a dataset sample: polarized render, camera model, decode.
 
     The camera noise is drawn from ``numpy.random.default_rng([sample_seed, 1])``; the render's
     own seeds come from ``spec.seed``. The Blender add-on calls this too, so its in-process
-    render equals ``headless/render.py --scene`` with the same seeds.
+    render equals ``headless/render.py --scene`` with the same seeds. ``decode_model`` is the
+    camera model the decoder assumes (default: the spec's, :func:`.render.synthesize_sample`).
 
     Returns:
         ``(sample, metadata, seconds)``: the :mod:`pbrdf.data.dataset` sample, its sidecar metadata
@@ -305,7 +323,7 @@ def render_sample(
     t1 = time.perf_counter()
     sample, meta = render.synthesize_sample(
         spec, result, rng=np.random.default_rng([sample_seed, 1]), noise=noise, keep_stokes=keep_stokes,
-        keep_raw=keep_raw,
+        keep_raw=keep_raw, decode_model=decode_model,
     )  # fmt: skip
     return sample, meta, {"render": t1 - t0, "camera+decode": time.perf_counter() - t1}
 
@@ -387,9 +405,11 @@ def generate(
 
 #: The manifest's ``config`` fields that decide what a sample holds: a run adding to a folder must match them.
 SCENE_FIELDS = ("resolution", "seed", "spp", "shapes", "objects", "table_fraction", "texture_fraction",
-                "asset_materials", "pattern", "noise", "keep_raw", "split", "distance")  # fmt: skip
+                "asset_materials", "pattern", "noise", "keep_raw", "split", "distance", "rig_jitter",
+                "corpus_fraction", "corpus_digest")  # fmt: skip
 #: Scene fields added after the first manifests, with the value every run before them had.
-_FIELDS_BEFORE = {"texture_fraction": 0.0, "asset_materials": False, "distance": [0.5, 1.0]}
+_FIELDS_BEFORE = {"texture_fraction": 0.0, "asset_materials": False, "distance": [0.5, 1.0], "rig_jitter": 0.0,
+                  "corpus_fraction": 0.0, "corpus_digest": None}  # fmt: skip
 
 
 def _check_same_scenes(out: Path, info: dict) -> None:
@@ -423,6 +443,8 @@ def _run_info(cfg: GenerateConfig, inputs: GenerateInputs, spec_hook: Callable |
         "versions": versions(),
         "variant": inputs.settings.variant,
     }
+    # The corpus listing decides the scenes; its folder may differ between machines, its digest may not.
+    info["config"]["corpus_digest"] = mesh_corpus.corpus_digest(inputs.corpus, cfg.corpus) if inputs.corpus else None
     if cfg.split is not None:
         info["split"] = cfg.split
     info.update(cfg.scene_args())
@@ -444,14 +466,22 @@ def _write_one(
             inputs.rig, seed, asset_files=inputs.asset_files, materials=inputs.materials,
             shapes=SHAPE_SETS[cfg.shapes], objects=cfg.objects, table_fraction=cfg.table_fraction,
             asset_materials=cfg.asset_materials, texture_fraction=cfg.texture_fraction, distance=tuple(cfg.distance),
+            corpus_files=inputs.corpus, corpus_fraction=cfg.corpus_fraction,
         )  # fmt: skip
+    drawn = None
+    if cfg.rig_jitter > 0:  # rendered and simulated through the drawn rig, decoded with the nominal one
+        rig, drawn = draw_rig(inputs.rig, seed, cfg.rig_jitter)
+        spec = replace(spec, rig=rig)
     if spec_hook is not None:
         spec = spec_hook(spec)
     t1 = time.perf_counter()
     sample, meta, stages = render_sample(
-        spec, inputs.settings, sample_seed=seed, noise=cfg.noise, keep_stokes=cfg.keep_stokes, keep_raw=cfg.keep_raw
-    )
+        spec, inputs.settings, sample_seed=seed, noise=cfg.noise, keep_stokes=cfg.keep_stokes, keep_raw=cfg.keep_raw,
+        decode_model=None if drawn is None else inputs.rig.camera.model,
+    )  # fmt: skip
     meta.update(sample_seed=seed, run_seed=cfg.seed, versions=info["versions"], spec=spec.to_dict())
+    if drawn is not None:  # "rig" is what the decoder (and a user) assumes; spec.rig the drawn one
+        meta.update(rig=inputs.rig.to_dict(), rig_jitter=drawn)
     if cfg.split is not None:
         meta["split"] = cfg.split
     meta.update(cfg.scene_args())

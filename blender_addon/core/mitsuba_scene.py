@@ -244,11 +244,10 @@ def polarized_emitter_possible(display: DisplaySpec) -> bool:
     """Whether the display can be rendered as :mod:`.polarized_display` (no sheet) in mono passes.
 
     A flat display whose colour channels each light one full rectangle (the built-in patterns),
-    fully polarized; curved displays and pattern images keep the sheet.
+    partially polarized too (the emitter scales S1, S2); curved displays and pattern images keep the sheet.
     """
     return (
         display.curvature_radius is None
-        and display.degree_of_polarization == 1.0
         and display.pattern in BUILTIN_RECTANGLE_PATTERNS
         and all(display.lit_rectangle(c, uniform=True) is not None for c in range(3))
     )
@@ -284,9 +283,10 @@ def display_shapes(
     Returns:
         ``{"display": shape, "display_polarizer": shape}`` (no sheet with ``polarized_emitter``).
     """
-    if display.degree_of_polarization != 1.0:
+    if display.degree_of_polarization != 1.0 and not polarized_emitter:
         raise NotImplementedError(
-            "degree_of_polarization < 1 is not rendered yet; the default display is fully polarized"
+            "degree_of_polarization < 1 is rendered only by the polarized display emitter (a flat display with a "
+            "built-in pattern, mono polarized variants), not through the polarizer sheet"
         )
     if (channel is None) == (radiance is None):
         raise ValueError("display_shapes needs either a channel or a radiance, not both")
@@ -299,7 +299,7 @@ def display_shapes(
         polarized_display.register()
         rect = display.lit_rectangle(channel, uniform=True)
         absorbing = np.cross(display.normal_world(), display.polarization_direction_world())
-        emitter = polarized_display.emitter_dict(display.radiance, absorbing)
+        emitter = polarized_display.emitter_dict(display.radiance, absorbing, display.degree_of_polarization)
         return {"display": {"type": "rectangle", "to_world": scalar_transform(_emitter_to_world(display, rect)),
                             "emitter": emitter}}  # fmt: skip
     sheet_bsdf = {"type": "polarizer", "theta": -math.degrees(display.polarization_angle)}

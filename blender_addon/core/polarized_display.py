@@ -35,18 +35,25 @@ __all__ = ["PLUGIN", "register", "emitter_dict"]
 PLUGIN = "pdir_polarized_display"
 
 
-def emitter_dict(radiance: float, absorbing_axis: Any) -> dict:
+def emitter_dict(radiance: float, absorbing_axis: Any, degree_of_polarization: float = 1.0) -> dict:
     """The Mitsuba dict of a polarized display emitter (register the plugin first).
 
     Args:
         radiance: S0 of the light leaving the display (after the polarizer), linear units.
         absorbing_axis: ``(3,)`` world direction of the polarizer's absorbing axis, in the
             display plane (perpendicular to the transmitted polarization at normal incidence).
+        degree_of_polarization: in [0, 1]; the emitted S1 and S2 are scaled by it (a partially
+            polarized display: the polarized part plus unpolarized light of the same S0).
     """
     ax = [float(x) for x in absorbing_axis]
     if len(ax) != 3 or sum(x * x for x in ax) == 0.0:
         raise ValueError(f"absorbing_axis must be a non-zero 3-vector, got {absorbing_axis!r}")
-    return {"type": PLUGIN, "radiance": float(radiance), "absorbing_axis": ax}
+    if not 0.0 <= degree_of_polarization <= 1.0:
+        raise ValueError(f"degree_of_polarization must be in [0, 1], got {degree_of_polarization}")
+    out = {"type": PLUGIN, "radiance": float(radiance), "absorbing_axis": ax}
+    if degree_of_polarization != 1.0:  # the fully polarized display's dict (and kernels) stay as before
+        out["dop"] = float(degree_of_polarization)
+    return out
 
 
 def register() -> None:
@@ -60,7 +67,7 @@ def _emitter_class() -> type:
     import mitsuba as mi  # noqa: PLC0415
 
     class PolarizedDisplay(mi.Emitter):
-        """``pdir_polarized_display``: properties ``radiance`` (float), ``absorbing_axis`` (3 floats)."""
+        """``pdir_polarized_display``: ``radiance`` (float), ``absorbing_axis`` (3 floats), ``dop`` (float, 1)."""
 
         def __init__(self, props: Any) -> None:
             mi.Emitter.__init__(self, props)
@@ -68,11 +75,18 @@ def _emitter_class() -> type:
             a = [float(x) for x in props.get("absorbing_axis")]
             norm = sum(x * x for x in a) ** 0.5
             self.axis = [x / norm for x in a]
+            self.dop = float(props.get("dop", 1.0))
+            # A partially polarized display is the engine's drawn rig, other values every scene: the axis and
+            # DoP become kernel parameters (opaque) so scenes share compiled kernels; the default keeps literals.
+            self.partial = self.dop != 1.0
+            if self.partial:
+                self.opaque_axis = dr.opaque(mi.Vector3f, self.axis)
+                self.opaque_dop = dr.opaque(mi.Float, self.dop)
             self.m_flags = mi.EmitterFlags.Surface
 
         def _emitted(self, k, scale, active):
             """Mueller matrix whose first column is the Stokes vector emitted along ``k``, times ``scale``."""
-            u = dr.cross(k, mi.Vector3f(*self.axis))
+            u = dr.cross(k, self.opaque_axis if self.partial else mi.Vector3f(*self.axis))
             x = mi.mueller.stokes_basis(k)
             y = dr.cross(k, x)
             ux, uy = dr.dot(u, x), dr.dot(u, y)
@@ -82,6 +96,8 @@ def _emitter_class() -> type:
             m = dr.zeros(mi.Spectrum)
             s = dr.select(active, scale, 0.0)
             m[0, 0] = s
+            if self.partial:  # S1, S2 scaled (a Python branch: the fully polarized kernel is unchanged)
+                inv = inv * self.opaque_dop
             m[1, 0] = s * (ux * ux - uy * uy) * inv
             m[2, 0] = s * 2.0 * ux * uy * inv
             return m
@@ -116,6 +132,6 @@ def _emitter_class() -> type:
             pass
 
         def to_string(self) -> str:
-            return f"PolarizedDisplay[radiance={self.radiance}, absorbing_axis={self.axis}]"
+            return f"PolarizedDisplay[radiance={self.radiance}, absorbing_axis={self.axis}, dop={self.dop}]"
 
     return PolarizedDisplay

@@ -362,8 +362,13 @@ def synthesize_sample(
     noise: bool = True,
     keep_stokes: bool = False,
     keep_raw: bool = False,
+    decode_model: pcamera.CameraModel | None = None,
 ) -> tuple[dict[str, NDArray], dict]:
     """Camera model + decode on rendered Stokes images -> dataset sample and metadata.
+
+    The raws are simulated with the spec's camera model; ``decode_model`` (default: the same) is
+    the one the decoder assumes, e.g. the nominal rig's for a scene with drawn imperfections
+    (:mod:`pbrdf.sensor.rig_jitter`). The sidecar's ``camera_model`` is the decoder's.
 
     Returns:
         ``(sample, metadata)`` in :mod:`pbrdf.data.dataset` format: ``maps`` (H,W,9), ``mask``,
@@ -375,6 +380,7 @@ def synthesize_sample(
     # Hold each rendered Stokes vector over its 2x2 raw block.
     up = np.repeat(np.repeat(result.stokes, 2, axis=0), 2, axis=1)
     raws = pcamera.simulate_capture(up, model, rng=rng, noise=noise)
+    model = model if decode_model is None else decode_model
     dec = pdecode.decode(raws, model, grid="half")
     t_camera = time.perf_counter() - t0
     # Ground truth lives on the object coverage; the training mask also needs a decoded value.

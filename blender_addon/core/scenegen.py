@@ -142,6 +142,8 @@ def random_scene(
     pose_tries: int = POSE_TRIES,
     asset_materials: bool = False,
     texture_fraction: float = 0.0,
+    corpus_files: list[Path] | None = None,
+    corpus_fraction: float = 0.0,
 ) -> SceneSpec:
     """Objects at random, non-overlapping poses in view, each with its own random material.
 
@@ -177,6 +179,10 @@ def random_scene(
             base colour and roughness, metal segments or wear, a normal map, a mix of tables);
             drawn after the material, only when above 0, so 0 keeps the random stream of
             untextured scenes.
+        corpus_files: real meshes (:func:`.mesh_corpus.corpus_files`) an object is drawn from
+            with probability ``corpus_fraction`` (drawn first, only when above 0, so 0 keeps the
+            random stream), else from the pool; a corpus mesh gets a drawn material.
+        corpus_fraction: that probability, in [0, 1]; above 0 it needs ``corpus_files``.
 
     Returns:
         The scene, seeded with ``seed % 2**31``.
@@ -196,6 +202,8 @@ def random_scene(
         raise ValueError(f"pose_tries must be >= 1, got {pose_tries}")
     if not 0.0 <= texture_fraction <= 1.0:
         raise ValueError(f"texture_fraction must be in [0, 1], got {texture_fraction}")
+    if not 0.0 <= corpus_fraction <= 1.0 or (corpus_fraction > 0 and not corpus_files):
+        raise ValueError(f"corpus_fraction must be in [0, 1] and above 0 only with corpus_files, got {corpus_fraction}")
     files = [str(f) for f in asset_files or ()]
     builtins = tuple(shapes) if shapes is not None else (() if files else PROCEDURAL_SHAPES)
     pool = files + [f"builtin:{s}" for s in builtins]
@@ -208,9 +216,12 @@ def random_scene(
     mats: list[MaterialSpec] = []
     notes: dict[str, list[str]] = {}
     for _ in range(count):
-        k = int(rng.integers(len(pool)))
-        mesh_ref = pool[k]
-        if builtins:
+        if corpus_fraction > 0 and rng.random() < corpus_fraction:
+            k, mesh_ref = -1, str(corpus_files[int(rng.integers(len(corpus_files)))])
+        else:
+            k = int(rng.integers(len(pool)))
+            mesh_ref = pool[k]
+        if builtins and k >= 0:
             shape_seed = int(rng.integers(2**31))  # drawn for every shape, so the stream does not depend on it
             if k >= len(files) and builtins[k - len(files)] not in UNSEEN_SHAPES:
                 mesh_ref = f"{mesh_ref}?seed={shape_seed}"
@@ -224,7 +235,7 @@ def random_scene(
             continue  # no free pose: leave the object out
         placed.append((centre, radius))
         suffix = "" if len(placed) == 1 else f"_{len(placed)}"  # objects (assets) placed so far
-        own = asset_parts(mesh_ref) if asset_materials and k < len(files) else None
+        own = asset_parts(mesh_ref) if asset_materials and 0 <= k < len(files) else None
         if own is not None:
             _add_parts(own, rng, tuple(map(tuple, to_world)), f"object{suffix}", objs, mats)
             notes.update({own.file: list(own.notes)} if own.notes else {})

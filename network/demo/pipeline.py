@@ -70,6 +70,7 @@ class DemoConfig:
         relight_frames: point-light orbit frames per asset (0: no relit frames).
         relight_size: longest side of a relit frame in pixels.
         relight_samples: Cycles samples per pixel.
+        relight_denoise: Cycles' denoiser on the relit frames.
         seed: seed of every stage.
         blender: run the Blender import and relighting stage.
         progress: show progress bars.
@@ -86,8 +87,9 @@ class DemoConfig:
     tables: int = 6
     checkpoint: Path | None = None
     relight_frames: int = 6
-    relight_size: int = 256
-    relight_samples: int = 32
+    relight_size: int = 128
+    relight_samples: int = 4
+    relight_denoise: bool = True
     seed: int = 0
     blender: bool = True
     progress: bool = True
@@ -144,7 +146,8 @@ class _Results:
         rows: one row per scene (``network.evaluation.score_scene`` plus ``scene``, ``material``).
         figures: the per-scene figures, ``(path, caption)``.
         relit: the relighting figures, ``(path relative to out, caption)``.
-        relight_rows: relit prediction against relit truth per scene (``psnr``, ``lpips``, ``frames``).
+        relight_rows: relit prediction against relit truth per scene (``psnr``, ``lpips``, ``frames``, and
+            ``constant``: the relit constant predictor's ``psnr`` and ``lpips``).
         blender_note: a sentence for the summary when the Blender stage was skipped.
     """
 
@@ -287,7 +290,8 @@ def _relight(cfg: DemoConfig, out: Path, scenes: dict, results: _Results) -> Non
 
     One Blender process per asset: bpy never shares a process with torch.
     """
-    kw = {"frames": cfg.relight_frames, "size": cfg.relight_size, "samples": cfg.relight_samples}
+    kw = {"frames": cfg.relight_frames, "size": cfg.relight_size, "samples": cfg.relight_samples,
+          "denoise": cfg.relight_denoise}  # fmt: skip
     bar = _bar(len(scenes), "relight", cfg.progress)
     for name, scene in scenes.items():
         bar.update()
@@ -295,19 +299,23 @@ def _relight(cfg: DemoConfig, out: Path, scenes: dict, results: _Results) -> Non
             continue
         frames = relight(out / "predictions" / name, name, out / "relit" / name, **kw)
         truth = relight(out / "truth" / name, name, out / "relit_truth" / name, **kw)
+        constant = relight(out / "constant" / name, name, out / "relit_constant" / name, save_blend=False, **kw)
         if frames:
             scores = compare_relit(frames, truth)
-            results.relight_rows.append({"scene": name, "frames": scores, **_mean_scores(scores)})
+            const = _mean_scores(compare_relit(constant, truth))
+            results.relight_rows.append({"scene": name, "frames": scores, **_mean_scores(scores), "constant": const})
             fig, caption = scene_figs.relit_figure(out / "figures" / f"{name}_relit.png", name, truth, frames, scores)
             results.relit.append((fig.relative_to(out).as_posix(), caption))
     bar.close()
 
 
 def _write_assets(out: Path, name: str, scene) -> None:
-    """The prediction (with its relief) and the truth, as the Blender import reads them.
+    """The prediction (with its relief), the truth and the constant predictor, as the Blender import reads them.
 
-    Both carry the capture's camera; the prediction's relief is anchored at the true median depth
-    (the distance a user measures), since the rendered capture has no ``distance_m``.
+    All carry the capture's camera; the prediction's relief is anchored at the true median depth
+    (the distance a user measures), since the rendered capture has no ``distance_m``. The constant
+    predictor (its normal faces the camera: a flat relief at that depth) is relit alike, so a relit
+    PSNR of the prediction has a floor to read it against.
     """
     from network.infer import relief_depth  # noqa: PLC0415
     from pbrdf.data.predictions import CameraRecord, write_predictions  # noqa: PLC0415
@@ -321,6 +329,14 @@ def _write_assets(out: Path, name: str, scene) -> None:
         pred["depth"] = relief_depth(pred, scene.intrinsics, distance)
     write_predictions(out / "predictions" / name, name, pred, camera)
     write_predictions(out / "truth" / name, name, truth, camera)
+    # the constant maps over the prediction's own mask (the same coverage: only the maps differ)
+    inside = pred["mask"][..., 0] > 0
+    constant = {k: np.where(inside[..., None], np.asarray(v)[scene.region][0], 0.0).astype(np.float32)
+                for k, v in scene.preds["constant"].items()}  # fmt: skip
+    constant["mask"] = pred["mask"]
+    if scene.intrinsics is not None:
+        constant["depth"] = relief_depth(constant, scene.intrinsics, distance)
+    write_predictions(out / "constant" / name, name, constant, camera)
 
 
 def _expansion_figures(out: Path) -> list[tuple[str, str]]:
@@ -359,7 +375,12 @@ def _stats_path(ckpt_path: Path) -> Path:
 PER_SCENE_HEADER = ("scene", "material", "mask IoU", "normal MAE ours", "normal MAE baseline",
                     "normal MAE constant", "albedo si-PSNR ours", "roughness RMSE ours", "roughness RMSE constant",
                     "metallic RMSE ours")  # fmt: skip
-RELIGHT_HEADER = ("scene", "relit PSNR (dB)", "relit LPIPS")
+RELIGHT_HEADER = ("scene", "relit PSNR (dB)", "relit LPIPS", "constant relit PSNR (dB)", "constant relit LPIPS")
+
+
+def _relight_table(rows: list[dict]) -> list[list]:
+    """The relighting table's rows (columns: :data:`RELIGHT_HEADER`)."""
+    return [[r["scene"], r["psnr"], r["lpips"], r["constant"]["psnr"], r["constant"]["lpips"]] for r in rows]
 
 
 def _per_scene(rows: list[dict]) -> list[list]:
@@ -427,8 +448,8 @@ def _metrics_markdown(result: dict, results: _Results, timer: _Timer) -> str:
     md = "# Demo metrics\n\n" + results_markdown(result) + "\n## Per scene\n\n"
     md += report.markdown_table(PER_SCENE_HEADER, _per_scene(results.rows))
     if results.relight_rows:
-        relight_table = [[r["scene"], r["psnr"], r["lpips"]] for r in results.relight_rows]
-        md += "\n## Relit prediction against the relit truth\n\n" + report.markdown_table(RELIGHT_HEADER, relight_table)
+        md += "\n## Relit prediction (and the constant predictor) against the relit truth\n\n"
+        md += report.markdown_table(RELIGHT_HEADER, _relight_table(results.relight_rows))
     md += "\n## Time per stage (s)\n\n" + report.markdown_table(["stage", "seconds"], list(timer.seconds.items()))
     return md
 
@@ -473,7 +494,7 @@ def _metrics_section(out: Path, result: dict, means: dict) -> dict:
 
 def _figure_sections(out: Path, cfg: DemoConfig, results: _Results) -> list[dict]:
     """The report's figure sections: per-scene maps, relighting, expanded pBRDFs."""
-    relight_table = [[r["scene"], r["psnr"], r["lpips"]] for r in results.relight_rows]
+    relight_table = _relight_table(results.relight_rows)
     return [
         {
             "title": "Inputs, predictions, ground truth and errors",
@@ -490,7 +511,9 @@ def _figure_sections(out: Path, cfg: DemoConfig, results: _Results) -> list[dict
             "text": (
                 "Both map sets go through the same import (relief mesh from the depth, the capture's camera) and "
                 "the same Cycles lights; scores are over the pixels either asset covers. The prediction's relief "
-                "is anchored at the true median depth, the distance a user enters as distance_m."
+                "is anchored at the true median depth, the distance a user enters as distance_m. The constant "
+                "predictor (normal facing the camera, the training set's mean albedo, roughness and metallic) is "
+                "relit the same way: its relit PSNR is what a prediction's must beat to mean anything."
                 if results.relit
                 else "No relit frames (Blender stage skipped)."
             ),

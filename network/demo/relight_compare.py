@@ -55,14 +55,18 @@ def truth_maps(gt: dict[str, np.ndarray], region: np.ndarray) -> dict[str, np.nd
     return out
 
 
-def relight(maps_dir: Path, name: str, dest: Path, *, frames: int, size: int, samples: int) -> list[Path]:
+def relight(maps_dir: Path, name: str, dest: Path, *, frames: int, size: int, samples: int,
+            denoise: bool, save_blend: bool = True) -> list[Path]:  # fmt: skip
     """Import ``maps_dir/<name>_*`` into Blender and relight it; returns the frames (orbit, then sky).
+
+    ``save_blend``: also save the scene as ``dest/<name>.blend``.
 
     Raises:
         RuntimeError: the relight process failed (its last error line).
     """
     cmd = [sys.executable, str(RELIGHT_SCRIPT), "--input", str(maps_dir), "--name", name, "--out", str(dest),
-           "--frames", str(frames), "--size", str(size), "--samples", str(samples), "--save-blend",
+           "--frames", str(frames), "--size", str(size), "--samples", str(samples),
+           "--denoise" if denoise else "--no-denoise", *(["--save-blend"] if save_blend else []),
            "--quiet"]  # fmt: skip
     proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
     if proc.returncode:

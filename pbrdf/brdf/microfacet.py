@@ -147,6 +147,10 @@ def _prepare(wi: ArrayLike, wo: ArrayLike, *params: ArrayLike) -> tuple[NDArray,
     wi, wo = (as_float_array(w).astype(np.float64) for w in (wi, wo))
     check_last_dims(wi, (3,), "wi")
     check_last_dims(wo, (3,), "wo")
+    for name, w in (("wi", wi), ("wo", wo)):
+        with np.errstate(over="ignore", invalid="ignore"):
+            if not np.isfinite(np.einsum("...k,...k->...", w, w)).all():  # NaN, Inf or a component near 1e154+
+                raise ValueError(f"{name} must hold finite unit vectors; got NaN, Inf or a huge component")
     shape = np.broadcast_shapes(wi.shape[:-1], wo.shape[:-1], *(np.shape(p) for p in params))
     wi, wo = np.broadcast_to(wi, (*shape, 3)), np.broadcast_to(wo, (*shape, 3))
     valid = (wi[..., 2] > 0) & (wo[..., 2] > 0)

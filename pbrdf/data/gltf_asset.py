@@ -17,7 +17,11 @@ What the file holds:
 * Textures, cropped to the mask's bounding box plus two pixels, one texel per capture pixel; UVs
   put every relief vertex on its texel's centre: base colour (sRGB albedo, the mask as alpha,
   ``alphaMode`` MASK at 0.5, so the surface is cut where the mask's pixels end), metallic-roughness
-  (linear: roughness in G, metallic in B, R = 1), and the normal map.
+  (linear: roughness in G, metallic in B, R = 1), and the normal map. No value is converted: the
+  predicted roughness is already perceptual roughness with GGX ``alpha = r^2``
+  (:func:`pbrdf.brdf.disney.roughness_to_alpha`), which is glTF's (and Blender's Principled) meaning,
+  and the albedo is the Disney base colour, glTF's ``baseColor`` (the F0 of a metal, the diffuse
+  colour of a dielectric, whose F0 is 0.04 in both at the default specular 0.5).
 * Normal map: at each texel, the predicted camera-space normal ``n`` in the exported frame
   interpolated there, ``n_ts = (T.n, B.n, N.n)``, stored as ``0.5 + 0.5 n_ts`` in 8 bits. On a
   relief every texel of the mesh is a vertex, so the frame is the vertex's own; on the card the
@@ -275,8 +279,17 @@ def capture_camera(intrinsics: ArrayLike, shape: tuple[int, int]) -> GlbCamera:
 
 
 def write_asset(path: str | os.PathLike, asset: GltfAsset, *, name: str = "reconstruction") -> Path:
-    """Write a built asset to ``path`` (.glb) atomically; ``name`` names its mesh, node and scene."""
-    return write_glb(path, asset.mesh, asset.material, asset.camera, name=name, extras=asset.extras)
+    """Write a built asset to ``path`` (.glb) atomically; ``name`` names its mesh, node and scene.
+
+    Raises:
+        OSError: one line naming ``path`` and why it cannot be written (same type; nothing left behind).
+    """
+    try:
+        return write_glb(path, asset.mesh, asset.material, asset.camera, name=name, extras=asset.extras)
+    except OSError as exc:
+        blocked = next((p for p in Path(path).parents if p.exists()), None)  # mkdir's "File exists" says little
+        reason = f"{blocked} is a file, not a folder" if blocked and not blocked.is_dir() else exc.strerror or exc
+        raise type(exc)(f"{path}: cannot write the glTF file: {reason}") from exc
 
 
 def write_gltf_asset(

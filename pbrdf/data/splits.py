@@ -54,6 +54,12 @@ ASSET_CORPORA = {
     "assimp-testmodels": "/usr/share/assimp/models",
     "examples-gltf": str(Path(__file__).resolve().parents[2] / "examples" / "gltf"),  # CC0 models the project ships
 }
+#: The real-mesh training corpus (``tools/ensure_meshcorpus.sh`` unpacks it; ``PBRDF_MESH_CORPUS`` overrides the
+#: folder): the meshes of Debian's packages below, which no test split uses (:mod:`blender_addon.core.mesh_corpus`).
+MESH_CORPUS_DIR = Path(
+    os.environ.get("PBRDF_MESH_CORPUS") or Path(__file__).resolve().parents[2] / "corpora" / "meshes"
+)
+MESH_CORPUS_PACKAGES = ("libcgal-demo", "openscad-testing-data")
 
 
 @dataclass(frozen=True)
@@ -87,6 +93,10 @@ class Split:
         asset_materials: asset files keep their own materials (``--asset-materials``).
         distance: ``(min, max)`` object distance from the camera in m (uniform; the light-input
             splits widen the engine's 0.5-1.0 m so the network sees the display's fall-off).
+        rig_jitter: scale of the rig imperfections drawn per scene (:mod:`pbrdf.sensor.rig_jitter`;
+            0: the nominal rig).
+        corpus_fraction: the probability that an object is a real mesh of the training corpus
+            (:data:`MESH_CORPUS_DIR`) rather than one of ``shapes``; train and val splits only.
     """
 
     name: str
@@ -107,6 +117,8 @@ class Split:
     texture_fraction: float = 0.0
     asset_materials: bool = False
     distance: tuple[float, float] = (0.5, 1.0)
+    rig_jitter: float = 0.0
+    corpus_fraction: float = 0.0
 
     def __post_init__(self) -> None:
         if self.role not in ROLES:
@@ -117,6 +129,23 @@ class Split:
             raise ValueError(f"split {self.name!r}: objects must be (min, max) with 1 <= min <= max")
         if self.assets is not None and self.assets not in ASSET_CORPORA:
             raise ValueError(f"split {self.name!r}: assets must be one of {sorted(ASSET_CORPORA)} or None")
+        if self.corpus_fraction and self.role == "test":
+            raise ValueError(f"split {self.name!r}: the mesh corpus is for training only (corpus_fraction must be 0)")
+
+    def corpus_folder(self) -> Path | None:
+        """The real-mesh corpus folder (None when ``corpus_fraction`` is 0).
+
+        Raises:
+            FileNotFoundError: the corpus is not unpacked (one line naming the packages and `make setup`).
+        """
+        if not self.corpus_fraction:
+            return None
+        if not (MESH_CORPUS_DIR / ".complete").is_file():
+            raise FileNotFoundError(
+                f"split {self.name!r} draws real meshes from {MESH_CORPUS_DIR}, which is missing: unpack Debian's "
+                f"{' and '.join(MESH_CORPUS_PACKAGES)} there (`make setup` does: tools/ensure_meshcorpus.sh)"
+            )
+        return MESH_CORPUS_DIR
 
     def asset_folder(self) -> Path | None:
         """The folder of the split's asset corpus (None without one).
@@ -144,6 +173,11 @@ class Split:
 #: before that refuses ``--resume`` with one line (:data:`blender_addon.core.generate.SCENE_FIELDS`).
 _ENGINE = {"resolution": 192, "spp": 16, "shapes": "train", "pbrdfs": True, "objects": (1, 3), "table_fraction": 0.5,
            "texture_fraction": 0.5}  # fmt: skip
+#: The lighting-aware input's splits (issue 27): the engine's scenes over a wider distance range.
+_LIGHT = {**_ENGINE, "distance": (0.35, 1.6)}
+#: The next model's data (issue 29): the engine's scenes with 1-5 objects over the light splits' distances, rig
+#: imperfections drawn per scene (issue 28) and 30 % of the objects real meshes of the training corpus.
+_NEXT = {**_LIGHT, "objects": (1, 5), "rig_jitter": 1.0, "corpus_fraction": 0.3}
 
 #: Every split of the project. Train and val reproduce the first (128-px, superseded) model's data;
 #: the test seeds are far from both.
@@ -197,19 +231,19 @@ SPLITS: dict[str, Split] = {
             "train",
             seed=32_000,
             count=2000,
-            distance=(0.35, 1.6),
             description="as train-engine at 0.35-1.6 m (lighting-aware input)",
-            **_ENGINE,
+            **_LIGHT,
         ),
+        Split("val-light", "val", seed=33_000, count=64, description="as train-light (selection)", **_LIGHT),
         Split(
-            "val-light",
-            "val",
-            seed=33_000,
-            count=64,
-            distance=(0.35, 1.6),
-            description="as train-light (selection)",
-            **_ENGINE,
+            "train-next",
+            "train",
+            seed=34_000,
+            count=4000,
+            description="1-5 objects, 30 % real corpus meshes, rig imperfections drawn per scene, half textured",
+            **_NEXT,
         ),
+        Split("val-next", "val", seed=35_000, count=64, description="as train-next (selection)", **_NEXT),
         Split(
             "test-scenes",
             "test",

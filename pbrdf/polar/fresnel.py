@@ -36,6 +36,7 @@ __all__ = [
     "MAX_METAL_R0",
     "METAL_N",
     "conductor_extinction",
+    "dielectric_transmittance",
     "fresnel_amplitudes",
     "fresnel_reflectance",
     "reflection_mueller",
@@ -74,9 +75,15 @@ def conductor_extinction(r0: ArrayLike, n: ArrayLike = METAL_N) -> tuple[NDArray
         (2.0, 0.5)
     """
     n = np.asarray(n, dtype=np.float64)
-    lo = ((n - 1) / (n + 1)) ** 2
-    r = np.clip(np.asarray(r0, dtype=np.float64), lo, MAX_METAL_R0)
-    k2 = (r * (n + 1) ** 2 - (n - 1) ** 2) / (1 - r)
+    r0 = np.asarray(r0, dtype=np.float64)
+    if not (np.isfinite(r0).all() and np.isfinite(n).all() and (n > 0).all()):
+        raise ValueError("conductor_extinction needs a finite r0 and a finite n > 0")
+    with np.errstate(over="ignore", invalid="ignore"):
+        lo = ((n - 1) / (n + 1)) ** 2
+        r = np.clip(r0, lo, MAX_METAL_R0)
+        k2 = (r * (n + 1) ** 2 - (n - 1) ** 2) / (1 - r)
+    if not np.isfinite(k2).all():
+        raise ValueError("conductor_extinction: n is too large for a finite extinction")
     return np.sqrt(np.maximum(k2, 0.0)), r
 
 
@@ -162,6 +169,42 @@ def fresnel_reflectance(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:
     """
     r_s, r_p, _ = fresnel_amplitudes(cos_theta_i, eta)
     return np.clip(0.5 * (np.abs(r_s) ** 2 + np.abs(r_p) ** 2), 0.0, 1.0)
+
+
+def dielectric_transmittance(cos_theta_i, eta: float):
+    """Unpolarized Fresnel transmittance ``1 - (r_s^2 + r_p^2) / 2`` from air into a real index, array or tensor.
+
+    The same physics as ``1 - fresnel_reflectance(cos, eta)`` for a real ``eta >= 1``, written with
+    operators only so that a torch tensor stays a differentiable tensor (the re-renderer's diffuse
+    lobe of a coated plastic) and a numpy array stays an array. A numpy input must be finite; a
+    tensor is not checked (a hot path inside training, whose NaN guards are the network's own).
+
+    Args:
+        cos_theta_i: cosine of the incidence angle, shape ``(...)``, a numpy array or torch tensor;
+            clipped to [0, 1] (light from below is treated as grazing).
+        eta: real relative index of refraction, ``>= 1``.
+
+    Returns:
+        the transmittance, the input's type and shape, in [0, 1]: ``4 eta / (1 + eta)^2`` at normal
+        incidence, 0 at grazing.
+
+    Raises:
+        ValueError: if ``eta`` is not a real number in [1, 1e6], or a numpy ``cos_theta_i`` is not finite.
+
+    Example:
+        >>> round(float(dielectric_transmittance(np.array(1.0), 1.5)), 6)
+        0.96
+    """
+    if not (isinstance(eta, (int, float)) and 1.0 <= eta <= ETA_MAX):
+        raise ValueError(f"eta must be a real index of refraction in [1, {ETA_MAX:g}], got {eta!r}")
+    if isinstance(cos_theta_i, np.ndarray | float | int) and not np.isfinite(cos_theta_i).all():
+        raise ValueError(f"cos_theta_i must be finite, got {_extremes(np.asarray(cos_theta_i))}")
+    c = np.asarray(cos_theta_i).clip(0.0, 1.0) if isinstance(cos_theta_i, float | int) else cos_theta_i.clip(0.0, 1.0)
+    # clip before the root: a tiny positive floor keeps the torch gradient finite at grazing
+    c_t = (1.0 - (1.0 - c * c) / (eta * eta)).clip(1e-12, None) ** 0.5
+    r_s = (c - eta * c_t) / (c + eta * c_t)
+    r_p = (eta * c - c_t) / (eta * c + c_t)
+    return 1.0 - 0.5 * (r_s * r_s + r_p * r_p)
 
 
 def reflection_mueller(cos_theta_i: ArrayLike, eta: ArrayLike) -> NDArray:

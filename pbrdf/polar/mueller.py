@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf._checks import as_float_array, check_last_dims
+from pbrdf._checks import as_float_array, check_last_dims, double_angle
 
 __all__ = [
     "apply",
@@ -35,6 +35,17 @@ __all__ = [
 ]
 
 
+def _finite(out: NDArray, what: str) -> NDArray:
+    """``out`` if every entry is finite, else a ValueError naming the arguments ``what`` (one vectorised check).
+
+    Non-finite arguments, or finite ones so large that the result overflows, would otherwise
+    return NaN or Inf.
+    """
+    if not np.isfinite(out).all():
+        raise ValueError(f"{what} must be finite and small enough for a finite result (got NaN, Inf or an overflow)")
+    return out
+
+
 def _grid(rows: list[list[ArrayLike]]) -> NDArray:
     """Assemble a ``(..., 4, 4)`` matrix from a visible 4x4 grid of broadcastable entries."""
     flat = np.broadcast_arrays(*(as_float_array(v) for row in rows for v in row))
@@ -47,7 +58,8 @@ def apply(mueller: ArrayLike, stokes: ArrayLike) -> NDArray:
     s = as_float_array(stokes)
     check_last_dims(m, (4, 4), "mueller")
     check_last_dims(s, (4,), "stokes")
-    return np.einsum("...ij,...j->...i", m, s)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _finite(np.einsum("...ij,...j->...i", m, s), "mueller and stokes")
 
 
 def rotator(theta: ArrayLike) -> NDArray:
@@ -56,7 +68,8 @@ def rotator(theta: ArrayLike) -> NDArray:
     .. math:: R(\\theta) = [[1,0,0,0],[0,c,s,0],[0,-s,c,0],[0,0,0,1]],\\quad c=\\cos 2\\theta,\\ s=\\sin 2\\theta
     """
     t = as_float_array(theta)
-    c, s = np.cos(2 * t), np.sin(2 * t)
+    t2 = double_angle(t)
+    c, s = np.cos(t2), np.sin(t2)
     o, z = np.ones_like(t), np.zeros_like(t)
     return _grid([[o, z, z, z], [z, c, s, z], [z, -s, c, z], [z, z, z, o]])
 
@@ -66,7 +79,8 @@ def rotate_element(mueller: ArrayLike, theta: ArrayLike) -> NDArray:
     m = as_float_array(mueller)
     check_last_dims(m, (4, 4), "mueller")
     t = as_float_array(theta)
-    return rotator(-t) @ m @ rotator(t)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _finite(rotator(-t) @ m @ rotator(t), "mueller")
 
 
 def linear_diattenuator(q: ArrayLike, r: ArrayLike, theta: ArrayLike = 0.0) -> NDArray:
@@ -80,11 +94,15 @@ def linear_diattenuator(q: ArrayLike, r: ArrayLike, theta: ArrayLike = 0.0) -> N
         theta: axis angle in radians.
     """
     q, r = as_float_array(q), as_float_array(r)
-    if np.any(q < 0) or np.any(r < 0):
-        raise ValueError("diattenuator transmittances q and r must be >= 0")
-    a, b = 0.5 * (q + r), 0.5 * (q - r)
-    c = np.sqrt(q * r)
-    z = np.zeros_like(a * b)
+    if not (np.isfinite(q).all() and np.isfinite(r).all() and (q >= 0).all() and (r >= 0).all()):
+        raise ValueError("diattenuator transmittances q and r must be finite and >= 0")
+    # 0.5 q + 0.5 r is 0.5 (q + r) to the bit (scaling by 2 is exact) without its overflow.
+    a, b = 0.5 * q + 0.5 * r, 0.5 * q - 0.5 * r
+    with np.errstate(over="ignore"):
+        c = np.sqrt(q * r)
+    if not np.isfinite(c).all():
+        c = np.sqrt(q) * np.sqrt(r)
+    z = np.zeros(np.broadcast_shapes(a.shape, b.shape), dtype=np.result_type(a, b))
     m = _grid([[a, b, z, z], [b, a, z, z], [z, z, c, z], [z, z, z, c]])
     return rotate_element(m, theta)
 
@@ -107,9 +125,11 @@ def linear_polarizer(
         array([0.5, 0.5, 0. , 0. ])
     """
     er = as_float_array(extinction_ratio)
-    if np.any(er < 1):
-        raise ValueError("extinction_ratio must be >= 1")
+    if not (er >= 1).all():
+        raise ValueError("extinction_ratio must be >= 1 (inf: ideal); got a smaller value or NaN")
     q = as_float_array(transmittance)
+    if not np.isfinite(q).all():
+        raise ValueError("transmittance must be finite and >= 0; got NaN or Inf")
     return linear_diattenuator(q, q / er, theta)
 
 
@@ -128,6 +148,8 @@ def retarder(delta: ArrayLike, theta: ArrayLike = 0.0) -> NDArray:
                [ 1.,  0.,  1.,  0.]])
     """
     d = as_float_array(delta)
+    if not np.isfinite(d).all():
+        raise ValueError("delta must be finite (radians); got NaN or Inf")
     c, s = np.cos(d), np.sin(d)
     o, z = np.ones_like(d), np.zeros_like(d)
     m = _grid([[o, z, z, z], [z, o, z, z], [z, z, c, s], [z, z, -s, c]])
@@ -160,8 +182,8 @@ def depolarizer(a: ArrayLike = 0.0) -> NDArray:
 def diagonal_depolarizer(a1: ArrayLike, a2: ArrayLike, a3: ArrayLike) -> NDArray:
     """Diagonal depolarizer ``diag(1, a1, a2, a3)`` with per-component factors in [-1, 1]."""
     a1, a2, a3 = np.broadcast_arrays(*(as_float_array(v) for v in (a1, a2, a3)))
-    if any(np.any(np.abs(v) > 1) for v in (a1, a2, a3)):
-        raise ValueError("depolarizer factors must be in [-1, 1]")
+    if not all((np.abs(v) <= 1).all() for v in (a1, a2, a3)):
+        raise ValueError("depolarizer factors must be in [-1, 1] (not NaN)")
     o, z = np.ones_like(a1), np.zeros_like(a1)
     return _grid([[o, z, z, z], [z, a1, z, z], [z, z, a2, z], [z, z, z, a3]])
 
@@ -179,8 +201,9 @@ def jones_to_mueller(jones: ArrayLike) -> NDArray:
     """
     j = np.asarray(jones, dtype=np.complex128)
     check_last_dims(j, (2, 2), "jones")
-    kron = np.einsum("...ab,...cd->...acbd", j, j.conj()).reshape(*j.shape[:-2], 4, 4)
-    return np.real(_A @ kron @ _A_INV)
+    with np.errstate(over="ignore", invalid="ignore"):
+        kron = np.einsum("...ab,...cd->...acbd", j, j.conj()).reshape(*j.shape[:-2], 4, 4)
+        return _finite(np.real(_A @ kron @ _A_INV), "jones (entries up to about 1e150)")
 
 
 def _normalize(v: NDArray) -> NDArray:
@@ -197,9 +220,10 @@ def stokes_basis(w: ArrayLike) -> NDArray:
     check_last_dims(w, (3,), "w")
     x, y, z = w[..., 0], w[..., 1], w[..., 2]
     sign = np.copysign(1.0, z)  # z = -0.0 counts as negative, as in Mitsuba (the basis flips to -x otherwise)
-    a = -1.0 / (sign + z)
-    b = x * y * a
-    return np.stack([1 + sign * x * x * a, sign * b, -sign * x], axis=-1)
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        a = -1.0 / (sign + z)
+        b = x * y * a
+        return _finite(np.stack([1 + sign * x * x * a, sign * b, -sign * x], axis=-1), "w (unit vectors)")
 
 
 def rotate_stokes_basis(forward: ArrayLike, basis_current: ArrayLike, basis_target: ArrayLike) -> NDArray:
@@ -209,11 +233,13 @@ def rotate_stokes_basis(forward: ArrayLike, basis_current: ArrayLike, basis_targ
     Same sign rule as Mitsuba's ``rotate_stokes_basis``.
     """
     f, cur, tgt = (as_float_array(v) for v in (forward, basis_current, basis_target))
-    cur, tgt = _normalize(cur), _normalize(tgt)
-    cross = np.cross(cur, tgt)
-    # atan2 of (|sin|, cos) stays accurate near 0 and pi, where arccos loses half the digits.
-    theta = np.arctan2(np.linalg.norm(cross, axis=-1), np.sum(cur * tgt, axis=-1))
-    flip = np.sum(f * cross, axis=-1) < 0
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        cur, tgt = _normalize(cur), _normalize(tgt)
+        cross = np.cross(cur, tgt)
+        # atan2 of (|sin|, cos) stays accurate near 0 and pi, where arccos loses half the digits.
+        theta = np.arctan2(np.linalg.norm(cross, axis=-1), np.sum(cur * tgt, axis=-1))
+        flip = np.sum(f * cross, axis=-1) < 0
+    _finite(theta, "basis_current and basis_target (nonzero, finite vectors)")
     return rotator(np.where(flip, -theta, theta))
 
 
@@ -231,4 +257,5 @@ def rotate_mueller_basis(
     check_last_dims(m, (4, 4), "mueller")
     r_in = rotate_stokes_basis(in_forward, in_basis_current, in_basis_target)
     r_out = rotate_stokes_basis(out_forward, out_basis_current, out_basis_target)
-    return r_out @ m @ np.swapaxes(r_in, -1, -2)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return _finite(r_out @ m @ np.swapaxes(r_in, -1, -2), "mueller")

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf._checks import as_float_array, check_last_dims
+from pbrdf._checks import as_float_array, check_last_dims, double_angle
 
 __all__ = [
     "stokes",
@@ -59,13 +59,14 @@ def stokes(s0: ArrayLike, dop: ArrayLike, aolp: ArrayLike, ellipticity: ArrayLik
         array([ 1., -1.,  0.,  0.])
     """
     s0, p, psi, chi = np.broadcast_arrays(*(as_float_array(v) for v in (s0, dop, aolp, ellipticity)))
-    if np.any(s0 < 0):
-        raise ValueError("s0 must be >= 0")
-    if np.any((p < 0) | (p > 1)):
+    if not ((s0 >= 0).all() and np.isfinite(s0).all()):
+        raise ValueError("s0 must be finite and >= 0")
+    if not ((p >= 0) & (p <= 1)).all():
         raise ValueError("dop must be in [0, 1]")
-    c2chi = np.cos(2 * chi)
+    psi2, chi2 = double_angle(psi, "aolp"), double_angle(chi, "ellipticity")
+    c2chi = np.cos(chi2)
     return np.stack(
-        [s0, s0 * p * c2chi * np.cos(2 * psi), s0 * p * c2chi * np.sin(2 * psi), s0 * p * np.sin(2 * chi)],
+        [s0, s0 * p * c2chi * np.cos(psi2), s0 * p * c2chi * np.sin(psi2), s0 * p * np.sin(chi2)],
         axis=-1,
     )
 
@@ -94,8 +95,11 @@ def _polarized_norm(s: NDArray) -> NDArray:
 
 
 def intensity(s: ArrayLike) -> NDArray:
-    """Total intensity ``s0``; shape ``(...)``."""
-    return _checked(s)[..., 0]
+    """Total intensity ``s0``; shape ``(...)``. NaN or Inf in ``s0`` is refused (ValueError)."""
+    s0 = _checked(s)[..., 0]
+    if not np.isfinite(s0).all():
+        raise ValueError("stokes s0 must be finite; got NaN or Inf")
+    return s0
 
 
 def dop(s: ArrayLike) -> NDArray:

@@ -105,15 +105,18 @@ def test_demo_outputs_and_summary(demo_out):
     assert not list(out.rglob("*.tmp*")), "temporary files left behind"
     # Relief assets with the capture's camera, and the truth relit alike and scored against.
     for name in names:
-        for folder in ("predictions", "truth"):
+        for folder in ("predictions", "truth", "constant"):
             assert (out / folder / name / f"{name}_depth.exr").is_file(), (folder, name)
             assert (out / folder / name / f"{name}_camera.json").is_file(), (folder, name)
         truth_frames = sorted(p.name for p in (out / "relit_truth" / name).glob("*.png"))
         assert truth_frames == sorted(p.name for p in (out / "relit" / name).glob("*.png")), name
+        assert truth_frames == sorted(p.name for p in (out / "relit_constant" / name).glob("*.png")), name
     relight = {r["scene"]: r for r in metrics["relight"]}
     assert set(relight) == set(names)
     for r in relight.values():
         assert len(r["frames"]) == 3 and r["psnr"] > 12.0 and 0.0 <= r["lpips"] < 0.5, r
+        assert np.isfinite(r["constant"]["psnr"]) and 0.0 <= r["constant"]["lpips"] <= 1.0, r
+    assert "constant relit PSNR" in (out / "metrics.md").read_text()
     assert "prediction against truth" in (out / "report.html").read_text()
 
 

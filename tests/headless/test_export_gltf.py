@@ -42,3 +42,20 @@ def test_missing_camera_file_is_one_line_and_writes_nothing(tmp_path):
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
     assert proc.stderr.startswith(f"error: {tmp_path / 'pred'}: no <name>_camera.json beside the maps")
     assert not (tmp_path / "out").exists()
+
+
+def test_unwritable_out_and_empty_mask_are_one_line_and_write_nothing(tmp_path):
+    pred = sphere_prediction(np.random.default_rng(9), K, H, W)
+    write_predictions(tmp_path / "pred", "ball", pred, CameraRecord.of_maps(K, (H, W), 0.9))
+    (tmp_path / "a_file").write_text("x")
+    before = sorted(tmp_path.rglob("*"))
+    proc = _export("--input", str(tmp_path / "pred"), "--out", str(tmp_path / "a_file" / "ball.glb"))
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert proc.stderr.endswith(f"cannot write the glTF file: {tmp_path / 'a_file'} is a file, not a folder\n")
+    assert sorted(tmp_path.rglob("*")) == before
+    empty = {**pred, "mask": np.zeros_like(pred["mask"])}
+    write_predictions(tmp_path / "empty", "ball", empty, CameraRecord.of_maps(K, (H, W), 0.9))
+    proc = _export("--input", str(tmp_path / "empty"), "--out", str(tmp_path / "out" / "ball.glb"))
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1, proc.stderr
+    assert "mask" in proc.stderr and "empty" in proc.stderr, proc.stderr
+    assert not (tmp_path / "out").exists()

@@ -139,3 +139,29 @@ def test_refuses_blender_older_than_4_2(tmp_path, monkeypatch, capsys):
     assert relight.main(["--input", str(tmp_path), "--out", str(tmp_path / "o")]) == 2
     assert capsys.readouterr().err.splitlines() == ["error: relight.py needs Blender 4.2 or later, this is 3.4.1"]
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.bpy
+def test_relight_defaults_are_the_measured_ones_everywhere():
+    """relight.py, the relight job and the demo use the samples and denoising docs/measurements/relight.md chose."""
+    import re
+
+    pytest.importorskip("bpy")
+    from blender_addon import relight_job
+    from headless import demo, relight
+    from network.demo import DemoConfig
+
+    doc = (ROOT / "docs" / "measurements" / "relight.md").read_text()
+    chosen = re.search(r"\*\*Defaults since this entry: (\d+) samples, denoising (on|off)\*\*", doc)
+    assert chosen, "docs/measurements/relight.md states no default"
+    samples, denoise = int(chosen[1]), chosen[2] == "on"
+    args = relight.build_parser().parse_args(["--out", "x"])
+    assert (args.samples, args.denoise) == (relight_job.SAMPLES, relight_job.DENOISE) == (samples, denoise)
+    assert args.size == relight_job.SIZE
+    cli = demo.build_parser().parse_args([])
+    cfg = DemoConfig()
+    assert (cli.relight_samples, cli.relight_denoise) == (cfg.relight_samples, cfg.relight_denoise)
+    assert (cfg.relight_samples, cfg.relight_denoise) == (samples, denoise)
+    # the demo's relit frames at its maps' resolution (more pixels would only interpolate the maps)
+    assert cli.relight_size == cfg.relight_size == cli.resolution == cfg.resolution
+    assert f"{samples} Cycles samples" in (ROOT / "README.md").read_text()

@@ -195,6 +195,16 @@ def test_split_flag_errors_are_one_line(tmp_path, extra, message):
     assert not (tmp_path / "o").exists()
 
 
+def test_next_split_without_the_mesh_corpus_is_one_line_naming_the_packages(tmp_path):
+    env = {**os.environ, "PBRDF_MESH_CORPUS": str(tmp_path / "no-corpus")}
+    res = subprocess.run([sys.executable, "headless/render.py", "--split", "val-next", "--pbrdfs", str(tmp_path),
+                          "--out", str(tmp_path / "o")], cwd=ROOT, capture_output=True, text=True, timeout=120,
+                         env=env)  # fmt: skip
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 2 and len(lines) == 1 and "libcgal-demo and openscad-testing-data" in lines[0], res.stderr
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.mitsuba
 def test_split_prefix_is_labelled_and_keeps_raw(tmp_path):
     from pbrdf.data import dataset
@@ -227,6 +237,9 @@ def test_split_prefix_is_labelled_and_keeps_raw(tmp_path):
         (["--split", "val", "--table-fraction", "0"], "drop --objects and --table-fraction"),
         (["--split", "test-textured", "--texture-fraction", "0"], "fixed test split: drop --texture-fraction"),
         (["--count", "1", "--texture-fraction", "1.5"], "--texture-fraction 1.5 must be in [0, 1]"),
+        (["--split", "test-meshes", "--rig-jitter", "1"], "fixed test split: drop --rig-jitter"),
+        (["--count", "1", "--rig-jitter", "5"], "--rig-jitter 5.0 must be in [0, 3]"),
+        (["--split", "val-next", "--pbrdfs", ".", "--corpus-fraction", "0.5"], "drop --corpus-fraction"),
     ],
 )
 def test_scene_content_flag_errors_are_one_line(tmp_path, extra, message):

@@ -5,7 +5,7 @@ import json
 import pytest
 import torch
 
-from network import ablation
+from network import ablation, compare
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")  # tests/conftest.py
 
@@ -30,7 +30,7 @@ def test_trend_lines_say_when_a_trend_does_not_hold():
 
     res = {"white": row(30, 0.30), "spectral": row(29, 0.2), "polar": row(20, 0.19), "full": row(19, 0.18)}
     # Without per-scene rows a step's gain is the difference of the means, with no interval.
-    assert ablation.paired_gain(res, "spectral", "polar", "normal_mae") == (pytest.approx(9.0), None)
+    assert compare.paired_gain(res, "spectral", "polar", "normal_mae") == (pytest.approx(9.0), None)
     # Polarization gains most in normal MAE, spectral multiplexing in metallic RMSE: neither paper trend holds.
     assert verdicts(res) == ("does not hold", "does not hold")
     # The verdicts follow the data: make the paper's factor the largest gain of each metric.
@@ -58,7 +58,7 @@ def test_trend_lines_pair_the_scenes():
     runs["full"] = (runs["polar"][0] + noise(0.1), runs["polar"][1] + noise(0.05))
     res = {k: row(*v) for k, v in runs.items()}
     normal, metal = ablation.trend_lines(res)
-    gain, (lo, hi) = ablation.paired_gain(res, "white", "spectral", "normal_mae")
+    gain, (lo, hi) = compare.paired_gain(res, "white", "spectral", "normal_mae")
     # Unpaired, the 40-scene means' standard errors (about 1.8 deg each) swamp the 1 deg step.
     assert np.std(hard) / np.sqrt(40) > 1.5
     assert 0.9 < lo < gain < hi < 1.1

@@ -13,12 +13,7 @@ STATS = {"format": "pdir-train-stats/1", "albedo": [0.4, 0.35, 0.3], "roughness"
 CKPT = {"inputs": "full", "input_scale": "calibrated"}
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")  # tests/conftest.py
 
 
 @pytest.mark.mitsuba

@@ -218,6 +218,28 @@ def test_scores_per_object_of_a_multi_object_scene():
     assert row["ours"]["normal_mae"] == pytest.approx(90.0 * 36 / 44, abs=1e-3)  # the scene weighs pixels
 
 
+def test_per_object_roughness_correlation_is_over_dielectric_objects():
+    """Four one-object scenes: the model's roughness follows the truth on the dielectrics, the constant
+    does not; the metal (whose roughness the model gets wrong) is left out of the correlation."""
+    h, w = 4, 4
+    objects = np.zeros((h, w), np.int64)
+    region = objects >= 0
+    rows = []
+    for i, (r_true, r_ours, metal) in enumerate([(0.2, 0.25, 0), (0.5, 0.45, 0), (0.8, 0.7, 0), (0.3, 0.9, 1)]):
+        gt = {"normal": np.dstack([np.zeros((h, w, 2)), np.ones((h, w))]), "albedo": np.full((h, w, 3), 0.5),
+              "roughness": np.full((h, w), r_true), "metallic": np.full((h, w), float(metal))}  # fmt: skip
+        preds = {m: dict(gt, roughness=np.full((h, w), r_ours if m == "ours" else 0.4)) for m in evaluation.METHODS}
+        meta = {"objects": [{"mesh": "builtin:sphere", "material": "a"}], "materials": {"a": {"kind": "pplastic"}}}
+        scene = evaluation.ScenePredictions(i, meta, np.zeros((h, w, 9)), region, region, gt, preds, None, objects)
+        rows.append(evaluation.score_scene(scene, lpips=False))
+    corr = evaluation.summarize_rows(rows)["roughness_correlation"]
+    want = np.corrcoef([0.2, 0.5, 0.8], [0.25, 0.45, 0.7])[0, 1]
+    assert corr["ours"]["count"] == 3 and corr["ours"]["r"] == pytest.approx(want)
+    assert corr["constant"]["r"] is None  # no correlation to speak of
+    md = evaluation.results_markdown({"data": "d", "scenes": 4, **evaluation.summarize_rows(rows)})
+    assert f"ours {want:.2f}" in md and "constant none (constant)" in md
+
+
 def test_per_object_oracle_knows_each_objects_mean_but_no_texture():
     """Two objects, one striped in roughness and albedo: the oracle predicts each object's mean."""
     h, w = 8, 12

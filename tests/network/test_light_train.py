@@ -4,29 +4,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-import torch
 
 from network.checkpoint import load_checkpoint
 from network.data import SampleDataset
 from network.light_input import light_channels
-from network.train import TrainConfig, train
+from network.train import train
 from pbrdf.data import sample as psample
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.sensor.rig import Rig
+from tests.helpers import toy_train_config
 
-
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Two shared cores: one thread per process is several times faster than two here."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
-def _cfg(data, out, **kw):
-    base = {"config": "toy", "lr": 1e-3, "seed": 0, "checkpoint_every": 100, "tensorboard": False, "device": "cpu"}
-    return TrainConfig(data=data, out=out, **{**base, **kw})
+pytestmark = pytest.mark.usefixtures("torch_one_thread")  # tests/conftest.py
 
 
 @pytest.mark.mitsuba
@@ -47,10 +35,12 @@ def test_dataset_light_is_the_display_at_the_median_depth(tiny_dataset):
 def test_fine_tuning_a_light_model_starts_at_the_blind_one(tiny_dataset, tmp_path):
     """Step 0 of a light_input run initialised from a blind model has exactly the blind model's loss."""
     blind = tmp_path / "blind"
-    train(_cfg(tiny_dataset, blind, steps=2, checkpoint_every=2), progress=False)
-    cont = train(_cfg(tiny_dataset, tmp_path / "cont", steps=1, seed=1, init_from=blind / "model.pt"), progress=False)
+    train(toy_train_config(tiny_dataset, blind, steps=2, checkpoint_every=2), progress=False)
+    cont = train(
+        toy_train_config(tiny_dataset, tmp_path / "cont", steps=1, seed=1, init_from=blind / "model.pt"), progress=False
+    )
     light = train(
-        _cfg(tiny_dataset, tmp_path / "light", steps=3, seed=1, init_from=blind / "model.pt",
+        toy_train_config(tiny_dataset, tmp_path / "light", steps=3, seed=1, init_from=blind / "model.pt",
              overrides={"light_input": True}),
         progress=False,
     )  # fmt: skip
@@ -59,5 +49,5 @@ def test_fine_tuning_a_light_model_starts_at_the_blind_one(tiny_dataset, tmp_pat
     assert model.config.light_input is True and ckpt["config"]["light_input"] is True
     assert model.decoder.chi.weight.abs().sum() > 0  # and they train
     with pytest.raises(ValueError, match="init_from checkpoint was trained with input_scale='calibrated'"):
-        train(_cfg(tiny_dataset, tmp_path / "x", steps=1, init_from=blind / "model.pt",
+        train(toy_train_config(tiny_dataset, tmp_path / "x", steps=1, init_from=blind / "model.pt",
                    input_scale="exposure-invariant"), progress=False)  # fmt: skip

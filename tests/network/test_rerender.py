@@ -305,16 +305,6 @@ def test_fresnel_diffuse_matches_mitsuba_pplastic_sphere(mitsuba_llvm_rgb):
     assert np.all(burley.sum(0) / ref.sum(0) > 1.05)  # what the Fresnel factor corrects
 
 
-def test_fresnel_transmission_equals_the_polarimetric_fresnel():
-    from pbrdf.polar.fresnel import fresnel_reflectance
-
-    cos = torch.linspace(0.0, 1.0, 101, dtype=torch.float64, requires_grad=True)
-    t = rr._transmission(cos, 1.5)
-    np.testing.assert_allclose(t.detach().numpy(), 1.0 - fresnel_reflectance(cos.detach().numpy(), 1.5), atol=1e-9)
-    t.sum().backward()
-    assert torch.isfinite(cos.grad).all()
-
-
 def test_unknown_diffuse_model_is_refused():
     with pytest.raises(ValueError, match="diffuse must be one of"):
         _render(Rig(), np.array([[0.0, 0.0, 1.0]]), ALBEDO, 0.5, 0.0, np.array([[0.0, 0.0, -0.7]]), diffuse="x")

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from network.statistics import bootstrap_ci, summarize
+from network.statistics import bootstrap_ci, correlation, summarize
 
 
 def test_interval_covers_the_true_mean_about_95_percent_of_the_time():
@@ -35,3 +35,23 @@ def test_non_finite_and_missing_values_are_dropped_and_counted():
 def test_single_value_interval_is_the_value():
     assert bootstrap_ci([3.0]) == (3.0, 3.0)
     assert all(np.isnan(bootstrap_ci([])))
+
+
+def test_correlation_matches_numpy_and_its_interval_covers_the_population_value():
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0.05, 0.95, 200)
+    y = 0.6 * x + rng.normal(0.0, 0.15, 200)  # population r = 0.6 sd(x) / sqrt(0.36 var(x) + 0.0225)
+    c = correlation(x, y)
+    assert c["r"] == pytest.approx(np.corrcoef(x, y)[0, 1], abs=1e-12)
+    sx = np.sqrt(0.9**2 / 12)
+    rho = 0.6 * sx / np.sqrt(0.36 * sx**2 + 0.15**2)
+    assert c["ci"][0] < rho < c["ci"][1] and c["ci"][1] - c["ci"][0] < 0.2
+    assert c["count"] == 200
+
+
+def test_correlation_of_a_constant_or_too_few_pairs_is_none_and_bad_pairs_are_dropped():
+    assert correlation([0.1, 0.5, 0.9], [0.4, 0.4, 0.4])["r"] is None  # a constant predictor
+    assert correlation([0.1, 0.5], [0.2, 0.6])["r"] is None
+    c = correlation([0.1, None, 0.5, 0.9, float("nan")], [0.2, 0.3, 0.55, 0.8, 0.1])
+    assert c["count"] == 3 and c["r"] == pytest.approx(np.corrcoef([0.1, 0.5, 0.9], [0.2, 0.55, 0.8])[0, 1])
+    assert correlation([0.1, 0.5, 0.9], [-0.1, -0.5, -0.9])["r"] == pytest.approx(-1.0)

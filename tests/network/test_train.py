@@ -25,22 +25,12 @@ from network.train_files import LOG_COLUMNS
 from pbrdf.data import dataset as pdataset
 from pbrdf.data import sample as psample
 from pbrdf.io import exr
+from tests.helpers import toy_train_config
 
 ROOT = Path(__file__).resolve().parents[2]
 
 
-@pytest.fixture(autouse=True)
-def one_thread():
-    """Two shared cores: one thread per process is several times faster than two here."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(before)
-
-
-def _cfg(data, out, **kw):
-    base = {"config": "toy", "lr": 1e-3, "seed": 0, "checkpoint_every": 100, "tensorboard": False, "device": "cpu"}
-    return TrainConfig(data=data, out=out, **{**base, **kw})
+pytestmark = pytest.mark.usefixtures("torch_one_thread")  # tests/conftest.py
 
 
 def _log(out):
@@ -99,7 +89,9 @@ def test_toy_model_overfits_and_resume_is_exact(tiny_dataset, tmp_path):
 def test_real_pass_skipped_while_weight_is_zero(tiny_dataset, tmp_path):
     stats = {}
     # Rendered samples serve as "real" captures (their ground truth is ignored by RealDataset).
-    cfg = _cfg(tiny_dataset, tmp_path / "r", steps=4, real=tiny_dataset, real_weight=0.1, real_start=2, real_warmup=2)
+    cfg = toy_train_config(
+        tiny_dataset, tmp_path / "r", steps=4, real=tiny_dataset, real_weight=0.1, real_start=2, real_warmup=2
+    )
     losses = train(cfg, progress=False, stats=stats)
     assert len(losses) == 4
     # Weights 0, 0, 0 (ramp start), 0.05: one real batch loaded, one real pass, at the last step only.
@@ -118,10 +110,14 @@ def test_real_pass_skipped_while_weight_is_zero(tiny_dataset, tmp_path):
 @pytest.mark.mitsuba
 def test_resume_with_real_loader_is_exact(tiny_dataset, tmp_path):
     kw = {"real": tiny_dataset, "real_weight": 0.1, "real_start": 1, "real_warmup": 2, "decay_steps": 6}
-    full = train(_cfg(tiny_dataset, tmp_path / "a", steps=6, checkpoint_every=3, **kw), progress=False)
-    train(_cfg(tiny_dataset, tmp_path / "b", steps=3, checkpoint_every=3, **kw), progress=False)  # "killed" at 3
+    full = train(toy_train_config(tiny_dataset, tmp_path / "a", steps=6, checkpoint_every=3, **kw), progress=False)
+    train(
+        toy_train_config(tiny_dataset, tmp_path / "b", steps=3, checkpoint_every=3, **kw), progress=False
+    )  # "killed" at 3
     stats = {}
-    resumed = train(_cfg(tiny_dataset, tmp_path / "b", steps=6, resume=True, **kw), progress=False, stats=stats)
+    resumed = train(
+        toy_train_config(tiny_dataset, tmp_path / "b", steps=6, resume=True, **kw), progress=False, stats=stats
+    )
     assert stats["steps"] == 3 and stats["real_passes"] == 3  # steps 3..5 all have weight > 0
     # Bit for bit on the CPU: same data order of both loaders, same pixels, same weights and optimizer state.
     assert resumed == full
@@ -142,7 +138,7 @@ def test_nan_inputs_are_reported_skipped_and_stop_the_run(tiny_dataset, tmp_path
     bad = _copy_with(tiny_dataset, tmp_path / "nan", poison)
     caplog.set_level(logging.WARNING, logger="network.train")
     stats = {}
-    losses = train(_cfg(bad, tmp_path / "o", steps=6), progress=False, stats=stats)
+    losses = train(toy_train_config(bad, tmp_path / "o", steps=6), progress=False, stats=stats)
     # Every epoch of 3 steps draws each of the 3 samples once: the poisoned one is skipped once per epoch.
     rows = _log(tmp_path / "o")
     skipped = [int(r["step"]) for r in rows if r["skipped"]]
@@ -156,13 +152,15 @@ def test_nan_inputs_are_reported_skipped_and_stop_the_run(tiny_dataset, tmp_path
         assert msg.startswith(f"step {step}: non-finite input (synthetic maps")
     # Too many: a clear error naming the limit.
     with pytest.raises(FloatingPointError, match="more than max_skipped=1"):
-        train(_cfg(bad, tmp_path / "o2", steps=6, max_skipped=1), progress=False)
+        train(toy_train_config(bad, tmp_path / "o2", steps=6, max_skipped=1), progress=False)
 
 
 @pytest.mark.mitsuba
 def test_bf16_autocast_runs_on_cpu(tiny_dataset, tmp_path):
-    fp32 = train(_cfg(tiny_dataset, tmp_path / "f", steps=2), progress=False)
-    bf16 = train(_cfg(tiny_dataset, tmp_path / "h", steps=2, bf16=True), progress=True)  # with the progress bar
+    fp32 = train(toy_train_config(tiny_dataset, tmp_path / "f", steps=2), progress=False)
+    bf16 = train(
+        toy_train_config(tiny_dataset, tmp_path / "h", steps=2, bf16=True), progress=True
+    )  # with the progress bar
     assert np.all(np.isfinite(bf16))
     # Same weights and pixels at step 0: bf16 rounding (8-bit mantissa) moves the loss a little, not a lot.
     assert bf16[0] != fp32[0]
@@ -190,7 +188,7 @@ def test_input_variant_is_applied_and_stored(tiny_dataset, tmp_path):
     for variant in ("polar", "full"):
         for name, data in (("a", tiny_dataset), ("b", other)):
             runs[variant, name] = train(
-                _cfg(data, tmp_path / f"{variant}_{name}", steps=3, inputs=variant), progress=False
+                toy_train_config(data, tmp_path / f"{variant}_{name}", steps=3, inputs=variant), progress=False
             )
     # 'polar' never sees CP: random CP maps change nothing, bit for bit; 'full' sees them.
     assert runs["polar", "a"] == runs["polar", "b"]
@@ -215,7 +213,7 @@ def test_input_variant_is_applied_and_stored(tiny_dataset, tmp_path):
     assert load_checkpoint(tmp_path / "old.pt")[1]["inputs"] == "full"
     # Resuming with another variant is refused.
     with pytest.raises(ValueError, match="inputs='polar', not 'full'"):
-        train(_cfg(tiny_dataset, tmp_path / "polar_a", steps=4, resume=True, inputs="full"), progress=False)
+        train(toy_train_config(tiny_dataset, tmp_path / "polar_a", steps=4, resume=True, inputs="full"), progress=False)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -228,7 +226,7 @@ def test_validation_mae_and_tensorboard(tiny_dataset, tmp_path):
     from network.data import SampleDataset
 
     out = tmp_path / "v"
-    train(_cfg(tiny_dataset, out, steps=2, val=tiny_dataset, val_every=2, val_samples=2, tensorboard=True),
+    train(toy_train_config(tiny_dataset, out, steps=2, val=tiny_dataset, val_every=2, val_samples=2, tensorboard=True),
           progress=False)  # fmt: skip
     rows = list(csv.DictReader(open(out / "val.csv")))
     assert [int(r["step"]) for r in rows] == [2] and int(rows[0]["samples"]) == 2
@@ -252,7 +250,7 @@ def test_runs_without_tensorboard_with_one_warning(tiny_dataset, tmp_path, monke
     monkeypatch.setitem(sys.modules, "torch.utils.tensorboard", None)  # as if tensorboard were not installed
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        losses = train(_cfg(tiny_dataset, tmp_path / "o", steps=2, tensorboard=True), progress=False)
+        losses = train(toy_train_config(tiny_dataset, tmp_path / "o", steps=2, tensorboard=True), progress=False)
     assert len(losses) == 2
     msgs = [str(w.message) for w in caught if "TensorBoard" in str(w.message)]
     assert len(msgs) == 1 and "pip install tensorboard" in msgs[0]
@@ -377,7 +375,9 @@ def test_a_fresh_run_removes_leftovers_of_a_killed_first_save(tiny_dataset, tmp_
     out = tmp_path / "o"
     out.mkdir()
     leftovers = _plant_leftovers(out)
-    train(_cfg(tiny_dataset, out, steps=1, overrides={"image_size": 32, "train_pixels": 16}), progress=False)
+    train(
+        toy_train_config(tiny_dataset, out, steps=1, overrides={"image_size": 32, "train_pixels": 16}), progress=False
+    )
     assert not any((out / n).exists() for n in leftovers)
     assert sorted(p.name for p in out.iterdir()) == sorted(
         ["checkpoint.pt", "log.csv", "model.pt", "notes.txt", f".notes.txt.tmp-{DEAD_PID}-0a1b2c3d"]
@@ -388,9 +388,9 @@ def test_a_fresh_run_removes_leftovers_of_a_killed_first_save(tiny_dataset, tmp_
 def test_resume_of_an_emptied_log_writes_its_header(tiny_dataset, tmp_path):
     out = tmp_path / "o"
     kw = {"checkpoint_every": 1, "overrides": {"image_size": 32, "train_pixels": 16}}
-    train(_cfg(tiny_dataset, out, steps=1, **kw), progress=False)
+    train(toy_train_config(tiny_dataset, out, steps=1, **kw), progress=False)
     (out / "log.csv").write_text("")  # killed while an in-place rewrite had emptied it
-    train(_cfg(tiny_dataset, out, steps=2, resume=True, **kw), progress=False)
+    train(toy_train_config(tiny_dataset, out, steps=2, resume=True, **kw), progress=False)
     with open(out / "log.csv", newline="") as f:
         rows = list(csv.reader(f))
     assert rows[0] == list(LOG_COLUMNS) and [r[0] for r in rows[1:]] == ["1"]
@@ -403,24 +403,28 @@ def test_resume_of_an_emptied_log_writes_its_header(tiny_dataset, tmp_path):
 @pytest.mark.mitsuba
 def test_input_scale_is_stored_and_checked_on_resume(tiny_dataset, tmp_path):
     out = tmp_path / "s"
-    train(_cfg(tiny_dataset, out, steps=2, checkpoint_every=2), progress=False)
+    train(toy_train_config(tiny_dataset, out, steps=2, checkpoint_every=2), progress=False)
     _, ckpt = load_checkpoint(out / "model.pt")
     assert ckpt["input_scale"] == "calibrated"
     with pytest.raises(ValueError, match="input_scale='calibrated', not 'exposure-invariant'"):
-        train(_cfg(tiny_dataset, out, steps=4, resume=True, input_scale="exposure-invariant"), progress=False)
+        train(
+            toy_train_config(tiny_dataset, out, steps=4, resume=True, input_scale="exposure-invariant"), progress=False
+        )
     with pytest.raises(ValueError, match="unknown input scale"):
-        _cfg(tiny_dataset, out, input_scale="absolute")
+        toy_train_config(tiny_dataset, out, input_scale="absolute")
 
 
 @pytest.mark.mitsuba
 def test_stop_after_is_one_chunk_of_the_same_run(tiny_dataset, tmp_path):
     """A run trained in chunks (--stop-after, then --resume) follows the uninterrupted run exactly."""
-    full = train(_cfg(tiny_dataset, tmp_path / "full", steps=8), progress=False)
-    first = train(_cfg(tiny_dataset, tmp_path / "chunks", steps=8, stop_after=3), progress=False)
+    full = train(toy_train_config(tiny_dataset, tmp_path / "full", steps=8), progress=False)
+    first = train(toy_train_config(tiny_dataset, tmp_path / "chunks", steps=8, stop_after=3), progress=False)
     assert len(first) == 3
     assert torch.load(tmp_path / "chunks" / "checkpoint.pt", weights_only=True)["step"] == 3  # saved at the stop
-    rest = train(_cfg(tiny_dataset, tmp_path / "chunks", steps=8, stop_after=6, resume=True), progress=False)
-    rest = train(_cfg(tiny_dataset, tmp_path / "chunks", steps=8, resume=True), progress=False)
+    rest = train(
+        toy_train_config(tiny_dataset, tmp_path / "chunks", steps=8, stop_after=6, resume=True), progress=False
+    )
+    rest = train(toy_train_config(tiny_dataset, tmp_path / "chunks", steps=8, resume=True), progress=False)
     np.testing.assert_allclose(rest, full, rtol=1e-6, atol=1e-7)
     assert [int(r["step"]) for r in _log(tmp_path / "chunks")] == list(range(8))
 
@@ -429,7 +433,7 @@ def test_stop_after_is_one_chunk_of_the_same_run(tiny_dataset, tmp_path):
 def test_best_checkpoint_is_selected_on_validation_and_repaired_on_resume(tiny_dataset, tmp_path, caplog):
     out = tmp_path / "b"
     cfg = {"steps": 6, "checkpoint_every": 2, "val": tiny_dataset, "val_samples": 2}
-    train(_cfg(tiny_dataset, out, **cfg), progress=False)
+    train(toy_train_config(tiny_dataset, out, **cfg), progress=False)
     rows = [(int(r["step"]), float(r["normal_mae_deg"])) for r in csv.DictReader(open(out / "val.csv"))]
     assert [s for s, _ in rows] == [2, 4, 6]
     step, mae = min(rows, key=lambda r: r[1])
@@ -452,7 +456,7 @@ def test_best_checkpoint_is_selected_on_validation_and_repaired_on_resume(tiny_d
     (out / "val.csv").write_text("\n".join([*text[:-1], "6,0.5,2"]) + "\n")
     (out / "best.pt").unlink()
     with caplog.at_level(logging.WARNING, logger="network.train"):
-        train(_cfg(tiny_dataset, out, resume=True, **cfg), progress=False)
+        train(toy_train_config(tiny_dataset, out, resume=True, **cfg), progress=False)
     best = torch.load(out / "best.pt", weights_only=True)
     ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
     assert best["step"] == 6 and best["val_normal_mae_deg"] == 0.5 and "best.pt: missing the best" in caplog.text

@@ -135,6 +135,46 @@ def test_trimesh_reads_the_mesh_on_its_pixels(relief):
     np.testing.assert_array_equal(np.asarray(tex), image(doc, blob, 0))
 
 
+def test_trimesh_decodes_the_three_textures_to_the_predicted_maps(relief):
+    """Through trimesh's loader: at every mask vertex (a texel centre) each texture gives its map back to 8 bits.
+
+    trimesh keeps no TANGENT, so the normal map is decoded with trimesh's vertex normals and the
+    file's TANGENT accessor (same vertex order: process=False), ``n = T x + cross(N, T) w y + N z``.
+    """
+    trimesh = pytest.importorskip("trimesh")
+    pred, path, (doc, blob) = relief
+    scene = trimesh.load(path, process=False)
+    mesh = next(iter(scene.geometry.values()))
+    attrs, _ = attributes(doc, blob)
+    np.testing.assert_allclose(mesh.vertices, attrs["POSITION"], atol=1e-7)  # same vertices, same order
+    y0, x0, y1, x1 = _box(doc)
+    row = np.rint((1 - mesh.visual.uv[:, 1]) * (y1 - y0) - 0.5).astype(int)  # trimesh flips v to OpenGL's
+    col = np.rint(mesh.visual.uv[:, 0] * (x1 - x0) - 0.5).astype(int)
+    on = pred["mask"][row + y0, col + x0, 0] > 0
+    row, col = row[on], col[on]
+    want = {k: pred[k][row + y0, col + x0] for k in ("albedo", "roughness", "metallic", "normal")}
+    mat = mesh.visual.material
+    base = np.asarray(mat.baseColorTexture.convert("RGBA"), float)[row, col] / 255
+    mr = np.asarray(mat.metallicRoughnessTexture.convert("RGB"), float)[row, col] / 255
+    half = 0.5 / 255 + 1e-6
+    # sRGB decode of the 8-bit value: half a step times the decode's slope (and at most half a step near 0)
+    s = _srgb(want["albedo"])
+    slope = np.where(s <= 0.04045, 1 / 12.92, 2.4 / 1.055 * ((s + half + 0.055) / 1.055) ** 1.4)
+    assert (np.abs(_srgb_to_linear(base[:, :3]) - want["albedo"]) <= half * slope + 1e-7).all()
+    assert (base[:, 3] == 1).all()
+    assert np.abs(mr[:, 1] - want["roughness"][:, 0]).max() <= half  # glTF: roughness in G
+    assert np.abs(mr[:, 2] - want["metallic"][:, 0]).max() <= half  # metallic in B
+    ts = np.asarray(mat.normalTexture.convert("RGB"), float)[row, col] / 255 * 2 - 1
+    n, t = mesh.vertex_normals[on], attrs["TANGENT"][on]
+    b = np.cross(n, t[:, :3]) * t[:, 3:]
+    shading = t[:, :3] * ts[:, :1] + b * ts[:, 1:2] + n * ts[:, 2:]
+    err = _angle_deg(shading / np.linalg.norm(shading, axis=1, keepdims=True), want["normal"])
+    assert err.max() < 2.0, np.percentile(err, [50, 99, 100])
+    # the camera as trimesh reads it: the vertical field of view the capture's fy and frame give
+    hy = max(K[1, 2], H - K[1, 2])
+    assert scene.camera.fov[1] == pytest.approx(math.degrees(2 * math.atan(hy / K[1, 1])), rel=1e-6)
+
+
 def test_camera_puts_every_vertex_on_its_pixel(relief):
     pred, _, (doc, blob) = relief
     cam = doc["cameras"][0]
@@ -187,3 +227,54 @@ def test_bad_maps_are_one_line_errors(tmp_path):
     with pytest.raises(ValueError, match="^pred: depth: must be positive"):
         write_gltf_asset(tmp_path / "x.glb", {**pred, "depth": np.zeros_like(pred["depth"])}, K)
     assert not list(tmp_path.iterdir())  # nothing written
+
+
+def test_unwritable_paths_leave_nothing_behind(tmp_path, monkeypatch):
+    """A parent that is a file, a target that is a folder, a failing rename: OSError, no temporary, old file kept."""
+    pred = sphere_prediction(np.random.default_rng(1), K, H, W)
+    (tmp_path / "a_file").write_text("x")
+    with pytest.raises(OSError, match=r"x.glb: cannot write the glTF file: .*a_file is a file, not a folder$"):
+        write_gltf_asset(tmp_path / "a_file" / "x.glb", pred, K)
+    (tmp_path / "taken.glb").mkdir()
+    with pytest.raises(IsADirectoryError, match="taken.glb: cannot write the glTF file: Is a directory$"):
+        write_gltf_asset(tmp_path / "taken.glb", pred, K)
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a_file", "taken.glb"]
+    (tmp_path / "old.glb").write_bytes(b"old")
+
+    def disk_full(*_args):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr("pbrdf.io.atomic.os.replace", disk_full)
+    with pytest.raises(OSError, match="old.glb: cannot write the glTF file: No space left on device$"):
+        write_gltf_asset(tmp_path / "old.glb", pred, K)
+    assert (tmp_path / "old.glb").read_bytes() == b"old"
+    assert sorted(p.name for p in tmp_path.rglob("*")) == ["a_file", "old.glb", "taken.glb"]
+
+
+def test_edge_inputs_give_valid_files(tmp_path):
+    """A one-pixel mask, a mask over the whole frame, values past [0, 1], normals facing away: valid, finite files."""
+    pred = sphere_prediction(np.random.default_rng(2), K, H, W)
+    speck = np.zeros_like(pred["mask"])
+    speck[20, 30] = 1
+    doc, blob = read_glb(write_gltf_asset(tmp_path / "speck.glb", {**pred, "mask": speck}, K).read_bytes())
+    attrs, faces = attributes(doc, blob)
+    assert validate(doc, blob) == [] and len(attrs["POSITION"]) == 9 and len(faces) == 8  # the 3 x 3 grown mask
+    plane = {**pred, "mask": np.ones_like(pred["mask"]), "depth": np.full_like(pred["depth"], 0.8)}
+    plane["normal"] = np.broadcast_to(np.float32([0, 0.6, 0.8]), pred["normal"].shape)
+    doc, blob = read_glb(write_gltf_asset(tmp_path / "plane.glb", plane, K).read_bytes())
+    assert validate(doc, blob) == [] and _box(doc) == [0, 0, H, W]  # nothing to extend, the box is the frame
+    covered, n = shading_normals(doc, blob)
+    assert covered.all() and _angle_deg(n, plane["normal"]).max() < 1.0
+    wild = {**pred, "albedo": pred["albedo"] * 3 - 0.5, "roughness": pred["roughness"] - 0.5,
+            "metallic": pred["metallic"] + 0.7}  # fmt: skip
+    away = pred["normal"] * [1, 1, 0] - [0, 0, 0.3]  # every normal tilted past the horizon, away from the camera
+    wild["normal"] = np.where(pred["mask"] > 0, away / np.linalg.norm(away, axis=-1, keepdims=True), 0)
+    doc, blob = read_glb(write_gltf_asset(tmp_path / "wild.glb", wild, K).read_bytes())
+    y0, x0, y1, x1 = _box(doc)
+    inside = pred["mask"][y0:y1, x0:x1, 0] > 0
+    mr = image(doc, blob, 1)[inside] / 255.0
+    np.testing.assert_allclose(mr[:, 1:], np.clip(np.concatenate([wild["roughness"], wild["metallic"]], -1)
+                                                  [y0:y1, x0:x1][inside], 0, 1), atol=0.5 / 255 + 1e-6)  # fmt: skip
+    covered, n = shading_normals(doc, blob)
+    on = inside & covered
+    assert on.mean() > 0.95 * inside.mean() and _angle_deg(n[on], wild["normal"][y0:y1, x0:x1][on]).max() < 2.0

@@ -31,3 +31,25 @@ def test_generate_places_objects_in_the_distance_range(tmp_path):
         d = float(np.median(sample["depth"][sample["mask"]]))
         assert 1.2 < d < 1.8, d  # the centre at 1.45-1.55 m, the surface within the object's radius
         assert meta["distance_range"] == [1.45, 1.55]
+
+
+def test_next_splits_turn_on_jitter_and_the_corpus_and_every_other_split_stays_nominal():
+    train, val = SPLITS["train-next"], SPLITS["val-next"]
+    assert (train.role, train.seed, train.count, val.role, val.seed, val.count) == ("train", 34_000, 4000, "val",
+                                                                                   35_000, 64)  # fmt: skip
+    assert train.objects == val.objects == (1, 5) and train.distance == (0.35, 1.6)
+    assert train.rig_jitter == val.rig_jitter == 1.0 and train.corpus_fraction == val.corpus_fraction == 0.3
+    others = [s for s in SPLITS.values() if s.name not in ("train-next", "val-next")]
+    assert all(s.rig_jitter == 0.0 and s.corpus_fraction == 0.0 for s in others)
+    with pytest.raises(ValueError, match="training only"):
+        type(train)("x", "test", seed=1, count=1, corpus_fraction=0.3)
+
+
+def test_next_split_without_the_corpus_refuses_in_one_line_naming_the_packages(tmp_path, monkeypatch):
+    from pbrdf.data import splits
+
+    monkeypatch.setattr(splits, "MESH_CORPUS_DIR", tmp_path / "missing")
+    with pytest.raises(FileNotFoundError, match=r"libcgal-demo and openscad-testing-data.*make setup") as info:
+        SPLITS["train-next"].corpus_folder()
+    assert "\n" not in str(info.value)
+    assert SPLITS["train-light"].corpus_folder() is None

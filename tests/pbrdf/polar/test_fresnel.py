@@ -410,3 +410,20 @@ def test_conductor_extinction_gives_that_normal_incidence_reflectance(n):
         assert float(fresnel.fresnel_reflectance(1.0, complex(n, -float(k)))) == pytest.approx(r0, rel=1e-6)
     k, r = fresnel.conductor_extinction(0.0, 2.5)  # below what n = 2.5 reaches: clipped, k = 0
     assert float(k) == 0.0 and float(r) == pytest.approx((1.5 / 3.5) ** 2)
+
+
+@pytest.mark.parametrize("eta", [1.33, 1.5, 2.4])
+def test_dielectric_transmittance_is_one_minus_the_complex_amplitude_reflectance(eta):
+    cos = np.linspace(0.0, 1.0, 101)
+    want = 1.0 - fresnel.fresnel_reflectance(cos, eta)  # the complex-amplitude path, an independent form
+    np.testing.assert_allclose(fresnel.dielectric_transmittance(cos, eta), want, atol=1e-12)
+    torch = pytest.importorskip("torch")
+    c = torch.tensor(cos, requires_grad=True)
+    t = fresnel.dielectric_transmittance(c, eta)
+    np.testing.assert_allclose(t.detach().numpy(), want, atol=1e-12)
+    t.sum().backward()
+    assert torch.isfinite(c.grad).all()  # grazing included
+    # Normal incidence: 4 eta / (1 + eta)^2; light from below clips to grazing (no transmission).
+    assert fresnel.dielectric_transmittance(np.array([1.0, -0.5]), eta) == pytest.approx(
+        [4 * eta / (1 + eta) ** 2, 0.0]
+    )
