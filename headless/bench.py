@@ -7,6 +7,8 @@
     python headless/bench.py pbrdf [--count 40] [--out FILE]
     python headless/bench.py network [--configs toy small] [--paper] [--strides 1 2 4] [--threads 2]
                                      [--device cpu|cuda] [--input CAPTURE] [--frame CAPTURE] [--out FILE]
+    python headless/bench.py loader --input SPLIT [--sizes 192 384] [--workers 0 1 2] [--batch 8]
+                                    [--step-batches 4 8] [--config small] [--device cpu|cuda] [--out FILE]
 
 decode: a raw IMX250MYR HDR bracket decoded into the nine maps on the half and full grids, next
 to polanalyser's demosaic + Stokes (network.bench.decode). render: time per dataset sample to
@@ -20,6 +22,9 @@ decoding stride against stride 1 (network.bench.model). With --frame (a full-fra
 (network.bench.fullframe): every stage of headless/infer.py timed once (full_frame.profile,
 a Markdown table in .table), and predict at stride 1 and each --strides value side by side with
 the error of each against stride 1 and whether it holds the tolerance (full_frame.strides).
+loader: training samples per second from EXR samples and from a pack (headless/pack.py) of
+the first --count samples of SPLIT written at each size, per loader worker count, next to the
+model's training step rate per batch size (network.bench.loader).
 
 One timing rule everywhere (network.bench.timing): --warmup untimed calls, then --repeat timed
 calls; every timed entry reports what it timed, its median (seconds_median) and all samples
@@ -52,6 +57,15 @@ QUICK = {
     "render": {"resolution": 32, "ref_spp": 64, "spp": [4, 16]},  # naive rows on the analytic scene only
     "pbrdf": {"count": 4, "repeat": 1},
     "network": {"configs": ["toy"], "paper": False, "strides": [1, 2], "checkpoint": None, "frame": None},
+    "loader": {
+        "count": 2,
+        "sizes": [64],
+        "workers": [0, 1],
+        "batch": 2,
+        "batches": 2,
+        "step_batches": [2],
+        "config": "toy",
+    },
 }
 
 
@@ -153,7 +167,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="bench.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    sub = parser.add_subparsers(dest="what", required=True, metavar="{decode,render,pbrdf,network}")
+    sub = parser.add_subparsers(dest="what", required=True, metavar="{decode,render,pbrdf,network,loader}")
 
     def add(name: str, summary: str, module: str) -> argparse.ArgumentParser:
         # help= is %-formatted by argparse, description= is not
@@ -179,7 +193,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--count", type=int, default=40, help="tables generated to time the expansion (default 40)")
     _common(q, repeat=3)
     nb = add("network", "time and memory per model config; stride error of the shipped model", "network.bench.model")
-    nb.add_argument("--configs", nargs="+", default=["toy", "small"], choices=["toy", "small", "paper"])
+    nb.add_argument("--configs", nargs="+", default=["toy", "small"], choices=["toy", "small", "medium", "paper"])
     nb.add_argument("--paper", action="store_true", help="also run the paper config (minutes on a CPU)")
     nb.add_argument("--size", type=int, help="input size (default: the config's)")
     nb.add_argument("--mask-fraction", type=float, default=0.5, help="image fraction inside the mask (default 0.5)")
@@ -197,6 +211,20 @@ def build_parser() -> argparse.ArgumentParser:
     nb.add_argument("--frame", type=Path, metavar="CAPTURE",
                     help="a full-frame capture: every stage of infer.py timed; its strides vs stride 1")  # fmt: skip
     _common(nb, repeat=1)
+    lb = add("loader", "samples per second from EXR samples and from a pack, next to the model's step rate",
+             "network.bench.loader")  # fmt: skip
+    lb.add_argument("--input", type=Path, required=True, metavar="SPLIT", help="a rendered split (read only)")
+    lb.add_argument("--count", type=int, default=16, help="samples of SPLIT copied and packed per size (default 16)")
+    lb.add_argument("--sizes", type=int, nargs="+", default=[192, 384], help="sample sizes (default 192 384)")
+    lb.add_argument("--workers", type=int, nargs="+", default=[0, 1, 2], help="loader workers (default 0 1 2)")
+    lb.add_argument("--batch", type=int, default=8, help="samples per loader batch (default 8)")
+    lb.add_argument("--batches", type=int, default=4, help="batches per timed block (default 4, at least 2 per worker)")
+    lb.add_argument("--step-batches", type=int, nargs="*", default=[4, 8], help="model step batch sizes (default 4 8)")
+    lb.add_argument("--config", default="small", help="model preset of the step rows (default small)")
+    lb.add_argument("--device", default="cpu", help="cpu (default) or cuda[:N] for the step rows (bf16 on CUDA)")
+    lb.add_argument("--threads", type=int, help="torch CPU threads (default: torch's)")
+    lb.add_argument("--work", type=Path, help="folder for the copies and packs (default: a temporary folder)")
+    _common(lb, repeat=3)
     return parser
 
 
@@ -230,6 +258,15 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
         from network.bench import expansion  # noqa: PLC0415
 
         return expansion.run(count=args.count, **common)
+    if args.what == "loader":
+        from network.bench import loader  # noqa: PLC0415
+
+        return loader.run(
+            source=args.input, count=args.count, sizes=tuple(args.sizes), workers=tuple(args.workers), batch=args.batch,
+            batches=args.batches, step_batches=tuple(args.step_batches), config=args.config, device=args.device,
+            threads=args.threads, work=args.work, repeat=args.repeat, step_repeat=max(1, args.repeat - 1),
+            seed=args.seed,
+        )  # fmt: skip
     if min(args.strides) < 1 or not 0 < args.mask_fraction <= 1:
         parser.error("--strides must be >= 1 and --mask-fraction in (0, 1]")
     configs = tuple(dict.fromkeys(args.configs + (["paper"] if args.paper else [])))

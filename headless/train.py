@@ -1,6 +1,6 @@
 """Train the feed-forward network on rendered samples (and real captures).
 
-    python headless/train.py --input DIR [--real DIR] --config toy|small|paper --out DIR [--steps N] [--resume]
+    python headless/train.py --input DIR [--real DIR] --config toy|small|medium|paper --out DIR [--steps N] [--resume]
 
 Writes OUT/checkpoint.pt (model, optimizer, step, per-rank RNG states; resumable), OUT/model.pt
 (state dict, config and input variant: what infer.py loads), OUT/log.csv (one row per step:
@@ -8,7 +8,8 @@ losses, learning rate, real-loss weight, gradient norm), OUT/val.csv (with --val
 TensorBoard events in OUT/tb (when tensorboard is installed). --resume continues a killed run
 exactly where its last checkpoint was (network.train); at the final step it rewrites a missing or
 stale model.pt from the checkpoint. Every run removes the temporary files (.NAME.tmp-PID-HEX) a
-killed run left beside these files.
+killed run left beside these files. --input and --val may be packs (headless/pack.py: memory-mapped
+shards, recognised by their index.json); --workers N loads batches in N processes without changing them.
 
 Several GPUs or machines: launch the same command with torchrun, e.g.
 
@@ -49,10 +50,17 @@ class _Parser(argparse.ArgumentParser):
 def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (see the module docstring)."""
     parser = _Parser(prog="train.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--input", type=Path, metavar="DIR", help="dataset folder from headless/render.py (required)")
+    parser.add_argument(
+        "--input",
+        type=Path,
+        metavar="DIR",
+        help="dataset folder (headless/render.py) or its pack (headless/pack.py); required",
+    )
     parser.add_argument("--real", type=Path, help="folder of real captures (capture folders and/or samples)")
-    parser.add_argument("--val", type=Path, help="held-out rendered dataset: normal MAE every --val-every steps")
-    parser.add_argument("--config", default="toy", choices=["toy", "small", "paper"], help="model size (default toy)")
+    parser.add_argument("--val", type=Path, help="held-out dataset (or pack): normal MAE every --val-every steps")
+    parser.add_argument(
+        "--config", default="toy", choices=["toy", "small", "medium", "paper"], help="model size (default toy)"
+    )
     parser.add_argument(
         "--overrides", nargs="+", type=model_override, default=[], metavar="KEY=VALUE",
         help="ModelConfig fields to replace, e.g. image_size=128 train_pixels=1024 (JSON values)",
@@ -85,7 +93,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--val-every", type=int, default=0, help="steps between validations (default: checkpoints)")
     parser.add_argument("--val-samples", type=int, default=8, help="validation samples (default 8)")
     parser.add_argument("--max-skipped", type=int, default=10, help="non-finite steps tolerated (default 10)")
-    parser.add_argument("--workers", type=int, default=0, help="data-loading processes per loader (default 0)")
+    parser.add_argument("--workers", type=int, default=0, help="data-loading processes per loader (default 0: the "
+                        "main process; the batches do not depend on it)")  # fmt: skip
     parser.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard events")
     parser.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.pt")
     parser.add_argument("--init-from", type=Path, metavar="CKPT",

@@ -1,4 +1,4 @@
-"""Model configurations: one frozen dataclass and three named presets.
+"""Model configurations: one frozen dataclass and four named presets.
 
 Checkpoints store a configuration as a plain dict (:func:`ModelConfig.to_dict`), never as a pickled object;
 :func:`ModelConfig.from_dict` rebuilds it and rejects unknown keys. Parameter counts and FLOPs of a configuration
@@ -8,6 +8,10 @@ and CPU timings are in docs/measurements/network.md.
 - ``toy``: 64 x 64 input, 4 x 4 tokens of dim 32, K = 1, D = 16, D_a = 32, 64 training pixels. For tests only.
 - ``small``: 384 x 384 input, tokenizer at 96 x 96 (12 x 12 tokens of dim 128, 4 blocks), K = 2, D = 64
   features at 96 x 96, D_a = 96, 2048 training pixels. For CPU experiments.
+- ``medium``: 384 x 384 input, tokenizer at 128 x 128 (16 x 16 tokens of dim 256, 6 blocks, 8 heads), K = 3,
+  DPT widths (64, 128, 256, 256) to D = 96 features at 128 x 128, D_a = 128 (no aggregation blocks, as
+  ``small``), 2048 training pixels: between ``small`` and ``paper``, sized for GPU leases (its bf16 checkpoint
+  is tens of MB) with a per-pixel decoder still fit for the CPU inference path (docs/measurements/network.md).
 - ``paper``: the sizes of the LINO-UniPS reference implementation: a ViT-S tokenizer (dim 384, 12 blocks,
   6 heads, 4 registers) with **8-pixel patches** on the maps resized to the canonical resolution 192 (24 x 24
   tokens; LINO-UniPS uses ``vit_small(patch_size=8)``, not DINOv2's 14), K = 4 interleaved iterations, DPT with
@@ -241,6 +245,27 @@ CONFIGS: dict[str, ModelConfig] = {
         train_pixels=2048,
         infer_chunk=8192,
     ),
+    "medium": ModelConfig(
+        image_size=384,
+        canonical_size=128,
+        patch_size=8,
+        embed_dim=256,
+        depth=6,
+        heads=8,
+        registers=4,
+        interleave_iters=3,
+        dpt_channels=(64, 128, 256, 256),
+        dpt_dim=96,
+        pixel_embed_hidden=16,
+        obs_depth=1,
+        agg_dim=128,
+        agg_depth=0,
+        decoder_heads=4,
+        pixel_depth=1,
+        pixel_heads=4,
+        train_pixels=2048,
+        infer_chunk=8192,
+    ),
     "paper": ModelConfig(),
 }
 
@@ -249,7 +274,7 @@ def get_config(name: str, **overrides: Any) -> ModelConfig:
     """A named preset, optionally with some fields replaced.
 
     Args:
-        name: One of ``"toy"``, ``"small"``, ``"paper"``.
+        name: One of ``"toy"``, ``"small"``, ``"medium"``, ``"paper"``.
         **overrides: Field values to replace, e.g. ``train_pixels=1024``.
 
     Returns:

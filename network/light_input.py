@@ -57,6 +57,7 @@ __all__ = [
     "resolve_distance",
     "sample_distance",
     "sample_light",
+    "sidecar_light",
     "scene_light",
 ]
 
@@ -257,12 +258,17 @@ def sample_light(meta: Mapping[str, Any], depth: ArrayLike, mask: ArrayLike, sha
     The rig and intrinsics are the sidecar's (:func:`pbrdf.data.sample.sample_intrinsics`, of the
     rendered grid, rescaled to ``shape``); the distance is :func:`sample_distance`.
     """
+    dist = sample_distance(depth, mask, where)
+    return sidecar_light(meta, np.asarray(mask).shape[:2], shape, dist, where), dist
+
+
+def sidecar_light(meta: Mapping[str, Any], hw: tuple[int, int], shape: tuple[int, int], distance: float, where: str):
+    """:func:`sample_light` at a known ``distance``: the sidecar's rig and intrinsics of the rendered ``hw`` grid."""
     from pbrdf.data.sample import sample_intrinsics  # noqa: PLC0415
 
-    hw = np.asarray(mask).shape[:2]
+    hw = (int(hw[0]), int(hw[1]))
     k = projection.crop_intrinsics(sample_intrinsics(meta, hw, where), (0, 0, *hw), shape)
-    dist = sample_distance(depth, mask, where)
-    return light_tensor(sidecar_rig(meta, where), k, shape, dist), dist
+    return light_tensor(sidecar_rig(meta, where), k, shape, distance)
 
 
 def scene_light(model, inp, depth: ArrayLike | None, region: ArrayLike, scale: float = 1.0) -> LightGeometry | None:

@@ -70,6 +70,7 @@ from .inputs import INPUT_VARIANTS, apply_inputs, checkpoint_inputs
 from .losses import LossWeights, real_loss, synthetic_loss
 from .metrics import normal_mae_deg
 from .model.polar_model import PolarInverseModel
+from .packed import PackedDataset, open_samples
 from .realdata import RealDataset
 from .schedules import StepBatches, learning_rate, pixel_seed, real_loss_weight, sample_batch_pixels
 from .train_files import OUT_FILES, Logs, sync_best_file, sync_model_file, val_rows
@@ -84,10 +85,11 @@ class TrainConfig:
     """Flags of ``headless/train.py`` (schedules: :mod:`network.schedules`).
 
     Attributes:
-        data: rendered dataset folder (``headless/render.py``).
+        data: rendered dataset folder (``headless/render.py``) or a pack of one (``headless/pack.py``,
+            :mod:`network.packed`).
         indices: train on these sample indices of ``data`` only (None: every completed sample).
         out: output folder (checkpoint, model, logs).
-        config: model preset (``toy``, ``small``, ``paper``); ``overrides`` replace fields of it.
+        config: model preset (``toy``, ``small``, ``medium``, ``paper``); ``overrides`` replace fields of it.
         steps: total optimizer steps of the run (a resumed run continues up to it).
         stop_after: end this invocation after that many completed steps (with a checkpoint), without
             changing the schedules, which still span ``steps``: one chunk of a long run (None: ``steps``).
@@ -105,7 +107,8 @@ class TrainConfig:
         val: held-out rendered dataset; normal MAE every ``val_every`` steps (0: at checkpoints)
             on its first ``val_samples`` samples.
         max_skipped: more skipped steps than this stop the run.
-        workers: data-loading worker processes per loader.
+        workers: data-loading worker processes per loader (the batches do not depend on it: the sampler
+            fixes each step's samples and the loader keeps their order).
         tensorboard: write TensorBoard events to ``OUT/tb`` (when tensorboard is installed).
         init_from: start from this checkpoint's weights (:func:`network.checkpoint.init_from_checkpoint`; e.g. a
             ``light_input`` model from a light-blind one, its light weights at zero); ignored once resumed.
@@ -216,7 +219,9 @@ class _PixelModel(nn.Module):
 
 
 @torch.no_grad()
-def _validate(model: PolarInverseModel, ds: SampleDataset, count: int, inputs: str, device: torch.device) -> float:
+def _validate(
+    model: PolarInverseModel, ds: SampleDataset | PackedDataset, count: int, inputs: str, device: torch.device
+) -> float:
     """Mean normal MAE (degrees) of dense predictions over the first ``count`` samples."""
     was_training = model.training
     model.eval()
@@ -274,9 +279,9 @@ def train(cfg: TrainConfig, *, progress: bool = True, stats: dict | None = None)
 class _Data:
     """The run's datasets: synthetic training samples, real captures (optional), validation samples (optional)."""
 
-    synthetic: SampleDataset
+    synthetic: SampleDataset | PackedDataset
     real: RealDataset | None
-    val: SampleDataset | None
+    val: SampleDataset | PackedDataset | None
 
     def sizes(self) -> dict[str, int | None]:
         """What a checkpoint records of the training data (a change of size changes the data order)."""
@@ -293,7 +298,7 @@ def _datasets(cfg: TrainConfig, image_size: int) -> _Data:
     light = get_config(cfg.config, **cfg.overrides).light_input
     if light and cfg.real is not None:
         raise ValueError("real captures (real) cannot train a light_input model yet (no distance per capture)")
-    ds = SampleDataset(
+    ds = open_samples(
         cfg.data, size=image_size, input_scale=cfg.input_scale, light_input=light,
         indices=list(cfg.indices) if cfg.indices is not None else None,
     )  # fmt: skip
@@ -308,7 +313,7 @@ def _datasets(cfg: TrainConfig, image_size: int) -> _Data:
             raise ValueError(f"{cfg.real}: no real captures found")
     val = None
     if cfg.val is not None:
-        val = SampleDataset(cfg.val, size=image_size, input_scale=cfg.input_scale, light_input=light)
+        val = open_samples(cfg.val, size=image_size, input_scale=cfg.input_scale, light_input=light)
     return _Data(ds, real, val)
 
 

@@ -86,3 +86,26 @@ def test_a_saved_tensor_is_not_a_checkpoint(tmp_path):
     torch.save(torch.zeros(3), tmp_path / "t.pt")
     with pytest.raises(ValueError, match="holds a Tensor, not a dict"):
         load_checkpoint(tmp_path / "t.pt")
+
+
+def test_a_bf16_model_file_loads_and_predicts_within_tolerance(tmp_path):
+    """bf16 weights (half the bytes) load into a float32 model; predictions stay within 1 deg and 0.01."""
+    from tests.helpers import make_model, toy_inputs
+
+    model = make_model("toy", seed=3)
+    state = {"format": CHECKPOINT_FORMAT, "config": model.config.to_dict(), "inputs": "full",
+             "input_scale": "calibrated", "step": 0}  # fmt: skip
+    save_checkpoint(tmp_path / "fp32.pt", {**state, "model": model.state_dict()})
+    save_checkpoint(tmp_path / "bf16.pt", {**state, "model": {k: v.bfloat16() for k, v in model.state_dict().items()}})
+    assert (tmp_path / "bf16.pt").stat().st_size < 0.6 * (tmp_path / "fp32.pt").stat().st_size
+    half, _ = load_checkpoint(tmp_path / "bf16.pt")
+    assert all(p.dtype == torch.float32 for p in half.parameters())
+    maps, mask = toy_inputs()
+    with torch.no_grad():
+        want, got = model(maps, mask), half(maps, mask)
+    inside = mask[:, 0] > 0
+    cos = (want["normal"] * got["normal"]).sum(1)[inside].clamp(-1, 1)
+    assert float(torch.rad2deg(torch.acos(cos)).max()) < 1.0
+    for key in ("albedo", "roughness", "metallic"):
+        diff = (want[key] - got[key]).abs().amax(1)[inside]
+        assert 0 < float(diff.max()) < 0.01, key  # rounded (not vacuous), within tolerance
