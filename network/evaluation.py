@@ -348,8 +348,8 @@ def score_scene(scene: ScenePredictions, *, lpips: bool) -> dict[str, Any]:
             # mean roughness of the truth and of each method, and the true metallic: the per-object
             # roughness correlation over dielectric objects (summarize_rows)
             means = {m: scene.preds[m] for m in scored if "roughness" in scene.preds[m]} | {"truth": scene.gt}
-            obj["roughness_mean"] = {m: float(np.mean(p["roughness"][sel])) for m, p in means.items()}
-            obj["metallic_truth"] = float(np.mean(scene.gt["metallic"][sel]))
+            obj["roughness_mean"] = {m: float(np.mean(p["roughness"][sel], dtype=np.float64)) for m, p in means.items()}
+            obj["metallic_truth"] = float(np.mean(scene.gt["metallic"][sel], dtype=np.float64))
             row["objects"].append(obj)
     return row
 

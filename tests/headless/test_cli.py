@@ -28,6 +28,7 @@ WITH_INPUT = {
     "expand_pbrdf",
     "export_gltf",
     "infer",
+    "pack",
     "relight",
     "train",
 }
@@ -44,6 +45,7 @@ ALL_SCRIPTS = {
     "export_gltf",
     "infer",
     "optics_check",
+    "pack",
     "relight",
     "render",
     "train",

@@ -51,6 +51,7 @@ def test_correlation_matches_numpy_and_its_interval_covers_the_population_value(
 
 def test_correlation_of_a_constant_or_too_few_pairs_is_none_and_bad_pairs_are_dropped():
     assert correlation([0.1, 0.5, 0.9], [0.4, 0.4, 0.4])["r"] is None  # a constant predictor
+    assert correlation([0.1, 0.5, 0.9], [0.4, 0.4 + 3e-8, 0.4 - 2e-8])["r"] is None  # float32 means of a constant
     assert correlation([0.1, 0.5], [0.2, 0.6])["r"] is None
     c = correlation([0.1, None, 0.5, 0.9, float("nan")], [0.2, 0.3, 0.55, 0.8, 0.1])
     assert c["count"] == 3 and c["r"] == pytest.approx(np.corrcoef([0.1, 0.5, 0.9], [0.2, 0.55, 0.8])[0, 1])
