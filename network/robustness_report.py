@@ -3,9 +3,9 @@
 One markdown table: per term, level and decoder, each metric's per-scene mean with its 95 %
 bootstrap interval, and the normal error's paired per-scene difference to the nominal rig (the same
 scenes and noise, so the interval of the difference is much tighter than those of the means). The
-tolerances: per term and decoder, the level at which the paired normal error first grows by a
-given number of degrees (linear between levels). The figure: one column per term, one row per
-metric, a line per decoder with its interval.
+tolerances: per term and decoder, the level at which each paired score first worsens by a limit
+(linear between levels). The figure: one column per term, one row per metric, the paired change
+from the nominal rig per level, a line per decoder with its 95 % interval.
 """
 
 from __future__ import annotations
@@ -130,40 +130,46 @@ def _worse(cell, nominal, metric: str, sign: float) -> float | None:
 
 
 def plot_sweep(cells: Mapping[str, Any], path: str | Path) -> Path:
-    """The figure (module docs) as a PNG at ``path``; needs matplotlib."""
+    """The figure (module docs) as a PNG at ``path``: paired changes from the nominal rig; needs matplotlib."""
+    import textwrap  # noqa: PLC0415
+
     import matplotlib  # noqa: PLC0415
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
+    nominal = cells["nominal"]
     terms = [t for t in TERMS if all(c is not None for c in _cells_of(cells, t, "nominal")[1:])]
-    fig, axes = plt.subplots(len(SWEEP_METRICS), len(terms), figsize=(2.6 * len(terms), 2.2 * len(SWEEP_METRICS)),
+    fig, axes = plt.subplots(len(SWEEP_METRICS), len(terms), figsize=(2.4 * len(terms) + 0.6, 2.0 * len(SWEEP_METRICS)),
                              squeeze=False, sharey="row")  # fmt: skip
     styles = {"nominal": ("tab:red", "o", "decoder assumes the nominal rig"),
               "true": ("tab:blue", "s", "decoder given the true rig")}  # fmt: skip
     for j, term in enumerate(terms):
+        axes[0, j].set_title(textwrap.fill(term.label, 30), fontsize=7)
         for decoder in DECODERS if term.invertible else DECODERS[:1]:
             level_cells = _cells_of(cells, term, decoder)
-            if any(c is None for c in level_cells):
+            if any(c is None for c in level_cells[1:]):
                 continue
+            level_cells[0] = nominal
             color, marker, label = styles[decoder]
             for i, (metric, (header, _, _)) in enumerate(SWEEP_METRICS.items()):
-                s = [c["summary"][metric] for c in level_cells]
-                mean = np.array([np.nan if x["mean"] is None else x["mean"] for x in s])
-                lo = np.array([np.nan if not x["ci"] or x["ci"][0] is None else x["ci"][0] for x in s])
-                hi = np.array([np.nan if not x["ci"] or x["ci"][1] is None else x["ci"][1] for x in s])
+                d = [paired_difference(c, nominal, metric) for c in level_cells]
+                mean = np.array([np.nan if x["mean"] is None else x["mean"] for x in d])
+                lo = np.array([np.nan if not x["ci"] or x["ci"][0] is None else x["ci"][0] for x in d])
+                hi = np.array([np.nan if not x["ci"] or x["ci"][1] is None else x["ci"][1] for x in d])
                 ax = axes[i, j]
                 ax.plot(term.levels, mean, marker=marker, color=color, label=label, ms=3)
                 ax.fill_between(term.levels, lo, hi, color=color, alpha=0.15, lw=0)
+                ax.axhline(0.0, color="0.5", lw=0.6)
                 if j == 0:
-                    ax.set_ylabel(header, fontsize=8)
-                if i == len(SWEEP_METRICS) - 1:
-                    ax.set_xlabel(term.label, fontsize=7)
+                    ax.set_ylabel("change in\n" + header, fontsize=8)
                 ax.tick_params(labelsize=7)
                 ax.grid(alpha=0.3)
+                if term.levels[-1] < term.levels[0] and not ax.xaxis_inverted():  # worse to the right
+                    ax.invert_xaxis()
     handles, labels = axes[0, 0].get_legend_handles_labels()
     fig.legend(handles, labels, loc="upper center", ncol=2, fontsize=8)
-    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    fig.tight_layout(rect=(0, 0, 1, 0.95))
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(out, dpi=110)
