@@ -242,6 +242,7 @@ def predict_scene(
     baseline: bool = True,
     distance_scale: float = 1.0,
     refine: bool = False,
+    capture: str | Path | None = None,
 ) -> ScenePredictions:
     """Run every method on one sample as on a user's input (its capture folder when it has raw brackets).
 
@@ -252,7 +253,8 @@ def predict_scene(
     (:func:`network.light_input.scene_light`) times ``distance_scale``. ``refine=True`` adds the
     ``refined`` row: the model's maps through :func:`network.refine.refine` with the sample's rig
     and one distance, the median true depth of the object (what a capture's ``distance_m`` gives;
-    never the per-pixel depth).
+    never the per-pixel depth). ``capture``: a capture folder of this scene to decode instead of its
+    own raw brackets (:mod:`network.robustness`: the same scene through another rig).
 
     Raises:
         ValueError: the decoded grid differs from the truth, or the model fails on a non-empty
@@ -265,6 +267,7 @@ def predict_scene(
     region = sample["object"] >= 0 if "object" in sample else sample["mask"].astype(bool)
     paths = psample.sample_paths(root, index)
     source = paths.raw if paths.raw.is_dir() else paths.sidecar  # the raw brackets: the user's capture path
+    source = Path(capture) if capture is not None else source
     inp = load_input(source)
     maps, auto = inp.maps, inp.mask
     if maps.shape[:2] != region.shape:

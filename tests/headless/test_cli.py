@@ -30,6 +30,7 @@ WITH_INPUT = {
     "infer",
     "pack",
     "relight",
+    "robustness",
     "train",
 }
 #: Every script (one per line: helpers add theirs without touching the others').
@@ -48,6 +49,7 @@ ALL_SCRIPTS = {
     "pack",
     "relight",
     "render",
+    "robustness",
     "train",
 }
 
