@@ -31,7 +31,7 @@ import sys
 import time
 from pathlib import Path
 
-if not __package__:  # run as a file (python headless/x.py): the repository root first
+if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from headless._cli import held_warnings  # noqa: E402
