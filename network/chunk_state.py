@@ -1,0 +1,168 @@
+"""The committable state of a long run trained in chunks (a GPU lease or a CPU session each).
+
+A full ``checkpoint.pt`` (float32 weights and AdamW moments) of ``small`` is about 47 MB and of
+``medium`` about 220 MB: too big to commit after every chunk. Between chunks a run keeps a *chunk
+state* folder instead (``runs/next/`` in the repository):
+
+- ``state.pt``: the latest weights in bfloat16, as a ``model.pt`` dict (:data:`network.checkpoint.MODEL_KEYS`,
+  ``step``, ``params_sha256`` of the bfloat16 tensors), loadable by :func:`network.checkpoint.load_checkpoint`;
+- ``best.pt``: the weights of the best validation so far, likewise (when validated);
+- ``state.json``: ``step``, the run's ``train`` settings (schedule, seed, batch, preset) and one row per chunk;
+- ``log.csv``, ``val.csv``: the whole run's curves (:mod:`network.train_files`).
+
+:func:`seed_run` turns such a folder into a fresh run folder that ``headless/train.py --resume``
+continues at ``step``: the weights (bfloat16 widened to float32), a fresh AdamW state, the RNG
+seeded from ``(seed, step)``, and the curves. The learning-rate schedule depends on the step only
+(:mod:`network.schedules`), so it goes on where it was; the zeroed Adam moments are what differs, and
+the chunk re-warms the learning rate over a few steps (``--rewarm-from STEP --rewarm-steps N``) while
+they settle. :func:`export_state` writes the folder back from the run after the chunk. A run folder
+that already holds a ``checkpoint.pt`` (a chunk killed on this machine) is left alone: it resumes exactly.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from pbrdf.io.atomic import atomic_write_text
+
+from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, model_file_state, params_sha256, save_checkpoint
+
+__all__ = ["CURVE_FILES", "INFO_FILE", "STATE_FILE", "export_state", "read_info", "seed_run", "to_bf16"]
+
+#: The bfloat16 weights of the latest step, and the run's record (JSON).
+STATE_FILE, INFO_FILE, BEST_FILE = "state.pt", "state.json", "best.pt"
+#: The curves a chunk continues and writes back.
+CURVE_FILES = ("log.csv", "val.csv")
+#: Version of ``state.json``.
+STATE_FORMAT = 1
+
+
+def to_bf16(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """A state dict with every floating-point tensor in bfloat16 (others unchanged).
+
+    Example:
+        >>> to_bf16({"w": torch.ones(2), "n": torch.tensor([3])})["w"].dtype
+        torch.bfloat16
+    """
+    return {k: v.detach().to(torch.bfloat16) if v.is_floating_point() else v for k, v in state.items()}
+
+
+def read_info(state_dir: str | Path) -> dict[str, Any] | None:
+    """``state.json`` of a chunk-state folder (None when the folder holds no state yet).
+
+    Raises:
+        ValueError: the file is unreadable or lacks ``step`` (the message names it).
+    """
+    path = Path(state_dir) / INFO_FILE
+    if not path.is_file():
+        return None
+    try:
+        info = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise ValueError(f"{path}: unreadable chunk state ({exc})") from None
+    if not isinstance(info, dict) or not isinstance(info.get("step"), int):
+        raise ValueError(f"{path}: not a chunk state (no integer step)")
+    return info
+
+
+def _bf16_model_file(src: Path, dst: Path) -> dict:
+    """Write ``src`` (a ``checkpoint.pt``/``model.pt``/``best.pt``) to ``dst`` as a bfloat16 ``model.pt`` dict."""
+    ckpt = torch.load(src, weights_only=True, map_location="cpu")
+    state = model_file_state({**ckpt, "model": to_bf16(ckpt["model"])})
+    if "val_normal_mae_deg" in ckpt:
+        state["val_normal_mae_deg"] = ckpt["val_normal_mae_deg"]
+    save_checkpoint(dst, state)
+    return state
+
+
+def export_state(run_dir: str | Path, state_dir: str | Path, chunk: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Write a run folder's latest checkpoint (and best, curves) into a chunk-state folder.
+
+    Args:
+        run_dir: a ``headless/train.py`` output folder with ``checkpoint.pt``.
+        state_dir: the chunk-state folder (created; its files replaced).
+        chunk: facts about this chunk for its row in ``state.json`` (device, seconds, ...); ``start``
+            and ``end`` steps are filled in.
+
+    Returns:
+        The new ``state.json`` dict.
+
+    Raises:
+        ValueError: ``run_dir`` has no ``checkpoint.pt``.
+    """
+    run_dir, state_dir = Path(run_dir), Path(state_dir)
+    ckpt_path = run_dir / "checkpoint.pt"
+    if not ckpt_path.is_file():
+        raise ValueError(f"{ckpt_path}: no checkpoint to export (did the chunk train?)")
+    old = read_info(state_dir) or {"format": STATE_FORMAT, "chunks": []}
+    state_dir.mkdir(parents=True, exist_ok=True)
+    ckpt = torch.load(ckpt_path, weights_only=True, map_location="cpu", mmap=True)
+    state = _bf16_model_file(ckpt_path, state_dir / STATE_FILE)
+    best = run_dir / "best.pt"
+    if best.is_file():
+        _bf16_model_file(best, state_dir / BEST_FILE)
+    for name in CURVE_FILES:
+        if (run_dir / name).is_file():
+            shutil.copyfile(run_dir / name, state_dir / name)
+    row = {"start": int(old.get("step", 0)), "end": int(ckpt["step"]),
+           "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **(chunk or {})}  # fmt: skip
+    info = {**old, "format": STATE_FORMAT, "step": int(ckpt["step"]), "params_sha256": state["params_sha256"],
+            "train": ckpt.get("train", {}), "chunks": [*old.get("chunks", []), row]}  # fmt: skip
+    info["train"] = {k: v for k, v in info["train"].items() if k not in ("out", "data", "val", "real", "init_from")}
+    atomic_write_text(state_dir / INFO_FILE, json.dumps(info, indent=1) + "\n")
+    return info
+
+
+def seed_run(state_dir: str | Path, run_dir: str | Path, *, seed: int, weight_decay: float) -> int:
+    """Prepare ``run_dir`` so that ``headless/train.py --resume`` continues the chunk state's run.
+
+    A ``run_dir`` that has a ``checkpoint.pt`` is kept (that run resumes exactly), and an empty
+    chunk state leaves ``run_dir`` alone (the run starts at step 0, e.g. ``--init-from``).
+
+    Args:
+        state_dir: the chunk-state folder (:func:`export_state`).
+        run_dir: the run folder of this chunk.
+        seed: the run's ``--seed`` (the RNG of the chunk is seeded from it and the step).
+        weight_decay: the run's AdamW ``--weight-decay`` (the fresh optimizer's parameter groups carry it).
+
+    Returns:
+        The step training continues from.
+
+    Raises:
+        ValueError: ``state.pt`` and ``state.json`` disagree (the message names the file).
+    """
+    state_dir, run_dir = Path(state_dir), Path(run_dir)
+    if (run_dir / "checkpoint.pt").is_file():
+        return int(torch.load(run_dir / "checkpoint.pt", weights_only=True, map_location="cpu", mmap=True)["step"])
+    info = read_info(state_dir)
+    if info is None:
+        return 0
+    model, ckpt = load_checkpoint(state_dir / STATE_FILE)
+    if int(ckpt["step"]) != info["step"] or ckpt.get("params_sha256") != info.get("params_sha256"):
+        raise ValueError(f"{state_dir / STATE_FILE}: step {ckpt['step']} or weights differ from {INFO_FILE} "
+                         f"(step {info['step']}): a partly copied chunk state")  # fmt: skip
+    model = model.float()
+    opt = torch.optim.AdamW(model.parameters(), lr=1.0, weight_decay=weight_decay)  # lr is set every step
+    step = info["step"]
+    rng = {"torch": torch.Generator().manual_seed(seed * 1_000_003 + step).get_state(), "cuda": None}
+    weights = model.state_dict()
+    record = {
+        "format": CHECKPOINT_FORMAT, "config": ckpt["config"], "inputs": ckpt["inputs"],
+        "input_scale": ckpt["input_scale"], "model": weights, "optimizer": opt.state_dict(), "step": step,
+        "losses": [], "skipped": 0, "rng": [rng], "rank_params_sha256": [params_sha256(weights)], "world_size": 1,
+        "data": {}, "train": {"seeded_from": str(state_dir)},
+    }  # fmt: skip
+    run_dir.mkdir(parents=True, exist_ok=True)
+    for name in CURVE_FILES:
+        if (state_dir / name).is_file():
+            shutil.copyfile(state_dir / name, run_dir / name)
+    if (state_dir / BEST_FILE).is_file():  # train.py writes best.pt only when validation beats val.csv's best
+        shutil.copyfile(state_dir / BEST_FILE, run_dir / BEST_FILE)
+    save_checkpoint(run_dir / "checkpoint.pt", record)
+    return step
