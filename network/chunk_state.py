@@ -16,7 +16,9 @@ seeded from ``(seed, step)``, and the curves. The learning-rate schedule depends
 (:mod:`network.schedules`), so it goes on where it was; the zeroed Adam moments are what differs, and
 the chunk re-warms the learning rate over a few steps (``--rewarm-from STEP --rewarm-steps N``) while
 they settle. :func:`export_state` writes the folder back from the run after the chunk. A run folder
-that already holds a ``checkpoint.pt`` (a chunk killed on this machine) is left alone: it resumes exactly.
+that already holds a ``checkpoint.pt`` at least as far on (a chunk killed on this machine, the CPU run
+between its chunks) is left alone: it resumes exactly. ``RUN/seeded.json`` names the step a run was
+seeded at (the re-warm's start).
 """
 
 from __future__ import annotations
@@ -33,12 +35,14 @@ from pbrdf.io.atomic import atomic_write_text
 
 from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, model_file_state, params_sha256, save_checkpoint
 
-__all__ = ["CURVE_FILES", "INFO_FILE", "STATE_FILE", "export_state", "read_info", "seed_run", "to_bf16"]
+__all__ = ["CURVE_FILES", "INFO_FILE", "SEEDED_FILE", "STATE_FILE", "export_state", "read_info", "seed_run", "to_bf16"]
 
 #: The bfloat16 weights of the latest step, and the run's record (JSON).
 STATE_FILE, INFO_FILE, BEST_FILE = "state.pt", "state.json", "best.pt"
 #: The curves a chunk continues and writes back.
 CURVE_FILES = ("log.csv", "val.csv")
+#: Written into a seeded run folder: ``{"step": the step it was seeded at}``.
+SEEDED_FILE = "seeded.json"
 #: Version of ``state.json``.
 STATE_FORMAT = 1
 
@@ -81,7 +85,9 @@ def _bf16_model_file(src: Path, dst: Path) -> dict:
     return state
 
 
-def export_state(run_dir: str | Path, state_dir: str | Path, chunk: dict[str, Any] | None = None) -> dict[str, Any]:
+def export_state(
+    run_dir: str | Path, state_dir: str | Path, chunk: dict[str, Any] | None = None, history: str | Path | None = None
+) -> dict[str, Any]:
     """Write a run folder's latest checkpoint (and best, curves) into a chunk-state folder.
 
     Args:
@@ -89,6 +95,8 @@ def export_state(run_dir: str | Path, state_dir: str | Path, chunk: dict[str, An
         state_dir: the chunk-state folder (created; its files replaced).
         chunk: facts about this chunk for its row in ``state.json`` (device, seconds, ...); ``start``
             and ``end`` steps are filled in.
+        history: the chunk-state folder whose ``state.json`` the new one extends (default ``state_dir``;
+            a lease writes to ``$OUT`` and extends the committed ``runs/next``).
 
     Returns:
         The new ``state.json`` dict.
@@ -100,7 +108,7 @@ def export_state(run_dir: str | Path, state_dir: str | Path, chunk: dict[str, An
     ckpt_path = run_dir / "checkpoint.pt"
     if not ckpt_path.is_file():
         raise ValueError(f"{ckpt_path}: no checkpoint to export (did the chunk train?)")
-    old = read_info(state_dir) or {"format": STATE_FORMAT, "chunks": []}
+    old = read_info(state_dir if history is None else history) or {"format": STATE_FORMAT, "chunks": []}
     state_dir.mkdir(parents=True, exist_ok=True)
     ckpt = torch.load(ckpt_path, weights_only=True, map_location="cpu", mmap=True)
     state = _bf16_model_file(ckpt_path, state_dir / STATE_FILE)
@@ -138,9 +146,14 @@ def seed_run(state_dir: str | Path, run_dir: str | Path, *, seed: int, weight_de
         ValueError: ``state.pt`` and ``state.json`` disagree (the message names the file).
     """
     state_dir, run_dir = Path(state_dir), Path(run_dir)
-    if (run_dir / "checkpoint.pt").is_file():
-        return int(torch.load(run_dir / "checkpoint.pt", weights_only=True, map_location="cpu", mmap=True)["step"])
     info = read_info(state_dir)
+    own = run_dir / "checkpoint.pt"
+    if own.is_file():
+        step = int(torch.load(own, weights_only=True, map_location="cpu", mmap=True)["step"])
+        if info is None or step >= info["step"]:
+            return step
+        for name in ("checkpoint.pt", "model.pt"):  # the state is newer (another machine's chunk): start from it
+            (run_dir / name).unlink(missing_ok=True)
     if info is None:
         return 0
     model, ckpt = load_checkpoint(state_dir / STATE_FILE)
@@ -165,4 +178,5 @@ def seed_run(state_dir: str | Path, run_dir: str | Path, *, seed: int, weight_de
     if (state_dir / BEST_FILE).is_file():  # train.py writes best.pt only when validation beats val.csv's best
         shutil.copyfile(state_dir / BEST_FILE, run_dir / BEST_FILE)
     save_checkpoint(run_dir / "checkpoint.pt", record)
+    atomic_write_text(run_dir / SEEDED_FILE, json.dumps({"step": step}) + "\n")  # the re-warm's start
     return step

@@ -61,6 +61,11 @@ def test_seed_run_keeps_a_killed_chunk_and_refuses_a_torn_state(tiny_dataset, tm
     export_state(tmp_path / "a", tmp_path / "s")
     train(_cfg(tiny_dataset, tmp_path / "a", steps=4, checkpoint_every=2, resume=True, stop_after=4), progress=False)
     assert seed_run(tmp_path / "s", tmp_path / "a", seed=0, weight_decay=0.05) == 4  # its own checkpoint wins
+    assert not (tmp_path / "a" / "seeded.json").exists()
+    export_state(tmp_path / "a", tmp_path / "s4")  # a newer state (another machine's chunk) replaces a run at 2
+    train(_cfg(tiny_dataset, tmp_path / "c", steps=4, checkpoint_every=2, stop_after=2), progress=False)
+    assert seed_run(tmp_path / "s4", tmp_path / "c", seed=0, weight_decay=0.05) == 4
+    assert json.loads((tmp_path / "c" / "seeded.json").read_text()) == {"step": 4}
     info = json.loads((tmp_path / "s" / "state.json").read_text())
     (tmp_path / "s" / "state.json").write_text(json.dumps({**info, "step": 3}))
     with pytest.raises(ValueError, match="partly copied"):
