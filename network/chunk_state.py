@@ -6,8 +6,11 @@ state* folder instead (``runs/next/`` in the repository):
 
 - ``state.pt``: the latest weights in bfloat16, as a ``model.pt`` dict (:data:`network.checkpoint.MODEL_KEYS`,
   ``step``, ``params_sha256`` of the bfloat16 tensors), loadable by :func:`network.checkpoint.load_checkpoint`;
-- ``best.pt``: the weights of the best validation so far, likewise (when validated);
-- ``state.json``: ``step``, the run's ``train`` settings (schedule, seed, batch, preset) and one row per chunk;
+- ``best.pt``: the weights of the best validation so far, likewise (when validated; a local file, not
+  committed: git ignores it, so it does not travel to a lease either, see docs/gpu_lease.md);
+- ``state.json``: ``step``, the ``best`` validation (step, normal MAE), the run's ``train`` settings
+  (schedule, seed, batch, preset) and one row per chunk (its steps and its end's validation: every
+  chunk ends validated, and git keeps each chunk's ``state.pt``, so selection can pick a chunk end);
 - ``log.csv``, ``val.csv``: the whole run's curves (:mod:`network.train_files`).
 
 :func:`seed_run` turns such a folder into a fresh run folder that ``headless/train.py --resume``
@@ -34,6 +37,7 @@ import torch
 from pbrdf.io.atomic import atomic_write_text
 
 from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, model_file_state, params_sha256, save_checkpoint
+from .train_files import val_rows
 
 __all__ = ["CURVE_FILES", "INFO_FILE", "SEEDED_FILE", "STATE_FILE", "export_state", "read_info", "seed_run", "to_bf16"]
 
@@ -118,9 +122,13 @@ def export_state(
     for name in CURVE_FILES:
         if (run_dir / name).is_file():
             shutil.copyfile(run_dir / name, state_dir / name)
-    row = {"start": int(old.get("step", 0)), "end": int(ckpt["step"]),
+    end = int(ckpt["step"])
+    rows = val_rows(state_dir / "val.csv")
+    row = {"start": int(old.get("step", 0)), "end": end, "val_normal_mae_deg": dict(rows).get(end),
            "finished_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **(chunk or {})}  # fmt: skip
-    info = {**old, "format": STATE_FORMAT, "step": int(ckpt["step"]), "params_sha256": state["params_sha256"],
+    best = min(rows, key=lambda r: (r[1], r[0]), default=None)
+    info = {**old, "format": STATE_FORMAT, "step": end, "params_sha256": state["params_sha256"],
+            "best": None if best is None else {"step": best[0], "val_normal_mae_deg": best[1]},
             "train": ckpt.get("train", {}), "chunks": [*old.get("chunks", []), row]}  # fmt: skip
     info["train"] = {k: v for k, v in info["train"].items() if k not in ("out", "data", "val", "real", "init_from")}
     atomic_write_text(state_dir / INFO_FILE, json.dumps(info, indent=1) + "\n")

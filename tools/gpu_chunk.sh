@@ -15,7 +15,7 @@
 #   2. (RENDER=1) the pBRDF library of train-data (PBRDF_COUNT tables, seed 12000), then val-next and
 #      train-next by SHARDS processes with the VARIANT variant (--resume: rendered samples are kept;
 #      RESOLUTION/SPP override the split's 192 px / 16 spp only for rehearsals);
-#   3. headless/pack.py of both into PACKS at the model's IMAGE_SIZE (--resume);
+#   3. headless/pack.py of both into PACKS at the model's IMAGE_SIZE (--resume; PACK=0 trains on the EXRs);
 #   4. network.chunk_state.seed_run: RUN continues the chunk state STATE (bf16 weights, fresh AdamW,
 #      the learning rate re-warmed over REWARM steps); without a state the run starts from INIT;
 #      a RUN that already holds a newer checkpoint.pt (a killed chunk, the CPU run) resumes exactly;
@@ -98,10 +98,14 @@ if [ "$RENDER" = 1 ]; then
 fi
 TOOK[render]=$((SECONDS - t))
 t=$SECONDS
-for split in val-next train-next; do
-    $PY headless/pack.py --input "$DATA/$split" --out "$PACKS/$split" --size "$IMAGE_SIZE" --resume --quiet
-done
-stamp "packed into $PACKS"
+if [ "${PACK:-1}" = 1 ]; then
+    for split in val-next train-next; do
+        $PY headless/pack.py --input "$DATA/$split" --out "$PACKS/$split" --size "$IMAGE_SIZE" --resume --quiet
+    done
+    stamp "packed into $PACKS"
+else  # PACK=0: the loader's workers decode the EXR samples (when packing costs more than it saves)
+    PACKS=$DATA
+fi
 TOOK[pack]=$((SECONDS - t))
 
 read -r START REWARM_FROM < <($PY -c "
@@ -129,7 +133,7 @@ $PY headless/train.py --input "$PACKS/train-next" --val "$PACKS/val-next" --conf
 TOOK[train]=$((SECONDS - t))
 
 CHUNK=$(printf '{"device": "%s", "variant": "%s", "scenes": %d, "val_scenes": %d, "batch": %d, "seconds": {"setup": %d, "render": %d, "pack": %d, "train": %d}}' \
-    "$DEVICE" "$VARIANT" "$COUNT" "$VAL_COUNT" "$BATCH" "${TOOK[setup]}" "${TOOK[render]}" "${TOOK[pack]}" "${TOOK[train]}")
+    "$DEVICE" "$VARIANT" "$(samples train-next)" "$(samples val-next)" "$BATCH" "${TOOK[setup]}" "${TOOK[render]}" "${TOOK[pack]}" "${TOOK[train]}")
 $PY -c "
 import json, sys
 from network.chunk_state import export_state

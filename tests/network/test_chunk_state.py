@@ -52,6 +52,11 @@ def test_chunk_continues_the_loss_curve(tiny_dataset, tmp_path):
     assert _val_steps(tmp_path / "b" / "val.csv") == [10, 20, 30, 40]
     info2 = export_state(tmp_path / "b", tmp_path / "state", {"device": "cpu"})
     assert info2["step"] == 40 and [(c["start"], c["end"]) for c in info2["chunks"]] == [(0, 20), (20, 40)]
+    with open(tmp_path / "b" / "val.csv", newline="") as f:
+        maes = {int(r["step"]): float(r["normal_mae_deg"]) for r in csv.DictReader(f)}
+    assert [c["val_normal_mae_deg"] for c in info2["chunks"]] == [maes[20], maes[40]]
+    best = min(maes, key=maes.get)
+    assert info2["best"] == {"step": best, "val_normal_mae_deg": maes[best]}
 
 
 def test_seed_run_keeps_a_killed_chunk_and_refuses_a_torn_state(tiny_dataset, tmp_path):
