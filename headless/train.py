@@ -10,6 +10,8 @@ exactly where its last checkpoint was (network.train); at the final step it rewr
 stale model.pt from the checkpoint. Every run removes the temporary files (.NAME.tmp-PID-HEX) a
 killed run left beside these files. --input and --val may be packs (headless/pack.py: memory-mapped
 shards, recognised by their index.json); --workers N loads batches in N processes without changing them.
+--time-budget SECONDS ends the chunk by the clock (validated and saved); --rewarm-from STEP --rewarm-steps N
+ramps the learning rate again after a resume with a fresh optimizer (network.chunk_state, tools/gpu_chunk.sh).
 
 Several GPUs or machines: launch the same command with torchrun, e.g.
 

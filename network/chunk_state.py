@@ -9,9 +9,11 @@ state* folder instead (``runs/next/`` in the repository):
 - ``best.pt``: the weights of the best validation so far, likewise (when validated; a local file, not
   committed: git ignores it, so it does not travel to a lease either, see docs/gpu_lease.md);
 - ``state.json``: ``step``, the ``best`` validation (step, normal MAE), the run's ``train`` settings
-  (schedule, seed, batch, preset) and one row per chunk (its steps and its end's validation: every
-  chunk ends validated, and git keeps each chunk's ``state.pt``, so selection can pick a chunk end);
-- ``log.csv``, ``val.csv``: the whole run's curves (:mod:`network.train_files`).
+  (schedule, seed, batch, preset) and one row per chunk (its steps and its end's validation: a chunk
+  stopped by ``time_budget`` ends validated, and git keeps each chunk's ``state.pt``, so selection can
+  pick a chunk end);
+- ``log.csv.gz``, ``val.csv``: the whole run's curves (:mod:`network.train_files`; the step log gzipped:
+  about 170 bytes a step as text, and the folder travels to every lease).
 
 :func:`seed_run` turns such a folder into a fresh run folder that ``headless/train.py --resume``
 continues at ``step``: the weights (bfloat16 widened to float32), a fresh AdamW state, the RNG
@@ -26,6 +28,7 @@ seeded at (the re-warm's start).
 
 from __future__ import annotations
 
+import gzip
 import json
 import shutil
 import time
@@ -34,7 +37,7 @@ from typing import Any
 
 import torch
 
-from pbrdf.io.atomic import atomic_write_text
+from pbrdf.io.atomic import atomic_open, atomic_write_text
 
 from .checkpoint import CHECKPOINT_FORMAT, load_checkpoint, model_file_state, params_sha256, save_checkpoint
 from .train_files import val_rows
@@ -43,8 +46,8 @@ __all__ = ["CURVE_FILES", "INFO_FILE", "SEEDED_FILE", "STATE_FILE", "export_stat
 
 #: The bfloat16 weights of the latest step, and the run's record (JSON).
 STATE_FILE, INFO_FILE, BEST_FILE = "state.pt", "state.json", "best.pt"
-#: The curves a chunk continues and writes back.
-CURVE_FILES = ("log.csv", "val.csv")
+#: The curves a chunk continues and writes back: run folder name -> chunk-state name (gzipped when it ends in .gz).
+CURVE_FILES = {"log.csv": "log.csv.gz", "val.csv": "val.csv"}
 #: Written into a seeded run folder: ``{"step": the step it was seeded at}``.
 SEEDED_FILE = "seeded.json"
 #: Version of ``state.json``.
@@ -77,6 +80,14 @@ def read_info(state_dir: str | Path) -> dict[str, Any] | None:
     if not isinstance(info, dict) or not isinstance(info.get("step"), int):
         raise ValueError(f"{path}: not a chunk state (no integer step)")
     return info
+
+
+def _copy(src: Path, dst: Path) -> None:
+    """Copy a file, gzipping into a ``.gz`` destination and gunzipping from a ``.gz`` source (atomically)."""
+    data = src.read_bytes()
+    data = gzip.decompress(data) if src.suffix == ".gz" else data
+    with atomic_open(dst) as f:
+        f.write(gzip.compress(data, mtime=0) if dst.suffix == ".gz" else data)
 
 
 def _bf16_model_file(src: Path, dst: Path) -> dict:
@@ -119,9 +130,9 @@ def export_state(
     best = run_dir / "best.pt"
     if best.is_file():
         _bf16_model_file(best, state_dir / BEST_FILE)
-    for name in CURVE_FILES:
+    for name, kept in CURVE_FILES.items():
         if (run_dir / name).is_file():
-            shutil.copyfile(run_dir / name, state_dir / name)
+            _copy(run_dir / name, state_dir / kept)
     end = int(ckpt["step"])
     rows = val_rows(state_dir / "val.csv")
     row = {"start": int(old.get("step", 0)), "end": end, "val_normal_mae_deg": dict(rows).get(end),
@@ -180,9 +191,9 @@ def seed_run(state_dir: str | Path, run_dir: str | Path, *, seed: int, weight_de
         "data": {}, "train": {"seeded_from": str(state_dir)},
     }  # fmt: skip
     run_dir.mkdir(parents=True, exist_ok=True)
-    for name in CURVE_FILES:
-        if (state_dir / name).is_file():
-            shutil.copyfile(state_dir / name, run_dir / name)
+    for name, kept in CURVE_FILES.items():
+        if (state_dir / kept).is_file():
+            _copy(state_dir / kept, run_dir / name)
     if (state_dir / BEST_FILE).is_file():  # train.py writes best.pt only when validation beats val.csv's best
         shutil.copyfile(state_dir / BEST_FILE, run_dir / BEST_FILE)
     save_checkpoint(run_dir / "checkpoint.pt", record)

@@ -22,7 +22,7 @@
 #   5. headless/train.py to STEPS total (the cosine horizon of the whole run), ending after step STOP
 #      (if set) or when the lease's LEASE_S seconds (counted from this script's start, less RESERVE_S
 #      for stage 6) are spent: --time-budget stops validated and saved;
-#   6. EXPORT: state.pt, best.pt (bf16), state.json (one row per chunk), log.csv, val.csv, curves.png,
+#   6. EXPORT: state.pt, best.pt (bf16), state.json (one row per chunk), log.csv.gz, val.csv, curves.png,
 #      and OUT/timings.txt: 7 files, within what a lease brings back.
 set -euo pipefail
 T0=$SECONDS

@@ -5,6 +5,7 @@ override of the split's 192 px / 16 spp), packs them, starts `small` from the sh
 steps; the second carries the first's chunk state in, re-renders nothing and goes on to step 4.
 """
 
+import gzip
 import json
 import os
 import subprocess
@@ -16,7 +17,7 @@ import pytest
 from pbrdf.data.splits import MESH_CORPUS_DIR
 
 ROOT = Path(__file__).resolve().parents[2]
-EXPORTED = ("state.pt", "best.pt", "state.json", "log.csv", "val.csv", "curves.png")
+EXPORTED = ("state.pt", "best.pt", "state.json", "log.csv.gz", "val.csv", "curves.png")
 
 pytestmark = [pytest.mark.slow, pytest.mark.mitsuba]
 
@@ -53,5 +54,5 @@ def test_chunk_script_rehearsal_resumes_without_rerendering(tmp_path):
     assert [p.stat().st_mtime_ns for p in samples] == mtimes  # nothing re-rendered
     timings = (tmp_path / "out2" / "timings.txt").read_text()
     assert "rendered train-next: 2 samples (0 new)" in timings and "training from step 2 (re-warm from 2)" in timings
-    log = (tmp_path / "out2" / "log.csv").read_text().splitlines()
+    log = gzip.decompress((tmp_path / "out2" / "log.csv.gz").read_bytes()).decode().splitlines()
     assert [int(r.split(",")[0]) for r in log[1:]] == [0, 1, 2, 3]  # one curve over both chunks

@@ -1,6 +1,7 @@
 """network.chunk_state: bf16 chunk states between chunks, the re-warm, the wall-clock budget."""
 
 import csv
+import gzip
 import json
 
 import numpy as np
@@ -36,6 +37,8 @@ def test_chunk_continues_the_loss_curve(tiny_dataset, tmp_path):
     assert {v.dtype for v in state["model"].values() if v.is_floating_point()} == {torch.bfloat16}
     load_checkpoint(tmp_path / "state" / "state.pt")  # loads as a model.pt
     assert _val_steps(tmp_path / "state" / "val.csv") == [10, 20]
+    log_rows = gzip.decompress((tmp_path / "state" / "log.csv.gz").read_bytes()).decode().splitlines()
+    assert log_rows[0].startswith("step,") and len(log_rows) == 21
 
     assert seed_run(tmp_path / "state", tmp_path / "b", seed=0, weight_decay=0.05) == 20
     chunk = train(_cfg(tiny_dataset, tmp_path / "b", resume=True, val=tiny_dataset, val_samples=2, rewarm_from=20,
