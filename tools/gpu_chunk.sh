@@ -108,7 +108,7 @@ else  # PACK=0: the loader's workers decode the EXR samples (when packing costs 
 fi
 TOOK[pack]=$((SECONDS - t))
 
-read -r START REWARM_FROM < <($PY -c "
+SEEDED=$($PY -c "
 import json, sys
 from pathlib import Path
 from network.chunk_state import seed_run
@@ -116,6 +116,7 @@ step = seed_run(sys.argv[1], sys.argv[2], seed=int(sys.argv[3]), weight_decay=fl
 seeded = Path(sys.argv[2]) / 'seeded.json'
 print(step, json.loads(seeded.read_text())['step'] if seeded.is_file() else 0)
 " "$STATE" "$RUN" "$SEED" "$WD")
+read -r START REWARM_FROM <<<"$SEEDED"
 FLAGS=()
 [ -f "$STATE/state.json" ] || [ -f "$RUN/checkpoint.pt" ] || FLAGS+=(--init-from "$INIT")
 [ -n "$STOP" ] && FLAGS+=(--stop-after "$STOP")
@@ -129,8 +130,10 @@ $PY headless/train.py --input "$PACKS/train-next" --val "$PACKS/val-next" --conf
     --steps "$STEPS" --batch-size "$BATCH" --lr "$LR" --lr-warmup "$WARMUP" --min-lr-ratio 0.1 --weight-decay "$WD" \
     --seed "$SEED" --input-scale calibrated --checkpoint-every "$CKPT_EVERY" --val-samples "$VAL_SAMPLES" \
     --device "$DEVICE" --workers "$WORKERS" --no-tensorboard --out "$RUN" --resume --time-budget "$BUDGET" \
-    --rewarm-from "$REWARM_FROM" --rewarm-steps "$REWARM" "${FLAGS[@]}" --quiet | tee -a "$OUT/timings.txt"
+    --rewarm-from "$REWARM_FROM" --rewarm-steps "$REWARM" "${FLAGS[@]}" --quiet | tee -a "$OUT/timings.txt" ||
+    TRAIN_RC=$?  # export what the last checkpoint holds all the same, then fail
 TOOK[train]=$((SECONDS - t))
+[ -f "$RUN/checkpoint.pt" ] || { echo "error: training wrote no checkpoint in $RUN" >&2; exit 1; }
 
 CHUNK=$(printf '{"device": "%s", "variant": "%s", "scenes": %d, "val_scenes": %d, "batch": %d, "seconds": {"setup": %d, "render": %d, "pack": %d, "train": %d}}' \
     "$DEVICE" "$VARIANT" "$(samples train-next)" "$(samples val-next)" "$BATCH" "${TOOK[setup]}" "${TOOK[render]}" "${TOOK[pack]}" "${TOOK[train]}")
@@ -144,3 +147,4 @@ CURVES=$(mktemp -d)
 $PY tools/plot_training.py "$RUN" --out "$CURVES" >/dev/null && cp "$CURVES/curves.png" "$EXPORT/curves.png"
 rm -rf "$CURVES"
 stamp "done"
+exit "${TRAIN_RC:-0}"

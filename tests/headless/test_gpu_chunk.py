@@ -54,5 +54,7 @@ def test_chunk_script_rehearsal_resumes_without_rerendering(tmp_path):
     assert [p.stat().st_mtime_ns for p in samples] == mtimes  # nothing re-rendered
     timings = (tmp_path / "out2" / "timings.txt").read_text()
     assert "rendered train-next: 2 samples (0 new)" in timings and "training from step 2 (re-warm from 2)" in timings
-    log = gzip.decompress((tmp_path / "out2" / "log.csv.gz").read_bytes()).decode().splitlines()
-    assert [int(r.split(",")[0]) for r in log[1:]] == [0, 1, 2, 3]  # one curve over both chunks
+    log1, log2 = (gzip.decompress((tmp_path / f"out{n}" / "log.csv.gz").read_bytes()).decode().splitlines()
+                  for n in (1, 2))  # fmt: skip
+    assert [int(r.split(",")[0]) for r in log2[1:]] == [0, 1, 2, 3]  # one curve over both chunks
+    assert log2[:3] == log1[:3]  # the first chunk's rows, carried on
