@@ -12,7 +12,7 @@ BLENDER_STAMP := $(VENV)/.blender-ok
 MESH_CORPUS := corpora/meshes
 OUT ?= out
 
-.PHONY: setup demo test test-fast bench lint format clean help addon test-sets train-data train-engine-model ship-engine-model light-data train-light-model ship-light-model ablation-data ablation next-data
+.PHONY: setup demo test test-fast bench lint format clean help addon test-sets train-data train-engine-model ship-engine-model light-data train-light-model ship-light-model ablation-data ablation next-data next-chunk
 
 help:  ## list targets
 	@grep -E '^[a-z-]+:.*##' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -164,6 +164,18 @@ next-data: setup  ## render val-next and train-next (resumable; SHARD=K/N)
 	$(PY) headless/expand_pbrdf.py --out $(SPLITS_DIR)/pbrdfs-train --count 200 --seed 12000 --quiet
 	$(PY) headless/render.py --split val-next --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/val-next --shard $(SHARD) --resume --quiet
 	$(PY) headless/render.py --split train-next --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/train-next --shard $(SHARD) --resume --quiet
+
+# One chunk of the next model's run on the CPU (issue 29): tools/gpu_chunk.sh without rendering (it packs
+# what `make next-data` rendered so far), continuing the committed chunk state runs/next and writing it
+# back there (commit runs/next afterwards). Its own full checkpoint in $(OUT)/runs/next resumes exactly
+# while runs/next is not newer. NEXT_STOP=N ends the chunk after step N, NEXT_SECONDS by the clock. A GPU
+# lease runs the same script: docs/gpu_lease.md.
+NEXT_STOP ?=
+NEXT_SECONDS ?= 3000
+next-chunk: setup  ## one resumable CPU chunk of the next run from runs/next (needs `make next-data`; NEXT_STOP=N)
+	DEVICE=cpu VARIANT=llvm RENDER=0 DATA=$(SPLITS_DIR) PACKS=$(OUT)/packs RUN=$(OUT)/runs/next STATE=runs/next \
+	    EXPORT=runs/next OUT=$(OUT)/next-chunk BATCH=4 WORKERS=1 STOP=$(NEXT_STOP) LEASE_S=$(NEXT_SECONDS) \
+	    PY=$(PY) bash tools/gpu_chunk.sh
 
 addon: setup  ## build the Blender extension zip into dist/
 	$(PY) tools/build_addon.py --out dist

@@ -10,6 +10,8 @@ exactly where its last checkpoint was (network.train); at the final step it rewr
 stale model.pt from the checkpoint. Every run removes the temporary files (.NAME.tmp-PID-HEX) a
 killed run left beside these files. --input and --val may be packs (headless/pack.py: memory-mapped
 shards, recognised by their index.json); --workers N loads batches in N processes without changing them.
+--time-budget SECONDS ends the chunk by the clock (validated and saved); --rewarm-from STEP --rewarm-steps N
+ramps the learning rate again after a resume with a fresh optimizer (network.chunk_state, tools/gpu_chunk.sh).
 
 Several GPUs or machines: launch the same command with torchrun, e.g.
 
@@ -37,7 +39,8 @@ SCALES = ("calibrated", "exposure-invariant")  # network.data.INPUT_SCALES
 
 
 #: The TrainConfig fields that network.train's errors name (``max_skipped=3``), all flags here.
-FLAGGED = ("resume", "max_skipped", "config", "overrides", "inputs", "input_scale", "init_from")
+FLAGGED = ("resume", "max_skipped", "config", "overrides", "inputs", "input_scale", "init_from", "time_budget",
+           "rewarm_from", "rewarm_steps")  # fmt: skip
 
 
 class _Parser(argparse.ArgumentParser):
@@ -72,6 +75,22 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--stop-after", type=int, default=None, metavar="N",
                         help="end this chunk after step N (with a checkpoint); schedules still span --steps, "
                         "so a later --resume continues the same run")  # fmt: skip
+    parser.add_argument(
+        "--time-budget",
+        type=float,
+        default=None,
+        metavar="SECONDS",
+        help="end this chunk after SECONDS of training, validated and saved (a GPU lease's minutes)",
+    )
+    parser.add_argument(
+        "--rewarm-from",
+        type=int,
+        default=0,
+        metavar="STEP",
+        help="re-warm the learning rate linearly from STEP (a chunk resumed with a fresh optimizer)",
+    )
+    parser.add_argument("--rewarm-steps", type=int, default=0, metavar="N",
+                        help="steps of that re-warm (default 0: none)")  # fmt: skip
     parser.add_argument("--batch-size", type=int, default=1, help="samples per step and process (default 1)")
     parser.add_argument("--lr", type=float, default=8e-5, help="AdamW peak learning rate (default 8e-5)")
     parser.add_argument("--weight-decay", type=float, default=0.05, help="AdamW weight decay (default 0.05)")
@@ -135,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
             real_weight=args.real_weight, real_start=args.real_start, real_warmup=args.real_warmup,
             inputs=args.inputs, input_scale=args.input_scale, bf16=args.bf16, device=args.device, val=args.val,
             val_every=args.val_every, val_samples=args.val_samples, max_skipped=args.max_skipped, workers=args.workers,
-            tensorboard=not args.no_tensorboard, init_from=args.init_from,
+            tensorboard=not args.no_tensorboard, init_from=args.init_from, time_budget=args.time_budget,
+            rewarm_from=args.rewarm_from, rewarm_steps=args.rewarm_steps,
         )  # fmt: skip
         losses = train(cfg, progress=not args.quiet)
     except (ValueError, OSError, FloatingPointError) as exc:

@@ -38,6 +38,7 @@ __all__ = [
     "learning_rate",
     "pixel_seed",
     "real_loss_weight",
+    "rewarm_factor",
     "sample_batch_pixels",
     "sample_order",
 ]
@@ -60,6 +61,21 @@ def learning_rate(step: int, lr: float, warmup: int, total: int, min_ratio: floa
         return lr
     t = min(1.0, (step - warmup) / (total - warmup))
     return lr * (min_ratio + (1.0 - min_ratio) * 0.5 * (1.0 + math.cos(math.pi * t)))
+
+
+def rewarm_factor(step: int, start: int, steps: int) -> float:
+    """Learning-rate factor of a re-warm: ``(step - start + 1) / steps`` from ``start``, 1 before and after.
+
+    A chunk that resumes with a fresh optimizer (:mod:`network.chunk_state`) ramps its learning rate
+    again while Adam's moment estimates settle; ``steps`` 0 turns it off.
+
+    Example:
+        >>> [rewarm_factor(s, 10, 4) for s in (9, 10, 11, 13, 14)]
+        [1.0, 0.25, 0.5, 1.0, 1.0]
+    """
+    if steps <= 0 or not start <= step < start + steps:
+        return 1.0
+    return (step - start + 1) / steps
 
 
 def real_loss_weight(step: int, weight: float, start: int, warmup: int) -> float:

@@ -72,7 +72,7 @@ from .metrics import normal_mae_deg
 from .model.polar_model import PolarInverseModel
 from .packed import PackedDataset, open_samples
 from .realdata import RealDataset
-from .schedules import StepBatches, learning_rate, pixel_seed, real_loss_weight, sample_batch_pixels
+from .schedules import StepBatches, learning_rate, pixel_seed, real_loss_weight, rewarm_factor, sample_batch_pixels
 from .train_files import OUT_FILES, Logs, sync_best_file, sync_model_file, val_rows
 
 __all__ = ["TrainConfig", "Trainer", "train"]
@@ -112,6 +112,9 @@ class TrainConfig:
         tensorboard: write TensorBoard events to ``OUT/tb`` (when tensorboard is installed).
         init_from: start from this checkpoint's weights (:func:`network.checkpoint.init_from_checkpoint`; e.g. a
             ``light_input`` model from a light-blind one, its light weights at zero); ignored once resumed.
+        rewarm_from, rewarm_steps: a linear learning-rate re-warm over ``rewarm_steps`` steps from step
+            ``rewarm_from`` (a chunk resumed with a fresh optimizer, :mod:`network.chunk_state`; 0: none).
+        time_budget: end this invocation, validated and saved, after this many seconds (None: no limit).
     """
 
     data: Path
@@ -147,13 +150,17 @@ class TrainConfig:
     workers: int = 0
     tensorboard: bool = True
     init_from: Path | None = None
+    rewarm_from: int = 0
+    rewarm_steps: int = 0
+    time_budget: float | None = None
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "checkpoint_every", "val_samples"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
                 raise ValueError(f"{name} must be a positive integer. Got {value!r}")
-        for name in ("warmup_steps", "real_start", "real_warmup", "val_every", "max_skipped", "workers", "seed"):
+        for name in ("warmup_steps", "real_start", "real_warmup", "val_every", "max_skipped", "workers", "seed",
+                     "rewarm_from", "rewarm_steps"):  # fmt: skip
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 0:
                 raise ValueError(f"{name} must be a non-negative integer. Got {value!r}")
@@ -163,6 +170,8 @@ class TrainConfig:
                 raise ValueError("indices must be a non-empty list of distinct sample indices >= 0")
         if self.stop_after is not None and (not isinstance(self.stop_after, int) or self.stop_after < 1):
             raise ValueError(f"stop_after must be a positive integer or None. Got {self.stop_after!r}")
+        if self.time_budget is not None and not (math.isfinite(self.time_budget) and self.time_budget > 0):
+            raise ValueError(f"time_budget must be a finite number of seconds > 0 or None. Got {self.time_budget!r}")
         if self.decay_steps is not None and self.decay_steps < 1:
             raise ValueError(f"decay_steps must be a positive integer or None. Got {self.decay_steps!r}")
         for name in ("lr", "clip"):
@@ -462,6 +471,7 @@ class Trainer:
         cfg, stats, device = self.cfg, self.stats, self.device
         t0 = time.perf_counter()
         lr = learning_rate(step, cfg.lr, cfg.warmup_steps, cfg.decay_steps or cfg.steps, cfg.min_lr_ratio)
+        lr *= rewarm_factor(step, cfg.rewarm_from, cfg.rewarm_steps)
         for group in self.opt.param_groups:
             group["lr"] = lr
         w_real = self._real_weight(step)
@@ -515,10 +525,10 @@ class Trainer:
 
     # -- validation and checkpoints
 
-    def validate(self, done: int) -> float | None:
+    def validate(self, done: int, due: bool = False) -> float | None:
         """Rank 0: the validation normal MAE after step ``done`` when one is due (else None, and on other ranks)."""
         cfg, val = self.cfg, self.data.val
-        if val is None or not (done % (cfg.val_every or cfg.checkpoint_every) == 0 or done == cfg.steps):
+        if val is None or not (due or done % (cfg.val_every or cfg.checkpoint_every) == 0 or done == cfg.steps):
             return None
         mae = None
         if self.main:
@@ -569,15 +579,21 @@ class Trainer:
 
             self.bar = tqdm(total=cfg.steps, initial=self.start, desc=f"train {cfg.config}", unit="step")
         self.model.train()
+        t_start = time.monotonic()
         try:
             for step in steps:
                 self.step(step)
                 if self.bar is not None:
                     self.bar.update()
                 done = step + 1
-                mae = self.validate(done)
-                if done % cfg.checkpoint_every == 0 or done in (cfg.steps, stop):
+                late = cfg.time_budget is not None and self.dd.any_true(
+                    time.monotonic() - t_start >= cfg.time_budget, device)  # fmt: skip
+                mae = self.validate(done, due=late)
+                if late or done % cfg.checkpoint_every == 0 or done in (cfg.steps, stop):
                     self.save(done, mae)
+                if late:
+                    log.info("time_budget %.0f s spent: stopping after step %d", cfg.time_budget, done)
+                    break
         finally:
             if self.bar is not None:
                 self.bar.close()
