@@ -22,10 +22,9 @@ import numpy as np
 if not __package__:  # run as a file (python tools/x.py): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from pbrdf.sensor.calibration import calibrate  # noqa: E402
+from pbrdf.sensor.calibration import calibrate, rig_errors  # noqa: E402
 from pbrdf.sensor.calibration_targets import simulate_targets  # noqa: E402
 from pbrdf.sensor.camera import CameraModel  # noqa: E402
-from pbrdf.sensor.imperfections import vignetting_map  # noqa: E402
 from pbrdf.sensor.projection import pinhole_intrinsics  # noqa: E402
 from pbrdf.sensor.rig import CameraSpec, DisplaySpec, Rig  # noqa: E402
 
@@ -50,26 +49,9 @@ def rigs(focal: float) -> dict[str, Rig]:
     }  # fmt: skip
 
 
-def errors(est: Rig, true: Rig, size: int) -> dict[str, float]:
-    """Largest absolute error per field group."""
-    e, t = est.camera.model, true.camera.model
-
-    def leak(er) -> np.ndarray:
-        return np.array([0.0 if math.isinf(x) else 1.0 / x for x in er])
-
-    def vmap(m: CameraModel) -> np.ndarray:
-        return vignetting_map((size, size), m.vignetting_focal_px, m.vignetting_poly)
-
-    return {
-        "qwp_angle": abs(e.qwp_angle - t.qwp_angle),
-        "qwp_retardance": float(np.max(np.abs(np.subtract(e.qwp_retardance, t.qwp_retardance)))),
-        "1/extinction_ratio": float(np.max(np.abs(leak(e.extinction_ratio) - leak(t.extinction_ratio)))),
-        "crosstalk": float(np.max(np.abs(np.subtract(e.crosstalk, t.crosstalk)))),
-        "ambient": float(np.max(np.abs(np.subtract(e.ambient, t.ambient)))),
-        "vignetting map": float(np.max(np.abs(vmap(e) - vmap(t)))),
-        "display DoP": abs(est.display.degree_of_polarization - true.display.degree_of_polarization),
-        "display angle": abs(est.display.polarization_angle - true.display.polarization_angle),
-    }
+#: Table labels of :func:`pbrdf.sensor.calibration.rig_errors`' keys.
+LABELS = {"leak": "1/extinction_ratio", "vignetting": "vignetting map", "degree_of_polarization": "display DoP",
+          "polarization_angle": "display angle"}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -89,13 +71,13 @@ def main(argv: list[str] | None = None) -> int:
             start = time.perf_counter()
             est = calibrate(targets).rig
             times.append(time.perf_counter() - start)
-            for field, err in errors(est, rig, args.size).items():
+            for field, err in rig_errors(est, rig, (args.size, args.size)).items():
                 worst.setdefault(field, {})[name] = max(worst.get(field, {}).get(name, 0.0), err)
     names = list(rigs(focal))
     print("| field | " + " | ".join(names) + " |")
     print("|---|" + "---|" * len(names))
     for field, per in worst.items():
-        print(f"| {field} | " + " | ".join(f"{per[n]:.2e}" for n in names) + " |")
+        print(f"| {LABELS.get(field, field)} | " + " | ".join(f"{per[n]:.2e}" for n in names) + " |")
     print(f"\ncalibrate: median {np.median(times):.2f} s, range {min(times):.2f} - {max(times):.2f} s "
           f"over {len(times)} runs ({args.size} x {args.size} raw frames, 10 targets)")  # fmt: skip
     return 0

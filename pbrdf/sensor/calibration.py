@@ -62,6 +62,7 @@ __all__ = [
     "Calibration",
     "white_radiance",
     "calibrate",
+    "rig_errors",
 ]
 
 #: The target kinds a calibration reads (the ``target`` field of each capture).
@@ -528,3 +529,39 @@ def calibrate(targets: list[Target]) -> Calibration:
         report[name] = {"value": None, "note": "not identifiable from these targets (a common scale); kept"}
     rig = Rig(display=disp, camera=dataclasses.replace(base.rig.camera, model=model))
     return Calibration(rig=rig, report=report, offset_dn=tuple(float(o) for o in offset))
+
+
+def rig_errors(est: Rig, true: Rig, shape: tuple[int, int]) -> dict[str, float]:
+    """Largest absolute error of an estimated rig per field group, in the quantities the decoder uses.
+
+    Extinction is compared as ``1 / extinction_ratio`` (the analyzer leak: an ideal analyzer is 0, not
+    inf) and vignetting as the falloff map over a ``shape`` frame (only the product of its cos^4 and
+    polynomial terms is seen).
+
+    Args:
+        est: the estimate.
+        true: the rig the captures came from.
+        shape: ``(H, W)`` raw frame of the vignetting map.
+
+    Returns:
+        ``qwp_angle``, ``qwp_retardance``, ``leak``, ``crosstalk``, ``ambient``, ``vignetting``,
+        ``degree_of_polarization``, ``polarization_angle``: each the largest absolute error.
+    """
+    e, t = est.camera.model, true.camera.model
+
+    def leak(er) -> NDArray:
+        return np.array([0.0 if math.isinf(x) else 1.0 / x for x in er])
+
+    def vmap(m: CameraModel) -> NDArray:
+        return vignetting_map(shape, m.vignetting_focal_px, m.vignetting_poly)
+
+    return {
+        "qwp_angle": abs(e.qwp_angle - t.qwp_angle),
+        "qwp_retardance": float(np.max(np.abs(np.subtract(e.qwp_retardance, t.qwp_retardance)))),
+        "leak": float(np.max(np.abs(leak(e.extinction_ratio) - leak(t.extinction_ratio)))),
+        "crosstalk": float(np.max(np.abs(np.subtract(e.crosstalk, t.crosstalk)))),
+        "ambient": float(np.max(np.abs(np.subtract(e.ambient, t.ambient)))),
+        "vignetting": float(np.max(np.abs(vmap(e) - vmap(t)))),
+        "degree_of_polarization": abs(est.display.degree_of_polarization - true.display.degree_of_polarization),
+        "polarization_angle": abs(est.display.polarization_angle - true.display.polarization_angle),
+    }

@@ -16,11 +16,10 @@ import numpy as np
 import pytest
 
 from pbrdf.polar import mueller
-from pbrdf.sensor.calibration import Target, calibrate
+from pbrdf.sensor.calibration import Target, calibrate, rig_errors
 from pbrdf.sensor.calibration_targets import lab_rig, simulate_targets, target_stokes
 from pbrdf.sensor.camera import CameraModel, simulate_capture
 from pbrdf.sensor.decode import decode
-from pbrdf.sensor.imperfections import vignetting_map
 from pbrdf.sensor.projection import pinhole_intrinsics
 from pbrdf.sensor.rig import CameraSpec, DisplaySpec, Rig
 
@@ -68,26 +67,9 @@ def _leak(er) -> np.ndarray:
     return np.array([0.0 if math.isinf(e) else 1.0 / e for e in er])
 
 
-def recovery_errors(est: Rig, true: Rig) -> dict[str, float]:
-    """Largest absolute error per field group (the quantities of :data:`TOLERANCE`)."""
-    e, t = est.camera.model, true.camera.model
-    v_est = vignetting_map((SIZE, SIZE), e.vignetting_focal_px, e.vignetting_poly)
-    v_true = vignetting_map((SIZE, SIZE), t.vignetting_focal_px, t.vignetting_poly)
-    return {
-        "qwp_angle": abs(e.qwp_angle - t.qwp_angle),
-        "qwp_retardance": float(np.max(np.abs(np.subtract(e.qwp_retardance, t.qwp_retardance)))),
-        "leak": float(np.max(np.abs(_leak(e.extinction_ratio) - _leak(t.extinction_ratio)))),
-        "crosstalk": float(np.max(np.abs(np.subtract(e.crosstalk, t.crosstalk)))),
-        "ambient": float(np.max(np.abs(np.subtract(e.ambient, t.ambient)))),
-        "vignetting": float(np.max(np.abs(v_est - v_true))),
-        "degree_of_polarization": abs(est.display.degree_of_polarization - true.display.degree_of_polarization),
-        "polarization_angle": abs(est.display.polarization_angle - true.display.polarization_angle),
-    }
-
-
 def assert_recovered(est: Rig, true: Rig) -> None:
     """Every field within its tolerance; the message lists the ones that are not."""
-    errors = recovery_errors(est, true)
+    errors = rig_errors(est, true, (SIZE, SIZE))
     bad = {k: v for k, v in errors.items() if not v <= TOLERANCE[k][1]}
     assert not bad, f"not recovered within tolerance: {bad}"
 
