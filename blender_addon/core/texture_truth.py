@@ -21,6 +21,7 @@ or the map varies within a pixel (silhouettes, UV seams, map detail finer than a
 
 from __future__ import annotations
 
+import warnings
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -125,11 +126,16 @@ def truth_pass(
 
     t0 = time.perf_counter()
     variant = mi.variant()
-    mi.set_variant(rgb_variant(variant))
-    try:
-        images = _render_passes(mi, spec, meshes, window, settings, names, seed)
-    finally:
-        mi.set_variant(variant)
+    with warnings.catch_warnings():
+        # Each switch re-imports Mitsuba's Python integrators, re-applying @drjit.syntax (about 0.1 s);
+        # after ~70 textured scenes in one process Dr.Jit warns of the count. Harmless: nothing here
+        # uses those integrators, and the memory stays flat (docs/measurements/next_data.md).
+        warnings.filterwarnings("ignore", message="The AST-transforming decorator", category=RuntimeWarning)
+        mi.set_variant(rgb_variant(variant))
+        try:
+            images = _render_passes(mi, spec, meshes, window, settings, names, seed)
+        finally:
+            mi.set_variant(variant)
     first, second = images
     coverage = second[..., 2].copy()
     safe = np.where(coverage > 0, coverage, 1.0)[..., None]

@@ -177,3 +177,20 @@ def test_wavefront_colour_passes_render_what_the_symbolic_ones_render(mono, uv_s
     np.testing.assert_allclose(wave.depth, ref.depth, atol=1e-6)
     scale = np.abs(ref.stokes[..., 0]).max()
     np.testing.assert_allclose(wave.stokes, ref.stokes, atol=1e-3 * scale)
+
+
+def test_the_truth_pass_variant_switch_stays_quiet_in_a_long_render(mono, uv_slab, monkeypatch, recwarn):
+    """Every switch re-applies @drjit.syntax to Mitsuba's integrators; a long render must not warn of it."""
+    import warnings
+
+    import drjit.ast
+
+    monkeypatch.setattr(drjit.ast, "_syntax_counter", 5000)  # as after ~300 textured scenes in one process
+    monkeypatch.setattr(render, "needs_truth_pass", lambda spec: True)
+    mat = MaterialSpec.plastic("p", (0.3, 0.4, 0.5), 0.6)
+    spec = SceneSpec(rig=Rig(), objects=(ObjectSpec("o", uv_slab, pose(), "p"),), materials=(mat,))
+    warnings.simplefilter("always")
+    res = render.render_stokes(spec, render.RenderSettings(resolution=16, spp=1))
+    assert res.truth is not None
+    assert drjit.ast._syntax_counter > 5000  # the switch did re-decorate: the case is exercised
+    assert not [w for w in recwarn if "AST-transforming" in str(w.message)]
