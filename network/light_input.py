@@ -175,7 +175,7 @@ def light_channels(
     uu, vv = np.meshgrid(u, v, indexing="xy")
     rays = np.stack([(uu - k[0, 2]) / k[0, 0], -(vv - k[1, 2]) / k[1, 1], -np.ones_like(uu)], axis=-1)
     verts, radiance = _camera_patches(rig.display, rig.camera)
-    phi = irradiance_vectors(verts, radiance, (d * rays).reshape(-1, 3))
+    phi = irradiance_vectors(verts, radiance, (d * rays).reshape(-1, 3), exponent=rig.display.emission_exponent)
     coarse = (LIGHT_GAIN * phi).reshape(gy, gx, LIGHT_CHANNELS).transpose(2, 0, 1)  # (9, gy, gx)
     out = _interp_matrix(h, gy) @ coarse @ _interp_matrix(w, gx).T  # separable bilinear, (9, H, W)
     return np.ascontiguousarray(out, dtype=np.float32)

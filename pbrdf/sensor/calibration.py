@@ -163,7 +163,8 @@ def white_radiance(rig: Rig, rays: NDArray, distance_m: float, albedo: float) ->
     white = constant_patches(dataclasses.replace(rig.display, pattern="white"))
     verts = transform_points(rig.camera.world_to_camera(), white.vertices.reshape(-1, 3)).reshape(white.vertices.shape)
     normals = np.broadcast_to(np.array([0.0, 0.0, 1.0]), points.shape)
-    phi = irradiance_vectors(verts, white.radiance[:, :1] * rig.display.radiance, points, normals)
+    radiance = white.radiance[:, :1] * rig.display.radiance
+    phi = irradiance_vectors(verts, radiance, points, normals, exponent=rig.display.emission_exponent)
     e = np.einsum("pk,pk->p", phi[:, 0], normals)
     return (albedo / math.pi) * e.reshape(r.shape[:-1])
 

@@ -14,6 +14,14 @@ channel, optionally clipping every patch to the part above a surface's horizon f
 ``E`` is exact for that normal). Frames: whatever frame the vertices and points share (the
 baseline uses the camera frame of :mod:`pbrdf.sensor.projection`).
 
+A display whose radiance falls with the emission angle, ``L cos^p theta``
+(:mod:`pbrdf.sensor.display_response`), has no such closed form for real ``p``: each patch is then
+cut into ``n x n`` sub-patches of at most about :data:`PROFILE_PATCH_M` a side, each taken by
+Lambert's formula times the profile at its centre (a midpoint rule in the profile, exact polygons in
+the geometry; its error falls as the square of the sub-patch's angular size: under 0.1 % of the
+irradiance at 0.35 m from the panel for ``p <= 1``, 0.25 % for ``p = 3``, tested against brute-force
+quadrature).
+
 References:
     J. H. Lambert, Photometria (1760); J. Arvo, "Applications of irradiance tensors to the
     simulation of non-Lambertian phenomena", SIGGRAPH 1995.
@@ -24,12 +32,16 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pbrdf.sensor.display_response import emission_profile
 from pbrdf.sensor.patches import constant_patches
 
-__all__ = ["polygon_irradiance_vectors", "irradiance_vectors", "region_light_directions"]
+__all__ = ["PROFILE_PATCH_M", "polygon_irradiance_vectors", "subdivide_quads", "irradiance_vectors",
+           "region_light_directions"]  # fmt: skip
 
 #: Points per chunk of the vectorised geometry (bounds the temporary arrays to some tens of MB).
 CHUNK = 8192
+#: Largest sub-patch side (m) under an emission profile (module docs).
+PROFILE_PATCH_M = 0.075
 
 
 def polygon_irradiance_vectors(rel: ArrayLike, valid: NDArray | None = None) -> NDArray:
@@ -89,8 +101,24 @@ def _clip(rel: NDArray, normals: NDArray) -> tuple[NDArray, NDArray]:
     return out, used
 
 
+def subdivide_quads(vertices: ArrayLike, n: int) -> NDArray:
+    """Planar quads ``(Q, 4, 3)`` cut into ``n x n`` bilinear sub-quads ``(Q n^2, 4, 3)``, corners in the same order.
+
+    >>> subdivide_quads([[[0.0, 0, 0], [2, 0, 0], [2, 2, 0], [0, 2, 0]]], 2)[3].tolist()
+    [[1.0, 1.0, 0.0], [2.0, 1.0, 0.0], [2.0, 2.0, 0.0], [1.0, 2.0, 0.0]]
+    """
+    v = np.asarray(vertices, dtype=np.float64)
+    t = np.linspace(0.0, 1.0, n + 1)
+    a, b = t[:, None, None], t[None, :, None]  # along edge 0-1 (s) and edge 0-3 (t)
+    grid = (1 - a) * (1 - b) * v[:, None, None, 0] + a * (1 - b) * v[:, None, None, 1]
+    grid = grid + a * b * v[:, None, None, 2] + (1 - a) * b * v[:, None, None, 3]  # (Q, s, t, 3)
+    corners = [grid[:, :-1, :-1], grid[:, 1:, :-1], grid[:, 1:, 1:], grid[:, :-1, 1:]]
+    return np.stack(corners, axis=3).transpose(0, 2, 1, 3, 4).reshape(-1, 4, 3)
+
+
 def irradiance_vectors(vertices: ArrayLike, radiance: ArrayLike, points: ArrayLike,
-                       normals: ArrayLike | None = None) -> NDArray:  # fmt: skip
+                       normals: ArrayLike | None = None, *, exponent: float = 0.0,
+                       subdivisions: int | None = None) -> NDArray:  # fmt: skip
     """Per-channel irradiance vectors ``(P, 3, 3)`` (channel, xyz) of display patches at points.
 
     Args:
@@ -101,12 +129,25 @@ def irradiance_vectors(vertices: ArrayLike, radiance: ArrayLike, points: ArrayLi
         normals: ``(P, 3)`` unit surface normals, or None. With normals, every patch is clipped to
             its part above the point's horizon, so ``normals . Phi_c`` is the exact irradiance of
             channel ``c`` on that surface (no occlusion); without, the unclipped vectors.
+        exponent: the display's emission profile ``cos^p`` (``display.emission_exponent``); 0 (flat):
+            exact; otherwise the sub-patch rule of the module docs.
+        subdivisions: sub-patches per patch side under a profile; None: the longest patch edge over
+            :data:`PROFILE_PATCH_M`, rounded up.
 
     Returns:
         ``Phi (P, 3, 3)``: ``Phi[p, c]`` is the irradiance vector of channel ``c`` at point ``p``.
     """
     verts = np.asarray(vertices, dtype=np.float64)
     rad = np.asarray(radiance, dtype=np.float64)
+    if exponent != 0.0:
+        if subdivisions is None:
+            edge = np.linalg.norm(verts - np.roll(verts, -1, axis=1), axis=-1).max(initial=0.0)
+            subdivisions = max(2, int(np.ceil(edge / PROFILE_PATCH_M)))
+        verts = subdivide_quads(verts, subdivisions)
+        rad = np.repeat(rad, subdivisions * subdivisions, axis=0)
+        front = np.cross(verts[:, 1] - verts[:, 0], verts[:, 3] - verts[:, 0])  # corners counter-clockwise
+        front /= np.maximum(np.linalg.norm(front, axis=-1, keepdims=True), 1e-300)
+        centre = verts.mean(axis=1)
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
     nrm = None if normals is None else np.asarray(normals, dtype=np.float64).reshape(-1, 3)
     out = np.zeros((len(pts), 3, 3))
@@ -123,6 +164,10 @@ def irradiance_vectors(vertices: ArrayLike, radiance: ArrayLike, points: ArrayLi
             phi[whole] = polygon_irradiance_vectors(rel[whole])
             if part.any():
                 phi[part] = polygon_irradiance_vectors(*_clip(rel[part], n[part]))
+        if exponent != 0.0:  # the profile toward each point, at each sub-patch's centre
+            to_point = pts[a : a + chunk, None, :] - centre[None]
+            cos = np.einsum("pqk,qk->pq", to_point, front) / np.maximum(np.linalg.norm(to_point, axis=-1), 1e-300)
+            phi = phi * emission_profile(cos, exponent)[..., None]
         out[a : a + chunk] = np.einsum("pqk,qc->pck", phi, rad)
     return out
 
@@ -141,6 +186,7 @@ def region_light_directions(display, point: ArrayLike) -> tuple[NDArray, NDArray
         True
     """
     patches = constant_patches(display)
-    phi = irradiance_vectors(patches.vertices, patches.radiance, np.asarray(point, dtype=np.float64)[None])[0]
+    point = np.asarray(point, dtype=np.float64)[None]
+    phi = irradiance_vectors(patches.vertices, patches.radiance, point, exponent=display.emission_exponent)[0]
     mag = np.linalg.norm(phi, axis=-1)
     return phi / np.maximum(mag, 1e-300)[:, None], mag
