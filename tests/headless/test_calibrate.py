@@ -129,6 +129,12 @@ def test_bad_target_keys_name_the_file(captures, tmp_path, capsys):
     assert cli.main(["--input", str(folder), "--out", str(tmp_path / "rig.json")]) == 2
     err = capsys.readouterr().err
     assert "white_r" in err and "display_channel must be one of" in err
+    meta_path = folder / "white_g_050" / CAPTURE_JSON
+    meta = json.loads(meta_path.read_text())
+    meta["level"] = 1.5
+    meta_path.write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=r"white_g_050/capture.json: level must be in \(0, 1\]"):
+        load_targets(folder)
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="no calibration captures"):
         load_targets(tmp_path / "empty")
