@@ -124,3 +124,15 @@ def test_rerender_and_light_input_see_the_profiled_display():
     }
     np.testing.assert_allclose(out[2.0] / out[0.0], e[2.0] / e[0.0], rtol=0.01)
     assert np.all(np.abs(out[2.4] / out[0.0] / (e[2.0] / e[0.0]) - 1) > 0.02)  # a wrong exponent fails
+
+
+def test_white_radiance_spline_matches_the_exact_evaluation():
+    """A pixel grid is evaluated on WHITE_GRID^2 rays and splined; single rays are exact."""
+    from pbrdf.sensor.calibration_display import white_radiance
+
+    rays = projection.pixel_rays(projection.pinhole_intrinsics(60.0, 64, 64), 64, 64)
+    rig = Rig.from_dict({"display": {"emission_exponent": 1.8}})
+    grid = white_radiance(rig, rays, 0.4, 0.9, channel=1, level=0.5)
+    pick = (np.arange(0, 64, 7)[:, None], np.arange(3, 64, 9)[None, :])
+    exact = white_radiance(rig, rays[pick].reshape(-1, 3), 0.4, 0.9, channel=1, level=0.5).reshape(grid[pick].shape)
+    np.testing.assert_allclose(grid[pick], exact, rtol=1e-4)
