@@ -37,13 +37,17 @@ from pbrdf.sensor.patches import constant_patches
 from pbrdf.sensor.projection import pinhole_intrinsics, transform_points
 
 if TYPE_CHECKING:
-    from pbrdf.sensor.calibration import Target
     from pbrdf.sensor.rig import Rig
+
+#: A :class:`pbrdf.sensor.calibration.Target` (not imported: that module imports this one).
+_Target = Any
 
 __all__ = ["PROFILE_BLOCKS", "WHITE_GRID", "white_radiance", "target_intrinsics", "split_whites", "display_response"]
 
 #: Most blocks per side of the frame in the profile fit (their sums are the fitted samples).
 PROFILE_BLOCKS = 16
+#: Fewest blocks (over all second-distance targets) the profile fit accepts.
+MIN_PROFILE_BLOCKS = 8
 #: Rays per side at which :func:`white_radiance` evaluates a larger separable ray grid exactly; the rest
 #: is interpolated by a bicubic spline (the target's radiance is smooth over the frame).
 WHITE_GRID = 12
@@ -114,7 +118,7 @@ def _separable(rays: NDArray) -> bool:
     )
 
 
-def target_intrinsics(target: Target) -> NDArray:
+def target_intrinsics(target: _Target) -> NDArray:
     """``K (3, 3)`` of a target's raw grid: its own, else the rig camera's focal length, centred."""
     if target.intrinsics is not None:
         return np.asarray(target.intrinsics, dtype=np.float64)
@@ -122,7 +126,7 @@ def target_intrinsics(target: Target) -> NDArray:
     return pinhole_intrinsics(target.rig.camera.focal_length_px, w, h)
 
 
-def split_whites(whites: list[Target]) -> tuple[list[Target], list[Target], list[Target]]:
+def split_whites(whites: list[_Target]) -> tuple[list[_Target], list[_Target], list[_Target]]:
     """The white targets as ``(base, second distance, partial level)``.
 
     ``base``: the full-level targets at the distance with the most white targets, then the farthest
@@ -134,7 +138,7 @@ def split_whites(whites: list[Target]) -> tuple[list[Target], list[Target], list
         ValueError: two targets of one primary at the same distance and level, or a partial-level
             target away from the base distance.
     """
-    seen: dict[tuple, Target] = {}
+    seen: dict[tuple, _Target] = {}
     for t in whites:
         key = (t.display_channel, t.distance_m, t.level)
         if key in seen:
@@ -167,7 +171,7 @@ def _block_sums(merged: NDArray, ok: NDArray, block: int) -> tuple[NDArray, NDAr
     return tiles(np.where(ok, merged, 0.0).astype(np.float64)), tiles(ok.astype(np.float64))
 
 
-def _profile_samples(near: Target, far: Target, merge: Callable) -> tuple[NDArray, NDArray]:
+def _profile_samples(near: _Target, far: _Target, merge: Callable) -> tuple[NDArray, NDArray]:
     """Measured ``far / near`` ratios per block ``(n,)`` (albedos divided out), the blocks' centre rays ``(n, 3)``."""
     (mn, vn), (mf, vf) = merge(near), merge(far)
     if mn.shape != mf.shape:
@@ -215,7 +219,7 @@ def _fit_exponent(samples: list[tuple[NDArray, NDArray, Rig, float, float]]) -> 
     return (0.0 if p < 1e-3 else p), se
 
 
-def _fit_gamma(base: dict[int, Target], partial: list[Target], merge: Callable) -> dict[int, float]:
+def _fit_gamma(base: dict[int, _Target], partial: list[_Target], merge: Callable) -> dict[int, float]:
     """``gamma_r`` per primary with partial-level targets (module docs)."""
     logs: dict[int, list[tuple[float, float]]] = {}
     for t in partial:
@@ -236,7 +240,10 @@ def _fit_gamma(base: dict[int, Target], partial: list[Target], merge: Callable) 
 
 
 def display_response(
-    base: list[Target], second: list[Target], partial: list[Target], merge: Callable[[Target], tuple[NDArray, NDArray]]
+    base: list[_Target],
+    second: list[_Target],
+    partial: list[_Target],
+    merge: Callable[[_Target], tuple[NDArray, NDArray]],
 ) -> tuple[dict[str, Any], dict[str, Any]]:
     """Estimate the emission profile and tone response (module docs).
 
@@ -258,6 +265,9 @@ def display_response(
     pairs = [(by_channel[t.display_channel], t) for t in second if t.display_channel in by_channel]
     if pairs:
         samples = [(*_profile_samples(n, f, merge), n.rig, n.distance_m, f.distance_m) for n, f in pairs]
+        if sum(len(s[0]) for s in samples) < MIN_PROFILE_BLOCKS:
+            names = ", ".join(f.name for _, f in pairs)
+            raise ValueError(f"{names}: too few pixels valid at both distances to measure the emission profile")
         p, se = _fit_exponent(samples)
         note = "estimated (white target at two distances)" + (", on its bound 0" if p == 0.0 else "")
         report["display.emission_exponent"] = {"value": p, "note": note, "se": se}
