@@ -319,8 +319,10 @@ def _vignetting_fit(samples: list[tuple], focal: float) -> tuple[NDArray, NDArra
     y = np.concatenate([s[0] for s in samples])
     group = np.concatenate([3 * s[1] + r for r, s in enumerate(samples)])  # 3 c + r
     rho2 = np.concatenate([s[2] for s in samples])
+    cos4 = np.ones_like(y)
     if math.isfinite(focal):
-        y = y / (focal**2 / (focal**2 + np.concatenate([s[3] for s in samples]))) ** 2
+        cos4 = (focal**2 / (focal**2 + np.concatenate([s[3] for s in samples]))) ** 2
+        y = y / cos4
     powers = np.stack([rho2, rho2**2, rho2**3], axis=-1)
 
     def scale(k: NDArray) -> tuple[NDArray, NDArray]:
@@ -335,7 +337,8 @@ def _vignetting_fit(samples: list[tuple], focal: float) -> tuple[NDArray, NDArra
     k = least_squares(residual, np.zeros(3), x_scale=0.1).x
     m, poly = scale(k)
     res = residual(k)
-    rms = float(np.sqrt(np.mean(res**2) / np.mean(y**2)))
+    # In the measured ratio's own units (not divided by cos^4), so the two falloff models compare on equal terms.
+    rms = float(np.sqrt(np.mean((res * cos4) ** 2) / np.mean((y * cos4) ** 2)))
     # Standard error of each entry: its samples' residual spread over the root of their count.
     n = np.maximum(np.bincount(group, minlength=9), 1)
     mean_poly2 = np.maximum(np.bincount(group, poly**2, 9) / n, 1e-300)
