@@ -10,7 +10,8 @@ display's irradiance vector of each colour region ``c`` there is Lambert's close
           \\frac{\\cos\\theta_y}{\\lVert y - p \\rVert^2}\\, dA_y
 
 in units of the display radiance ``L`` (so ``n . Phi_c`` is the projected solid angle of region
-``c``'s light). :func:`light_channels` returns ``LIGHT_GAIN * Phi`` as 9 channels ``3 c + k``
+``c``'s light; ``L_c(y)`` falls with the emission angle as the display's profile ``cos^p`` says,
+:mod:`pbrdf.sensor.display_response`). :func:`light_channels` returns ``LIGHT_GAIN * Phi`` as 9 channels ``3 c + k``
 (region ``c`` = R, G, B; component ``k`` = x, y, z of the OpenGL camera frame), the same gain as
 the calibrated maps (:data:`network.data.CALIBRATED_GAIN`), so a calibrated map divided by its
 region's ``n . channels`` is ``albedo / pi``-like for a Lambertian surface, independent of the
