@@ -4,11 +4,12 @@
     python -m headless.calibrate --input CAPTURES_DIR --out rig.json
 
 Estimates the QWP fast-axis angle and retardance per channel, the analyzer extinction per channel,
-the display's degree and angle of polarization, the 3 x 3 display-to-camera cross-talk, the lens
-vignetting and the ambient light per channel (pbrdf/sensor/calibration.py; why these targets:
-docs/calibration.md), prints one line per field, and writes rig.json atomically: a rig file
-(pbrdf.sensor.rig.Rig) whose "camera" -> "model" is the "camera_model" an object's capture.json
-takes, and whose "display" holds the polarization. Nothing is written unless every target is
+the display's degree and angle of polarization, its angular emission profile and tone response,
+the 3 x 3 display-to-camera cross-talk, the lens vignetting and the ambient light per channel
+(pbrdf/sensor/calibration.py, calibration_display.py; why these targets: docs/calibration.md),
+prints one line per field, and writes rig.json atomically: a rig file (pbrdf.sensor.rig.Rig) whose
+"camera" -> "model" is the "camera_model" an object's capture.json takes, and whose "display" holds
+the polarization, the emission profile and the tone response. Nothing is written unless every target is
 usable and every estimate physical; otherwise one line "error: <what is missing or which field>"
 on stderr and exit status 2.
 """
@@ -37,6 +38,10 @@ pbrdf/data/capture.py), any folder names, each capture.json with a "target" key:
   white_r/     "target": "white", "display_channel": "R", "albedo": 0.99, "distance_m": 0.7
   white_g/     ... "display_channel": "G"   a flat Lambertian reflectance standard facing the
   white_b/     ... "display_channel": "B"   camera, the display showing that primary alone
+  white_r_050/ ... "level": 0.5             optional, per primary: the same at commanded levels
+                                            below 1 (the display's tone response)
+  white_r_near/ ... "distance_m": 0.4       optional: the same at a second distance, full level
+                                            (the display's angular emission profile)
   polarizer_000/  "target": "polarizer", "polarizer_angle_deg": 0
   polarizer_030/  ... (>= 3 distinct angles)   the camera facing the display (all white) through
                                                a linear polarizer at that angle (analyzer frame)

@@ -10,7 +10,8 @@ display's irradiance vector of each colour region ``c`` there is Lambert's close
           \\frac{\\cos\\theta_y}{\\lVert y - p \\rVert^2}\\, dA_y
 
 in units of the display radiance ``L`` (so ``n . Phi_c`` is the projected solid angle of region
-``c``'s light). :func:`light_channels` returns ``LIGHT_GAIN * Phi`` as 9 channels ``3 c + k``
+``c``'s light; ``L_c(y)`` falls with the emission angle as the display's profile ``cos^p`` says,
+:mod:`pbrdf.sensor.display_response`). :func:`light_channels` returns ``LIGHT_GAIN * Phi`` as 9 channels ``3 c + k``
 (region ``c`` = R, G, B; component ``k`` = x, y, z of the OpenGL camera frame), the same gain as
 the calibrated maps (:data:`network.data.CALIBRATED_GAIN`), so a calibrated map divided by its
 region's ``n . channels`` is ``albedo / pi``-like for a Lambertian surface, independent of the
@@ -175,7 +176,7 @@ def light_channels(
     uu, vv = np.meshgrid(u, v, indexing="xy")
     rays = np.stack([(uu - k[0, 2]) / k[0, 0], -(vv - k[1, 2]) / k[1, 1], -np.ones_like(uu)], axis=-1)
     verts, radiance = _camera_patches(rig.display, rig.camera)
-    phi = irradiance_vectors(verts, radiance, (d * rays).reshape(-1, 3))
+    phi = irradiance_vectors(verts, radiance, (d * rays).reshape(-1, 3), exponent=rig.display.emission_exponent)
     coarse = (LIGHT_GAIN * phi).reshape(gy, gx, LIGHT_CHANNELS).transpose(2, 0, 1)  # (9, gy, gx)
     out = _interp_matrix(h, gy) @ coarse @ _interp_matrix(w, gx).T  # separable bilinear, (9, H, W)
     return np.ascontiguousarray(out, dtype=np.float32)

@@ -11,13 +11,14 @@ display patches ``k`` (centre ``y_k``, front normal ``n_k``, area ``A_k``, emitt
 by :func:`pbrdf.sensor.patches.channel_patches`). Per colour channel ``c``
 
 .. math::
-    s_{0,c} = \\sum_k (f_{d,c} + f_{s,c})(l_k, v)\\, L_{k,c}\\, (n \\cdot l_k)_+\\,
+    s_{0,c} = \\sum_k (f_{d,c} + f_{s,c})(l_k, v)\\, L_{k,c}\\, (-n_k \\cdot l_k)_+^{m}\\, (n \\cdot l_k)_+\\,
               \\frac{A_k\\, (-n_k \\cdot l_k)_+}{\\lVert y_k - p \\rVert^2}
 
-with ``l_k = (y_k - p) / |y_k - p|`` and ``v = -p / |p|``. The diffuse lobe depolarizes; the
-specular lobe keeps the display's linear polarization (a mirror at normal incidence), so with
-the per-patch gain ``g_k = -q cos 2 psi_k`` (``q`` the degree of polarization, ``psi`` the angle
-of the field seen by the camera; 1 for the default vertical display)
+with ``l_k = (y_k - p) / |y_k - p|``, ``v = -p / |p|`` and ``m`` the display's emission profile
+exponent (``cos^m`` of the emission angle, :mod:`pbrdf.sensor.display_response`; 0 = flat). The
+diffuse lobe depolarizes; the specular lobe keeps the display's linear polarization (a mirror at
+normal incidence), so with the per-patch gain ``g_k = -q cos 2 psi_k`` (``q`` the degree of
+polarization, ``psi`` the angle of the field seen by the camera; 1 for the default vertical display)
 
 .. math::
     \\mathrm{unpol}_c = D_c + \\sum_k (1 - g_k) S_{k,c},\\qquad \\mathrm{LP}_c = \\sum_k g_k S_{k,c}
@@ -82,8 +83,10 @@ __all__ = [
 ]
 
 #: Columns of a packed patch tensor ``(..., N, 11)``: centre (camera frame, m), unit front normal
-#: (camera frame), area (m^2), emitted radiance per colour channel, LP gain ``g``.
-PATCH_COLUMNS = ("x", "y", "z", "nx", "ny", "nz", "area", "radiance_r", "radiance_g", "radiance_b", "lp_gain")
+#: (camera frame), area (m^2), emitted radiance per colour channel (along the normal), LP gain ``g``, the
+#: emission profile's exponent.
+PATCH_COLUMNS = ("x", "y", "z", "nx", "ny", "nz", "area", "radiance_r", "radiance_g", "radiance_b", "lp_gain",
+                 "emission_exponent")  # fmt: skip
 #: Lobe widening ``kappa``: ``alpha_eff^2 = alpha^2 + kappa * patch solid angle`` (module docs).
 WIDEN = 1.0 / 24.0
 #: Default patches per colour region ``(nx, ny)``: 3 x 144 = 432 patches (module docs for the accuracy).
@@ -104,9 +107,10 @@ class Patches(NamedTuple):
         points: ``(*, N, 3)`` patch centres in m.
         normals: ``(*, N, 3)`` unit front normals (pointing toward the objects).
         area: ``(*, N)`` areas in m^2.
-        radiance: ``(*, N, 3)`` emitted radiance per colour channel (renderer units).
+        radiance: ``(*, N, 3)`` emitted radiance per colour channel along the normal (renderer units).
         lp_gain: ``(*, N)`` ``g = -q cos 2 psi``: the fraction of a specular reflection that the
             decoder reads as LP (1 for fully, vertically polarized light).
+        emission_exponent: ``(*, N)`` the radiance falls as ``cos^m`` of the emission angle (0: flat).
     """
 
     points: Tensor
@@ -114,21 +118,25 @@ class Patches(NamedTuple):
     area: Tensor
     radiance: Tensor
     lp_gain: Tensor
+    emission_exponent: Tensor
 
     def pack(self) -> Tensor:
-        """One tensor ``(*, N, 11)`` in :data:`PATCH_COLUMNS` order (collates with ``torch.stack``)."""
-        return torch.cat([self.points, self.normals, self.area[..., None], self.radiance, self.lp_gain[..., None]], -1)
+        """One tensor ``(*, N, 12)`` in :data:`PATCH_COLUMNS` order (collates with ``torch.stack``)."""
+        scalars = [self.area[..., None], self.radiance, self.lp_gain[..., None], self.emission_exponent[..., None]]
+        return torch.cat([self.points, self.normals, *scalars], -1)
 
     @classmethod
     def unpack(cls, packed: Tensor) -> Patches:
         """Inverse of :meth:`pack`.
 
         Raises:
-            ValueError: if the last dimension is not 11.
+            ValueError: if the last dimension is not 12.
         """
         if packed.shape[-1] != len(PATCH_COLUMNS):
             raise ValueError(f"packed patches must have shape (*, N, {len(PATCH_COLUMNS)}); got {tuple(packed.shape)}")
-        return cls(packed[..., 0:3], packed[..., 3:6], packed[..., 6], packed[..., 7:10], packed[..., 10])
+        return cls(
+            packed[..., 0:3], packed[..., 3:6], packed[..., 6], packed[..., 7:10], packed[..., 10], packed[..., 11]
+        )
 
 
 def display_patches(
@@ -176,6 +184,7 @@ def display_patches(
         t(patches.area),
         t(patches.radiance),
         t(-disp.degree_of_polarization * cos2psi),
+        t(np.full(len(patches), disp.emission_exponent)),
     )
 
 
@@ -231,7 +240,9 @@ def _shade(
         cos_o = (n * v).sum(-1).clamp_min(0.0)
         t = dielectric_transmittance(cos_i, PLASTIC_IOR) * dielectric_transmittance(cos_o, PLASTIC_IOR) * (cos_o > 0)
         fd = albedo[:, :, None, :] * ((1.0 - metallic[..., 0][:, :, None]) * t / math.pi)[..., None]
-    light = patches.radiance[:, None] * (cos_i * solid)[..., None]  # (B, P, N, 3)
+    m = patches.emission_exponent[:, None]
+    profile = torch.where(m == 0, 1.0, cos_e.clamp_min(_EPS) ** m)  # the flat display's sums unchanged
+    light = patches.radiance[:, None] * (cos_i * solid * profile)[..., None]  # (B, P, N, 3)
     diffuse = (fd * light).sum(2)
     spec = fs * light
     lp = (spec * patches.lp_gain[:, None, :, None]).sum(2)

@@ -275,7 +275,10 @@ def world_matrix(obj):
 
 
 def display_quadrature(display, point, normal=None, n=400):
-    """Irradiance vectors (3, 3) (or, with ``normal``, the irradiance (3,)) by brute-force quadrature."""
+    """Irradiance vectors (3, 3) (or, with ``normal``, the irradiance (3,)) by brute-force quadrature.
+
+    The display's radiance is ``radiance * pattern * cos^p`` of the emission angle (``emission_exponent``).
+    """
     xs = (np.arange(n) + 0.5) / n * display.width - display.width / 2
     ys = (np.arange(n // 2) + 0.5) / (n // 2) * display.height - display.height / 2
     xy = np.stack(np.meshgrid(xs, ys), -1).reshape(-1, 2)
@@ -283,7 +286,8 @@ def display_quadrature(display, point, normal=None, n=400):
     d2 = np.sum(to**2, -1)
     w = to / np.sqrt(d2)[:, None]
     cos_d = np.clip(-np.sum(w * display.surface_normals_world(xy), -1), 0, None)
-    weight = cos_d / d2 * display.width * display.height / len(xy) * display.radiance
+    weight = cos_d ** (1.0 + display.emission_exponent) / d2 * display.width * display.height / len(xy)
+    weight = weight * display.radiance
     rgb = display.pattern_rgb_at(xy)
     if normal is None:
         return np.einsum("pk,p,pc->ck", w, weight, rgb)

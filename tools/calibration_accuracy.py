@@ -32,26 +32,29 @@ from pbrdf.sensor.rig import CameraSpec, DisplaySpec, Rig  # noqa: E402
 def rigs(focal: float) -> dict[str, Rig]:
     """The three rigs of the test (same imperfections)."""
 
-    def rig(model: dict, dop: float, angle: float) -> Rig:
-        display = DisplaySpec(degree_of_polarization=dop, polarization_angle=angle)
+    def rig(model: dict, dop: float, angle: float, exponent: float = 0.0, gamma=(1.0, 1.0, 1.0)) -> Rig:
+        display = DisplaySpec(
+            degree_of_polarization=dop, polarization_angle=angle, emission_exponent=exponent, tone_gamma=gamma
+        )
         return Rig(display, CameraSpec(model=CameraModel(**model)))
 
     return {
         "mild": rig({"qwp_angle": 0.03, "qwp_retardance": (1.50, 1.62, 1.66), "extinction_ratio": (80, 120, 200),
                      "ambient": (0.004, 0.006, 0.003), "vignetting_focal_px": focal,
                      "crosstalk": [[0.92, 0.06, 0.01], [0.08, 0.95, 0.05], [0.02, 0.07, 0.9]],
-                     "vignetting_poly": (-0.1, 0.03, 0.0)}, 0.97, math.pi / 2 + 0.04),
+                     "vignetting_poly": (-0.1, 0.03, 0.0)}, 0.97, math.pi / 2 + 0.04, 0.8, (2.2, 2.0, 2.4)),
         "strong": rig({"qwp_angle": -0.08, "qwp_retardance": (1.32, 1.45, 1.80), "extinction_ratio": (12, 30, 50),
                        "ambient": (0.03, 0.02, 0.04), "vignetting_focal_px": focal,
                        "crosstalk": [[0.8, 0.15, 0.05], [0.18, 0.85, 0.12], [0.04, 0.2, 0.75]],
-                       "vignetting_poly": (-0.3, 0.1, -0.05)}, 0.85, math.pi / 2 - 0.09),
+                       "vignetting_poly": (-0.3, 0.1, -0.05)}, 0.85, math.pi / 2 - 0.09, 1.8, (1.6, 2.6, 1.9)),
         "nominal": rig({}, 1.0, math.pi / 2),
     }  # fmt: skip
 
 
 #: Table labels of :func:`pbrdf.sensor.calibration.rig_errors`' keys.
 LABELS = {"leak": "1/extinction_ratio", "vignetting": "vignetting map", "degree_of_polarization": "display DoP",
-          "polarization_angle": "display angle"}  # fmt: skip
+          "polarization_angle": "display angle", "emission_exponent": "display emission exponent",
+          "tone_gamma": "display tone gamma"}  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -79,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     for field, per in worst.items():
         print(f"| {LABELS.get(field, field)} | " + " | ".join(f"{per[n]:.2e}" for n in names) + " |")
     print(f"\ncalibrate: median {np.median(times):.2f} s, range {min(times):.2f} - {max(times):.2f} s "
-          f"over {len(times)} runs ({args.size} x {args.size} raw frames, 10 targets)")  # fmt: skip
+          f"over {len(times)} runs ({args.size} x {args.size} raw frames, {len(targets)} targets)")  # fmt: skip
     return 0
 
 

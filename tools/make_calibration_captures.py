@@ -2,7 +2,8 @@
 
     python tools/make_calibration_captures.py --out CAPTURES_DIR [--rig TRUE_RIG.json] [--size 128] [--seed 0]
 
-Forms the dark, white (R, G, B) and polarizer targets of docs/calibration.md in closed form
+Forms the dark, white (R, G, B; again at commanded levels 0.25 and 0.5, and at 0.4 m) and polarizer
+targets of docs/calibration.md in closed form
 (pbrdf/sensor/calibration_targets.py), passes them through the camera model with noise and saves
 one capture folder per target under CAPTURES_DIR, plus CAPTURES_DIR/true_rig.json (the rig they
 came from) for comparison with what headless/calibrate.py estimates. Without --rig the rig is an
@@ -31,7 +32,12 @@ EXAMPLE_IMPERFECTIONS = {
     "crosstalk": [[0.92, 0.06, 0.01], [0.08, 0.95, 0.05], [0.02, 0.07, 0.90]],
     "vignetting_poly": [-0.1, 0.03, 0.0],
 }
-EXAMPLE_DISPLAY = {"degree_of_polarization": 0.97, "polarization_angle": math.pi / 2 + 0.04}
+EXAMPLE_DISPLAY = {
+    "degree_of_polarization": 0.97,
+    "polarization_angle": math.pi / 2 + 0.04,
+    "emission_exponent": 0.8,
+    "tone_gamma": [2.2, 2.0, 2.4],
+}
 
 
 def build_parser() -> argparse.ArgumentParser:

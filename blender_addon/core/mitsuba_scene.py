@@ -283,11 +283,13 @@ def display_shapes(
     Returns:
         ``{"display": shape, "display_polarizer": shape}`` (no sheet with ``polarized_emitter``).
     """
-    if display.degree_of_polarization != 1.0 and not polarized_emitter:
-        raise NotImplementedError(
-            "degree_of_polarization < 1 is rendered only by the polarized display emitter (a flat display with a "
-            "built-in pattern, mono polarized variants), not through the polarizer sheet"
-        )
+    for name, nominal in (("degree_of_polarization", 1.0), ("emission_exponent", 0.0)):
+        if getattr(display, name) != nominal and not polarized_emitter:
+            raise NotImplementedError(
+                f"display.{name} {getattr(display, name):g} (nominal {nominal:g}) is rendered only by the polarized "
+                "display emitter (a flat display with a built-in pattern, mono polarized variants), not through "
+                "the polarizer sheet"
+            )
     if (channel is None) == (radiance is None):
         raise ValueError("display_shapes needs either a channel or a radiance, not both")
     to_world = np.asarray(display.display_to_world())
@@ -299,7 +301,9 @@ def display_shapes(
         polarized_display.register()
         rect = display.lit_rectangle(channel, uniform=True)
         absorbing = np.cross(display.normal_world(), display.polarization_direction_world())
-        emitter = polarized_display.emitter_dict(display.radiance, absorbing, display.degree_of_polarization)
+        emitter = polarized_display.emitter_dict(
+            display.radiance, absorbing, display.degree_of_polarization, display.emission_exponent
+        )
         return {"display": {"type": "rectangle", "to_world": scalar_transform(_emitter_to_world(display, rect)),
                             "emitter": emitter}}  # fmt: skip
     sheet_bsdf = {"type": "polarizer", "theta": -math.degrees(display.polarization_angle)}

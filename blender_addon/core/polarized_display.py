@@ -19,6 +19,8 @@ The Stokes vector is expressed in Mitsuba's implicit basis of the propagation di
 
 returned as the first column of the emitted Mueller matrix (the ``stokes`` integrator reads the
 first column of the path's Mueller product). Only the front side emits, as Mitsuba's ``area``.
+The radiance may fall with the emission angle ``theta`` from the front normal as ``cos^p theta``
+(``display.emission_exponent``, :mod:`pbrdf.sensor.display_response`; 0 = flat, as before).
 Sampling is the shape's (uniform in area, converted to solid angle), so the emitter must sit on a
 ``rectangle`` (or any shape) through the shape dict's ``emitter`` entry.
 """
@@ -35,7 +37,9 @@ __all__ = ["PLUGIN", "register", "emitter_dict"]
 PLUGIN = "pdir_polarized_display"
 
 
-def emitter_dict(radiance: float, absorbing_axis: Any, degree_of_polarization: float = 1.0) -> dict:
+def emitter_dict(
+    radiance: float, absorbing_axis: Any, degree_of_polarization: float = 1.0, emission_exponent: float = 0.0
+) -> dict:
     """The Mitsuba dict of a polarized display emitter (register the plugin first).
 
     Args:
@@ -44,15 +48,20 @@ def emitter_dict(radiance: float, absorbing_axis: Any, degree_of_polarization: f
             display plane (perpendicular to the transmitted polarization at normal incidence).
         degree_of_polarization: in [0, 1]; the emitted S1 and S2 are scaled by it (a partially
             polarized display: the polarized part plus unpolarized light of the same S0).
+        emission_exponent: ``p`` of the angular profile ``cos^p`` of the emission angle; >= 0.
     """
     ax = [float(x) for x in absorbing_axis]
     if len(ax) != 3 or sum(x * x for x in ax) == 0.0:
         raise ValueError(f"absorbing_axis must be a non-zero 3-vector, got {absorbing_axis!r}")
     if not 0.0 <= degree_of_polarization <= 1.0:
         raise ValueError(f"degree_of_polarization must be in [0, 1], got {degree_of_polarization}")
+    if not 0.0 <= emission_exponent < float("inf"):
+        raise ValueError(f"emission_exponent must be a finite number >= 0, got {emission_exponent}")
     out = {"type": PLUGIN, "radiance": float(radiance), "absorbing_axis": ax}
     if degree_of_polarization != 1.0:  # the fully polarized display's dict (and kernels) stay as before
         out["dop"] = float(degree_of_polarization)
+    if emission_exponent != 0.0:  # likewise the flat display's
+        out["exponent"] = float(emission_exponent)
     return out
 
 
@@ -67,7 +76,7 @@ def _emitter_class() -> type:
     import mitsuba as mi  # noqa: PLC0415
 
     class PolarizedDisplay(mi.Emitter):
-        """``pdir_polarized_display``: ``radiance`` (float), ``absorbing_axis`` (3 floats), ``dop`` (float, 1)."""
+        """``pdir_polarized_display``: ``radiance``, ``absorbing_axis`` (3 floats), ``dop`` (1), ``exponent`` (0)."""
 
         def __init__(self, props: Any) -> None:
             mi.Emitter.__init__(self, props)
@@ -76,16 +85,26 @@ def _emitter_class() -> type:
             norm = sum(x * x for x in a) ** 0.5
             self.axis = [x / norm for x in a]
             self.dop = float(props.get("dop", 1.0))
+            self.exponent = float(props.get("exponent", 0.0))
             # A partially polarized display is the engine's drawn rig, other values every scene: the axis and
             # DoP become kernel parameters (opaque) so scenes share compiled kernels; the default keeps literals.
             self.partial = self.dop != 1.0
             if self.partial:
                 self.opaque_axis = dr.opaque(mi.Vector3f, self.axis)
                 self.opaque_dop = dr.opaque(mi.Float, self.dop)
+            # Likewise the profile's exponent (drawn per scene too); a flat display keeps its kernels.
+            self.profiled = self.exponent != 0.0
+            if self.profiled:
+                self.opaque_exponent = dr.opaque(mi.Float, self.exponent)
             self.m_flags = mi.EmitterFlags.Surface
 
-        def _emitted(self, k, scale, active):
-            """Mueller matrix whose first column is the Stokes vector emitted along ``k``, times ``scale``."""
+        def _emitted(self, k, scale, active, cos_theta):
+            """Mueller matrix whose first column is the Stokes vector emitted along ``k``, times ``scale``.
+
+            ``cos_theta``: cosine of the emission angle (from the front normal), for the profile.
+            """
+            if self.profiled:  # cos^p; the clamp keeps the power finite (emission at exactly 90 deg is 0 anyway)
+                scale = scale * dr.power(dr.maximum(cos_theta, 1e-12), self.opaque_exponent)
             u = dr.cross(k, self.opaque_axis if self.partial else mi.Vector3f(*self.axis))
             x = mi.mueller.stokes_basis(k)
             y = dr.cross(k, x)
@@ -104,20 +123,21 @@ def _emitter_class() -> type:
 
         def eval(self, si, active=True):
             front = active & (mi.Frame3f.cos_theta(si.wi) > 0)
-            return self._emitted(si.to_world(si.wi), self.radiance, front)
+            return self._emitted(si.to_world(si.wi), self.radiance, front, mi.Frame3f.cos_theta(si.wi))
 
         def sample_direction(self, it, sample, active=True):
             ds = self.get_shape().sample_direction(it, sample, active)
             ok = active & (dr.dot(ds.d, ds.n) < 0) & (ds.pdf > 0)
             ds.emitter = mi.EmitterPtr(self)
-            return ds, self._emitted(-ds.d, self.radiance * dr.rcp(dr.select(ok, ds.pdf, 1.0)), ok)
+            scale = self.radiance * dr.rcp(dr.select(ok, ds.pdf, 1.0))
+            return ds, self._emitted(-ds.d, scale, ok, -dr.dot(ds.d, ds.n))
 
         def pdf_direction(self, it, ds, active=True):
             pdf = self.get_shape().pdf_direction(it, ds, active)
             return dr.select(active & (dr.dot(ds.d, ds.n) < 0), pdf, 0.0)
 
         def eval_direction(self, it, ds, active=True):
-            return self._emitted(-ds.d, self.radiance, active & (dr.dot(ds.d, ds.n) < 0))
+            return self._emitted(-ds.d, self.radiance, active & (dr.dot(ds.d, ds.n) < 0), -dr.dot(ds.d, ds.n))
 
         def sample_position(self, time, sample, active=True):
             raise NotImplementedError(f"{PLUGIN} supports camera paths only (no light tracing)")
@@ -132,6 +152,9 @@ def _emitter_class() -> type:
             pass
 
         def to_string(self) -> str:
-            return f"PolarizedDisplay[radiance={self.radiance}, absorbing_axis={self.axis}, dop={self.dop}]"
+            return (
+                f"PolarizedDisplay[radiance={self.radiance}, absorbing_axis={self.axis}, dop={self.dop}, "
+                f"exponent={self.exponent}]"
+            )
 
     return PolarizedDisplay

@@ -6,6 +6,8 @@ Layout (``docs/calibration.md``)::
       dark/capture.json            "target": "dark"        (display off)
       white_r/capture.json         "target": "white", "display_channel": "R", "albedo": 0.99, "distance_m": 0.7
       white_g/ ... white_b/ ...
+      white_r_050/capture.json     ... "level": 0.5   (optional: the tone response)
+      white_r_near/capture.json    ... "distance_m": 0.4   (optional: the emission profile)
       polarizer_000/capture.json   "target": "polarizer", "polarizer_angle_deg": 0
       polarizer_030/ ...           (at least three distinct angles)
 
@@ -18,6 +20,7 @@ The keys this module adds (kept in :attr:`~pbrdf.data.capture.Capture.metadata`)
   ``"R"``, ``"G"``, ``"B"`` (or 0, 1, 2);
 * ``albedo``: ``white`` only, the reflectance standard's Lambertian reflectance in ``(0, 1]``
   (default 0.99); ``distance_m`` (required for ``white``) is the plane's distance;
+* ``level``: ``white`` only, the commanded level of the primary in ``(0, 1]`` (default 1: full on);
 * ``polarizer_angle_deg``: ``polarizer`` only, the polarizer's transmission axis in degrees in the
   analyzers' frame.
 """
@@ -37,7 +40,7 @@ from pbrdf.sensor.calibration import CHANNELS, TARGET_KINDS, Target
 __all__ = ["TARGET_KEYS", "load_targets", "save_targets"]
 
 #: The ``capture.json`` keys of a calibration target (beside the capture format's own).
-TARGET_KEYS = ("target", "display_channel", "albedo", "polarizer_angle_deg")
+TARGET_KEYS = ("target", "display_channel", "albedo", "level", "polarizer_angle_deg")
 
 
 def _channel(value: Any, where: Path) -> int:
@@ -71,7 +74,10 @@ def _target(folder: Path) -> Target:
             raise ValueError(f"{where}: albedo must be in (0, 1]; got {albedo:g}")
         if cap.meta.distance_m is None:
             raise ValueError(f"{where}: a white target needs distance_m (the target plane's distance in m)")
-        fields.update(albedo=albedo, distance_m=cap.meta.distance_m)
+        level = _finite(md.get("level", 1.0), "level", where)
+        if not 0.0 < level <= 1.0:
+            raise ValueError(f"{where}: level must be in (0, 1] (the commanded level of the primary); got {level:g}")
+        fields.update(albedo=albedo, distance_m=cap.meta.distance_m, level=level)
     if kind == "polarizer":
         if "polarizer_angle_deg" not in md:
             raise ValueError(f"{where}: a polarizer target needs polarizer_angle_deg (the polarizer's axis)")
@@ -119,6 +125,8 @@ def save_targets(folder: str | os.PathLike, targets: list[Target]) -> list[Path]
             extra["intrinsics"] = np.asarray(t.intrinsics, dtype=np.float64).tolist()
         if t.kind == "white":
             extra.update(display_channel=CHANNELS[t.display_channel], albedo=t.albedo, distance_m=t.distance_m)
+            if t.level != 1.0:
+                extra["level"] = t.level
         if t.kind == "polarizer":
             extra["polarizer_angle_deg"] = math.degrees(t.polarizer_angle)
         out.append(save_capture(root / t.name, t.raws, t.model, extra=extra, dark=t.dark, overwrite=True))

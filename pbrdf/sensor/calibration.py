@@ -12,6 +12,8 @@ The targets (``docs/calibration.md`` says why this set makes every estimated fie
   that one primary over its whole area. Its radiance is ``albedo / pi`` times the display's
   irradiance (Lambert's polygon formula, :mod:`pbrdf.sensor.irradiance`), so each camera channel
   measures ``V(p) M[c, r]`` per pixel: the cross-talk column ``r`` and the vignetting ``V``.
+  Optionally the same at a second distance (the display's emission profile) and at commanded
+  ``level`` s below 1 (its tone response): :mod:`pbrdf.sensor.calibration_display`.
 * ``polarizer`` (at least three angles ``polarizer_angle_deg``): the camera faces the display
   (all white) through a linear polarizer at a known angle in the analyzers' frame. The light is
   fully linearly polarized at that angle whatever the display does, so the four analyzers of each
@@ -45,12 +47,11 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from pbrdf.polar import mueller
+from pbrdf.sensor.calibration_display import display_response, split_whites, target_intrinsics, white_radiance
 from pbrdf.sensor.camera import ANGLES_DEG, CameraModel, mosaic_indices
 from pbrdf.sensor.decode import hdr_merge, subtract_dark
 from pbrdf.sensor.imperfections import vignetting_map
-from pbrdf.sensor.irradiance import irradiance_vectors
-from pbrdf.sensor.patches import constant_patches
-from pbrdf.sensor.projection import pinhole_intrinsics, pixel_rays, transform_points
+from pbrdf.sensor.projection import pixel_rays
 from pbrdf.sensor.rig import Rig
 
 __all__ = [
@@ -60,7 +61,6 @@ __all__ = [
     "MIN_VALID_FRACTION",
     "Target",
     "Calibration",
-    "white_radiance",
     "calibrate",
     "rig_errors",
 ]
@@ -94,6 +94,7 @@ class Target:
         display_channel: ``white``: the display primary shown (0, 1, 2).
         albedo: ``white``: the target's Lambertian reflectance.
         distance_m: ``white``: the target plane's distance along the viewing axis in m.
+        level: ``white``: the commanded level of the primary, in ``(0, 1]`` (1: full on).
         intrinsics: ``K (3, 3)`` of the raw grid, or None (the rig camera's, centred).
         polarizer_angle: ``polarizer``: the polarizer's transmission axis in radians, in the
             analyzers' frame (0 = the 0-degree analyzer, increasing toward the 45-degree one).
@@ -108,6 +109,7 @@ class Target:
     display_channel: int | None = None
     albedo: float = 0.99
     distance_m: float | None = None
+    level: float = 1.0
     intrinsics: NDArray | None = None
     polarizer_angle: float | None = None
 
@@ -129,51 +131,6 @@ class Calibration:
 
 
 # ---------------------------------------------------------------------------- the targets' physics
-
-
-def white_radiance(rig: Rig, rays: NDArray, distance_m: float, albedo: float) -> NDArray:
-    """Radiance of a Lambertian target lit by one fully lit display primary, seen along camera rays.
-
-    The target is the plane ``z = -distance_m`` of the camera frame, facing the camera; a ray
-    meets it at ``distance_m * ray``, whose radiance is ``albedo / pi`` times the irradiance of the
-    whole active area at ``rig.display.radiance`` (Lambert's polygon formula; no occlusion by the
-    camera).
-
-    Args:
-        rig: display geometry and camera pose.
-        rays: ``(..., 3)`` camera-frame rays scaled to ``z = -1``
-            (:func:`pbrdf.sensor.projection.pixel_rays`).
-        distance_m: the plane's distance in m.
-        albedo: Lambertian reflectance in ``[0, 1]``.
-
-    Returns:
-        ``(...)`` float64 radiance in the renderer's units.
-
-    Example:
-        Straight ahead of a small display far away, ``E ~ L A / d^2``:
-
-        >>> from pbrdf.sensor.rig import CameraSpec, DisplaySpec
-        >>> rig = Rig(DisplaySpec(width=0.01, height=0.01, center=(0.0, 0.0, 0.0)), CameraSpec())
-        >>> l = white_radiance(rig, np.array([0.0, 0.0, -1.0]), 1.0, math.pi)
-        >>> round(float(l) / 1e-4, 4)
-        1.0
-    """
-    r = np.asarray(rays, dtype=np.float64)
-    points = distance_m * r.reshape(-1, 3)
-    white = constant_patches(dataclasses.replace(rig.display, pattern="white"))
-    verts = transform_points(rig.camera.world_to_camera(), white.vertices.reshape(-1, 3)).reshape(white.vertices.shape)
-    normals = np.broadcast_to(np.array([0.0, 0.0, 1.0]), points.shape)
-    phi = irradiance_vectors(verts, white.radiance[:, :1] * rig.display.radiance, points, normals)
-    e = np.einsum("pk,pk->p", phi[:, 0], normals)
-    return (albedo / math.pi) * e.reshape(r.shape[:-1])
-
-
-def _intrinsics(target: Target) -> NDArray:
-    """``K (3, 3)`` of the target's raw grid: its own, else the rig camera's focal length, centred."""
-    if target.intrinsics is not None:
-        return np.asarray(target.intrinsics, dtype=np.float64)
-    h, w = target.raws.shape[1:]
-    return pinhole_intrinsics(target.rig.camera.focal_length_px, w, h)
 
 
 def _analyzer_rows(theta: float, delta: NDArray, leak: NDArray, transmittance: float) -> NDArray:
@@ -337,7 +294,7 @@ def _white_samples(target: Target, dark: Target | None, leak: NDArray) -> tuple[
     rows, cols = _sample_rows(h), _sample_rows(w)
     if target.distance_m is None:
         raise ValueError(f"{target.name}: a white target needs distance_m (its distance along the viewing axis)")
-    rays = pixel_rays(_intrinsics(target), h, w)[np.ix_(rows, cols)]
+    rays = pixel_rays(target_intrinsics(target), h, w)[np.ix_(rows, cols)]
     expected = white_radiance(target.rig, rays, target.distance_m, target.albedo)
     color, _ = mosaic_indices(target.model.pattern_offset)
     colour = color[np.ix_(rows % 4, cols % 4)]
@@ -362,8 +319,10 @@ def _vignetting_fit(samples: list[tuple], focal: float) -> tuple[NDArray, NDArra
     y = np.concatenate([s[0] for s in samples])
     group = np.concatenate([3 * s[1] + r for r, s in enumerate(samples)])  # 3 c + r
     rho2 = np.concatenate([s[2] for s in samples])
+    cos4 = np.ones_like(y)
     if math.isfinite(focal):
-        y = y / (focal**2 / (focal**2 + np.concatenate([s[3] for s in samples]))) ** 2
+        cos4 = (focal**2 / (focal**2 + np.concatenate([s[3] for s in samples]))) ** 2
+        y = y / cos4
     powers = np.stack([rho2, rho2**2, rho2**3], axis=-1)
 
     def scale(k: NDArray) -> tuple[NDArray, NDArray]:
@@ -378,7 +337,8 @@ def _vignetting_fit(samples: list[tuple], focal: float) -> tuple[NDArray, NDArra
     k = least_squares(residual, np.zeros(3), x_scale=0.1).x
     m, poly = scale(k)
     res = residual(k)
-    rms = float(np.sqrt(np.mean(res**2) / np.mean(y**2)))
+    # In the measured ratio's own units (not divided by cos^4), so the two falloff models compare on equal terms.
+    rms = float(np.sqrt(np.mean((res * cos4) ** 2) / np.mean((y * cos4) ** 2)))
     # Standard error of each entry: its samples' residual spread over the root of their count.
     n = np.maximum(np.bincount(group, minlength=9), 1)
     mean_poly2 = np.maximum(np.bincount(group, poly**2, 9) / n, 1e-300)
@@ -402,7 +362,7 @@ def _whites(targets: list[Target], dark: Target | None, leak: NDArray) -> dict[s
                 "channel R, G, B, the display showing that primary alone)"
             )
     samples = [_white_samples(by_channel[r], dark, leak) for r in range(3)]
-    focal = float(_intrinsics(by_channel[0])[0, 0])
+    focal = float(target_intrinsics(by_channel[0])[0, 0])
     fits = [(_vignetting_fit(samples, f), f) for f in (math.inf, focal)]
     (m, poly, rms, se), f = min(fits, key=lambda x: x[0][2])
     return {"crosstalk": m, "vignetting_poly": poly, "vignetting_focal_px": f, "rms": rms, "se": se}
@@ -488,6 +448,14 @@ def calibrate(targets: list[Target]) -> Calibration:
     dark, whites, polarizers = _split(targets)
     pol = _polarizers(polarizers, dark)
     leak = pol["leak"]
+    whites, second, partial = split_whites(whites)
+    shown, shown_report = display_response(whites, second, partial, lambda t: _merged(t, dark, "white target"))
+
+    # The white fit's expected radiance with the estimated profile.
+    def shown_rig(rig: Rig) -> Rig:
+        return dataclasses.replace(rig, display=dataclasses.replace(rig.display, **shown))
+
+    whites = [dataclasses.replace(t, rig=shown_rig(t.rig)) for t in whites]
     white = _whites(whites, dark, leak)
     ambient, ambient_se, offset = _ambient(dark, leak, white["vignetting_focal_px"], white["vignetting_poly"])
     report: dict[str, Any] = {}
@@ -521,8 +489,9 @@ def calibrate(targets: list[Target]) -> Calibration:
             hint = " (a diagonal above 1: the display is brighter than rig.display.radiance and the sensor's scale say)"
         raise ValueError(f"calibration refused, the estimate is not physical: {e}{hint}") from None
     report["display.polarization_angle"] = {"value": pol["psi"], "note": "estimated"}
+    report.update(shown_report)
     try:
-        disp = dataclasses.replace(base.rig.display, degree_of_polarization=dop, polarization_angle=pol["psi"])
+        disp = dataclasses.replace(base.rig.display, degree_of_polarization=dop, polarization_angle=pol["psi"], **shown)
     except ValueError as e:
         raise ValueError(f"calibration refused, the estimate is not physical: {e}") from None
     for name in ("analyzer_transmittance", "sensor.electrons_per_unit", "display.radiance"):
@@ -545,7 +514,8 @@ def rig_errors(est: Rig, true: Rig, shape: tuple[int, int]) -> dict[str, float]:
 
     Returns:
         ``qwp_angle``, ``qwp_retardance``, ``leak``, ``crosstalk``, ``ambient``, ``vignetting``,
-        ``degree_of_polarization``, ``polarization_angle``: each the largest absolute error.
+        ``degree_of_polarization``, ``polarization_angle``, ``emission_exponent``, ``tone_gamma``: each the
+        largest absolute error.
     """
     e, t = est.camera.model, true.camera.model
 
@@ -564,4 +534,6 @@ def rig_errors(est: Rig, true: Rig, shape: tuple[int, int]) -> dict[str, float]:
         "vignetting": float(np.max(np.abs(vmap(e) - vmap(t)))),
         "degree_of_polarization": abs(est.display.degree_of_polarization - true.display.degree_of_polarization),
         "polarization_angle": abs(est.display.polarization_angle - true.display.polarization_angle),
+        "emission_exponent": abs(est.display.emission_exponent - true.display.emission_exponent),
+        "tone_gamma": float(np.max(np.abs(np.subtract(est.display.tone_gamma, true.display.tone_gamma)))),
     }

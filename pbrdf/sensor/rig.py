@@ -40,6 +40,7 @@ from pbrdf.io.atomic import atomic_write_bytes, atomic_write_text
 from pbrdf.io.strict_json import read_json_object
 from pbrdf.sensor import projection
 from pbrdf.sensor.camera import CameraModel
+from pbrdf.sensor.display_response import check_emission_exponent, check_tone_gamma, tone_response
 
 __all__ = [
     "BUILTIN_PATTERNS",
@@ -181,6 +182,8 @@ class DisplaySpec:
         radiance: renderer radiance of a fully lit colour channel (linear units).
         luminance_cd_m2: the physical peak luminance the radiance stands for (documentation;
             the radiometric calibration lives in ``SensorParams.electrons_per_unit``).
+        emission_exponent: ``p`` of the emission profile ``cos^p`` (0 = flat; :mod:`pbrdf.sensor.display_response`).
+        tone_gamma: per channel (R, G, B), the emitted level of a commanded pattern value ``v`` is ``v ** gamma``.
     """
 
     width: float = 1.2096
@@ -195,6 +198,8 @@ class DisplaySpec:
     degree_of_polarization: float = 1.0
     radiance: float = 1.0
     luminance_cd_m2: float = 600.0
+    emission_exponent: float = 0.0
+    tone_gamma: tuple[float, float, float] = (1.0, 1.0, 1.0)
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
@@ -205,6 +210,8 @@ class DisplaySpec:
         for name in ("radiance", "luminance_cd_m2"):
             put(name, _as_float(getattr(self, name), f"display.{name}"))
         put("center", _as_vec(self.center, 3, "display.center"))
+        put("emission_exponent", check_emission_exponent(self.emission_exponent))
+        put("tone_gamma", check_tone_gamma(self.tone_gamma))
         res = self.resolution
         if isinstance(res, (str, bytes)) or not hasattr(res, "__len__") or len(res) != 2:
             raise ValueError(f"display.resolution must be (W, H) pixels, got {self.resolution!r}")
@@ -337,7 +344,9 @@ class DisplaySpec:
         return self.pattern_rectangle((r0, r1), (c0, c1), img.shape)
 
     def pattern_image(self, height: int | None = None, width: int | None = None) -> NDArray[np.float32]:
-        """The pattern as an image ``(H, W, 3)`` float32 in [0, 1] (exactly {0, 1} for built-ins).
+        """The emitted pattern ``(H, W, 3)`` float32 in [0, 1]: the commanded levels through ``tone_gamma``.
+
+        The commanded levels are exactly {0, 1} for built-ins (which the tone response keeps).
 
         Row 0 is the TOP of the display and column 0 its LEFT edge, both as seen from the front.
         The renderer stretches it over the active area and samples it with nearest filtering.
@@ -354,6 +363,9 @@ class DisplaySpec:
             FileNotFoundError: ``pattern`` is neither a built-in name nor an existing file.
             ValueError: the file cannot be read as an image.
         """
+        return tone_response(self._commanded_pattern(height, width), self.tone_gamma)
+
+    def _commanded_pattern(self, height: int | None, width: int | None) -> NDArray[np.float32]:
         if self.pattern in BUILTIN_PATTERNS:
             h = DEFAULT_PATTERN_SIZE[0] if height is None else _as_int(height, "height")
             w = DEFAULT_PATTERN_SIZE[1] if width is None else _as_int(width, "width")
@@ -567,6 +579,7 @@ class Rig:
         d = {f.name: getattr(self.display, f.name) for f in dataclasses.fields(DisplaySpec)}
         d["resolution"] = list(self.display.resolution)
         d["center"] = list(self.display.center)
+        d["tone_gamma"] = list(self.display.tone_gamma)
         c = self.camera
         cam = {
             "sensor_width_px": c.sensor_width_px,

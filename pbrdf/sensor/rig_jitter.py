@@ -34,7 +34,9 @@ __all__ = ["JITTER_RANGES", "JITTER_STREAM", "MAX_SCALE", "check_scale", "draw_r
 #: Largest offset from the nominal value at ``scale = 1`` (a realistic residual after calibration,
 #: about half the uncalibrated worst case; docs/rig_imperfections.md says why each). ``ambient``,
 #: ``crosstalk`` (each off-diagonal entry) and ``vignetting_k1`` are one-sided (physical signs);
-#: ``extinction_log2`` is the offset of ``log2(extinction / nominal)``; the rest are +- offsets.
+#: ``extinction_log2`` is the offset of ``log2(extinction / nominal)``, ``tone_gamma_log2`` that of
+#: each channel's gamma; ``emission_exponent`` is a +- offset reflected at 0 (one-sided around a
+#: flat display); the rest are +- offsets.
 JITTER_RANGES = {
     "crosstalk": 0.03,  # off-diagonal fraction of a display region reaching another camera channel
     "ambient": 0.005,  # unpolarized room light per camera channel, in display radiances
@@ -44,6 +46,8 @@ JITTER_RANGES = {
     "extinction_log2": 1.0,  # extinction ratio within [nominal / 2, nominal * 2]
     "degree_of_polarization": 0.03,  # display DoP in [0.97, 1]
     "polarization_angle": math.radians(1.0),  # display polarization angle around nominal
+    "emission_exponent": 0.2,  # the display's cos^p profile, p around nominal (after calibration)
+    "tone_gamma_log2": 0.03,  # each channel's tone gamma within 2 % of nominal (built-in patterns: no effect)
 }
 #: The random stream of the draws: ``default_rng([sample_seed, JITTER_STREAM])`` (the camera noise uses 1).
 JITTER_STREAM = 2
@@ -74,7 +78,7 @@ def draw_rig(rig: Rig, sample_seed: int, scale: float) -> tuple[Rig, dict]:
         ``(drawn rig, drawn values)``: the values as a JSON-friendly dict of the drawn fields
         (camera model: ``crosstalk``, ``ambient``, ``vignetting_poly``, ``qwp_retardance``,
         ``qwp_angle``, ``extinction_ratio``; display: ``degree_of_polarization``,
-        ``polarization_angle``) plus ``scale``.
+        ``polarization_angle``, ``emission_exponent``, ``tone_gamma``) plus ``scale``.
     """
     s = check_scale(scale)
     rng = np.random.default_rng([int(sample_seed) % 2**63, JITTER_STREAM])
@@ -89,6 +93,8 @@ def draw_rig(rig: Rig, sample_seed: int, scale: float) -> tuple[Rig, dict]:
     u_ext = rng.uniform(-1.0, 1.0, 3)
     u_dop = rng.random()
     u_pol = rng.uniform(-1.0, 1.0)
+    u_exp = rng.uniform(-1.0, 1.0)  # drawn after the older terms: their draws are those of before
+    u_gam = rng.uniform(-1.0, 1.0, 3)
     off = np.where(np.eye(3, dtype=bool), 0.0, s * r["crosstalk"] * u_cross)
     cam = {
         "crosstalk": tuple(tuple(float(v) for v in row) for row in np.asarray(model.crosstalk) + off),
@@ -109,9 +115,12 @@ def draw_rig(rig: Rig, sample_seed: int, scale: float) -> tuple[Rig, dict]:
             display.degree_of_polarization * (1.0 - s * r["degree_of_polarization"] * u_dop)
         ),
         "polarization_angle": float(display.polarization_angle + s * r["polarization_angle"] * u_pol),
+        "emission_exponent": abs(float(display.emission_exponent + s * r["emission_exponent"] * u_exp)),
+        "tone_gamma": tuple(
+            float(g) for g in np.asarray(display.tone_gamma) * 2.0 ** (s * r["tone_gamma_log2"] * u_gam)
+        ),
     }
     new_rig = replace(rig, camera=replace(rig.camera, model=replace(model, **cam)), display=replace(display, **shown))
     drawn = {k: [list(row) for row in v] if k == "crosstalk" else list(v) if isinstance(v, tuple) else v
-             for k, v in cam.items()}  # fmt: skip
-    drawn.update(shown)
+             for k, v in {**cam, **shown}.items()}  # fmt: skip
     return new_rig, {**drawn, "scale": s}

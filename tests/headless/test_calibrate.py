@@ -60,6 +60,8 @@ def test_writes_a_rig_the_decoder_reads(captures, tmp_path, capsys):
     printed = capsys.readouterr().out
     assert printed.strip().splitlines()[-1] == str(out)
     assert "qwp_retardance:" in printed and "not identifiable" in printed
+    assert "display.emission_exponent: 0.0 (estimated" in printed and "display.tone_gamma[B]: " in printed
+    assert sorted({t.level for t in load_targets(captures)}) == [0.25, 0.5, 1.0]  # the levels round-trip
     rig = Rig.load(out)
     est = rig.camera.model
     np.testing.assert_allclose(est.qwp_retardance, TRUE.camera.model.qwp_retardance, atol=0.01)
@@ -127,6 +129,12 @@ def test_bad_target_keys_name_the_file(captures, tmp_path, capsys):
     assert cli.main(["--input", str(folder), "--out", str(tmp_path / "rig.json")]) == 2
     err = capsys.readouterr().err
     assert "white_r" in err and "display_channel must be one of" in err
+    meta_path = folder / "white_g_050" / CAPTURE_JSON
+    meta = json.loads(meta_path.read_text())
+    meta["level"] = 1.5
+    meta_path.write_text(json.dumps(meta))
+    with pytest.raises(ValueError, match=r"white_g_050/capture.json: level must be in \(0, 1\]"):
+        load_targets(folder)
     (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="no calibration captures"):
         load_targets(tmp_path / "empty")
@@ -145,8 +153,10 @@ def test_the_synthetic_capture_tool_writes_what_calibrate_reads(tmp_path):
     tool = subprocess.run([sys.executable, str(ROOT / "tools" / "make_calibration_captures.py"), "--out", str(out),
                            "--size", "64", "--seed", "3"], capture_output=True, text=True, timeout=300)  # fmt: skip
     assert tool.returncode == 0, tool.stderr
-    assert len([p for p in out.iterdir() if p.is_dir()]) == 10 and (out / "true_rig.json").is_file()
+    assert len([p for p in out.iterdir() if p.is_dir()]) == 19 and (out / "true_rig.json").is_file()
     assert cli.main(["--input", str(out), "--out", str(tmp_path / "rig.json"), "--quiet"]) == 0
     est, true = Rig.load(tmp_path / "rig.json"), Rig.load(out / "true_rig.json")
     np.testing.assert_allclose(est.camera.model.qwp_retardance, true.camera.model.qwp_retardance, atol=0.01)
     np.testing.assert_allclose(est.camera.model.crosstalk, true.camera.model.crosstalk, atol=0.02)
+    assert abs(est.display.emission_exponent - true.display.emission_exponent) < 0.05 < true.display.emission_exponent
+    np.testing.assert_allclose(est.display.tone_gamma, true.display.tone_gamma, atol=0.03)

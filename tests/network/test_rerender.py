@@ -371,11 +371,11 @@ def test_real_dataset_reads_sample_and_capture(rendered):
     cap_item, smp_item = ds[0], ds[1]
     for item in (cap_item, smp_item):
         assert item["maps"].shape == (9, 24, 24) and item["mask"].shape == (1, 24, 24)
-        assert item["points"].shape == (3, 24, 24) and item["patches"].shape == (48, 11)
+        assert item["points"].shape == (3, 24, 24) and item["patches"].shape == (48, 12)
         assert set(item["mask"].unique().tolist()) <= {0.0, 1.0} and item["mask"].mean() > 0.3
         assert torch.all(item["maps"][:, item["mask"][0] == 0] == 0)
     batch = {k: torch.stack([cap_item[k], smp_item[k]]) for k in cap_item}
-    assert batch["patches"].shape == (2, 48, 11)
+    assert batch["patches"].shape == (2, 48, 12)
     # The sample's points (depth prior, crop + resize geometry) lie on the analytic sphere
     # (centre (0.02, -0.01, -0.65), radius 0.1) away from the silhouette: checks the intrinsics chain.
     from scipy import ndimage

@@ -37,13 +37,16 @@ TOLERANCE = {
     "vignetting": (0.7, 0.007),  # the falloff map V over the frame, 0.3 - 1
     "degree_of_polarization": (0.2, 0.002),  # 0.8 - 1
     "polarization_angle": (0.2, 0.002),  # pi/2 +- 0.1 rad
+    "emission_exponent": (4.0, 0.04),  # cos^p: flat to halved at 36 degrees
+    "tone_gamma": (2.0, 0.02),  # each channel, linear (1) to beyond sRGB-like (3)
 }
 
 
-def _rig(model: dict, dop: float, angle: float) -> Rig:
-    return Rig(
-        DisplaySpec(degree_of_polarization=dop, polarization_angle=angle), CameraSpec(model=CameraModel(**model))
+def _rig(model: dict, dop: float, angle: float, exponent: float = 0.0, gamma=(1.0, 1.0, 1.0)) -> Rig:
+    display = DisplaySpec(
+        degree_of_polarization=dop, polarization_angle=angle, emission_exponent=exponent, tone_gamma=gamma
     )
+    return Rig(display, CameraSpec(model=CameraModel(**model)))
 
 
 RIGS = {
@@ -51,13 +54,13 @@ RIGS = {
         {"qwp_angle": 0.03, "qwp_retardance": (1.50, 1.62, 1.66), "extinction_ratio": (80, 120, 200),
          "ambient": (0.004, 0.006, 0.003), "crosstalk": [[0.92, 0.06, 0.01], [0.08, 0.95, 0.05], [0.02, 0.07, 0.9]],
          "vignetting_focal_px": FOCAL, "vignetting_poly": (-0.1, 0.03, 0.0)},
-        0.97, math.pi / 2 + 0.04,
+        0.97, math.pi / 2 + 0.04, 0.8, (2.2, 2.0, 2.4),
     ),
     "strong": _rig(
         {"qwp_angle": -0.08, "qwp_retardance": (1.32, 1.45, 1.80), "extinction_ratio": (12, 30, 50),
          "ambient": (0.03, 0.02, 0.04), "crosstalk": [[0.8, 0.15, 0.05], [0.18, 0.85, 0.12], [0.04, 0.2, 0.75]],
          "vignetting_focal_px": FOCAL, "vignetting_poly": (-0.3, 0.1, -0.05)},
-        0.85, math.pi / 2 - 0.09,
+        0.85, math.pi / 2 - 0.09, 1.8, (1.6, 2.6, 1.9),
     ),
     "nominal": _rig({}, 1.0, math.pi / 2),  # no imperfection: nothing may be invented
 }  # fmt: skip
@@ -105,7 +108,11 @@ def _planted(rig: Rig, field: str) -> Rig:
     }  # fmt: skip
     if field in changes:
         return dataclasses.replace(rig, camera=dataclasses.replace(rig.camera, model=m.replace(**changes[field]())))
-    value = getattr(d, field) + (step if field == "polarization_angle" else -step)
+    if field == "tone_gamma":
+        return dataclasses.replace(
+            rig, display=dataclasses.replace(d, tone_gamma=(d.tone_gamma[0] + step, *d.tone_gamma[1:]))
+        )
+    value = getattr(d, field) + (step if field in ("polarization_angle", "emission_exponent") else -step)
     return dataclasses.replace(rig, display=dataclasses.replace(d, **{field: value}))
 
 
@@ -159,6 +166,7 @@ def test_missing_or_unusable_targets_are_named(calibrations):
         "missing polarizer targets": [t for t in targets if t.kind != "polarizer"],
         "white_r: white target not visible": _replace(targets, "white_r", raws=targets[0].raws),
         "two white targets for display channel R": _replace(targets, "white_g", display_channel=0),
+        "white_g_050: a white target below full level": _replace(targets, "white_g_050", distance_m=0.4),
     }
     for message, subset in cases.items():
         with pytest.raises(ValueError, match=message):
@@ -220,3 +228,18 @@ def test_calibration_is_fast(calibrations):
     start = time.perf_counter()
     calibrate(targets)
     assert time.perf_counter() - start < 10.0  # seconds, on a shared 2-core machine
+
+
+def test_profile_and_tone_response_need_their_targets_and_are_kept_without_them(calibrations):
+    """Without the second distance or the partial levels the fields keep the capture rig's values, said so."""
+    true, targets, _ = calibrations["mild"]
+    plain = [t for t in targets if not (t.kind == "white" and (t.level < 1.0 or t.distance_m != 0.7))]
+    assert len(plain) == len(targets) - 9
+    cal = calibrate(plain)
+    assert cal.rig.display.emission_exponent == 0.0 and cal.rig.display.tone_gamma == (1.0, 1.0, 1.0)
+    assert "not measured" in cal.report["display.emission_exponent"]["note"]
+    assert "not measured" in cal.report["display.tone_gamma[G]"]["note"]
+    # One primary at one partial level is enough for its own gamma; the others are kept.
+    one = plain + [t for t in targets if t.name == "white_g_050"]
+    gamma = calibrate(one).rig.display.tone_gamma
+    assert gamma[0] == gamma[2] == 1.0 and abs(gamma[1] - true.display.tone_gamma[1]) < TOLERANCE["tone_gamma"][1]

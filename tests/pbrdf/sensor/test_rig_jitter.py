@@ -33,6 +33,10 @@ def test_draws_stay_in_the_documented_ranges_and_reach_the_rig():
         assert all(50.0 <= e <= 200.0 for e in d["extinction_ratio"])
         assert 0.97 <= d["degree_of_polarization"] <= 1.0
         assert abs(d["polarization_angle"] - math.pi / 2) <= math.radians(1.0)
+        assert 0.0 <= d["emission_exponent"] <= 0.2 and all(2**-0.03 <= g <= 2**0.03 for g in d["tone_gamma"])
+        assert (
+            rig.display.emission_exponent == d["emission_exponent"] and list(rig.display.tone_gamma) == d["tone_gamma"]
+        )
         model = rig.camera.model
         assert model.crosstalk == tuple(map(tuple, d["crosstalk"])) and list(model.ambient) == d["ambient"]
         assert rig.display.degree_of_polarization == d["degree_of_polarization"]
@@ -45,6 +49,11 @@ def test_scale_multiplies_the_offsets_and_zero_is_the_nominal_rig_exactly():
     assert two["qwp_angle"] == pytest.approx(2 * one["qwp_angle"])
     assert 1 - two["degree_of_polarization"] == pytest.approx(2 * (1 - one["degree_of_polarization"]))
     assert math.log2(two["extinction_ratio"][0] / 100) == pytest.approx(2 * math.log2(one["extinction_ratio"][0] / 100))
+    assert two["emission_exponent"] == pytest.approx(2 * one["emission_exponent"])
+    # Around a profiled display the exponent is drawn both ways.
+    around = [draw_rig(Rig.from_dict({"display": {"emission_exponent": 1.0}}), s, 1.0)[1]["emission_exponent"]
+              for s in range(40)]  # fmt: skip
+    assert min(around) < 0.95 and max(around) > 1.05 and all(0.8 <= p <= 1.2 for p in around)
     rig, zero = draw_rig(Rig(), 9, 0.0)
     assert rig == Rig() and rig.camera.model.nominal_rig and zero["scale"] == 0.0
     assert math.copysign(1.0, zero["vignetting_poly"][0]) == 1.0  # 0.0, not -0.0
