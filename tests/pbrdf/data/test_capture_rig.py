@@ -79,3 +79,12 @@ def test_a_bad_rig_file_is_one_line(tmp_path, capsys):
     with pytest.raises(FileNotFoundError, match="rig file not found"):
         read_rig(tmp_path / "missing.json")
     assert math.isfinite(Rig().display.radiance)
+
+
+def test_infer_reads_the_rig_file_it_is_given(tmp_path, rng, capsys):
+    from headless import infer as infer_cli
+
+    folder, _ = _capture_folder(tmp_path, rng, CameraModel(**OPTICS))
+    args = ["--input", str(folder), "--out", str(tmp_path / "out"), "--quiet", "--rig", str(tmp_path / "none.json")]
+    assert infer_cli.main(args) != 0
+    assert capsys.readouterr().err.strip().splitlines()[-1] == f"error: {tmp_path / 'none.json'}: rig file not found"
