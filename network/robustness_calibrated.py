@@ -108,10 +108,10 @@ def _with_ambient(level: float) -> tuple[tuple[str, float], ...]:
     return tuple((n, level if n == "ambient" else v) for n, v in _WORST)
 
 
-#: The cases: every term at its worst level at once (also in a dim room: ambient light 1 % of the
-#: display, the sweep's smallest level, since dark frames do not remove the room light's noise; and
-#: in a dark one, to tell the room light's cost from the rest, and with the display ideal as well: what
-#: no decoder inverts), and three rig-jitter draws at scale 2.
+#: The cases: every term at its worst level at once; the same in a dim room (ambient light 1 % of the
+#: display, the sweep's smallest level: dark frames do not remove the room light's noise) and in a
+#: dark one (the room light's cost told from the rest); the camera terms alone (the display terms no
+#: decoder inverts left out); and three rig-jitter draws at scale 2.
 CASES: tuple[RigCase, ...] = (
     RigCase("worst", "every term at its worst level", _WORST, seed=1),
     RigCase("worst-dim", "every term at its worst level, ambient 1 %", _with_ambient(0.01), seed=5),
@@ -121,7 +121,7 @@ CASES: tuple[RigCase, ...] = (
         "every camera term at its worst level, no ambient light, the nominal display",
         tuple((n, v) for n, v in _with_ambient(0.0) if not n.startswith("display")),
         seed=7,
-    ),  # fmt: skip
+    ),
     RigCase("jitter2-a", "rig_jitter draw, scale 2 (seed 101)", jitter_seed=101, seed=2),
     RigCase("jitter2-b", "rig_jitter draw, scale 2 (seed 102)", jitter_seed=102, seed=3),
     RigCase("jitter2-c", "rig_jitter draw, scale 2 (seed 103)", jitter_seed=103, seed=4),
