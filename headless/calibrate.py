@@ -49,8 +49,7 @@ Each capture may carry "dark_files" (display off, same bracket); without them th
 frames are used. The white targets need the rig geometry ("rig": display pose and size) and may
 give "intrinsics"; every capture's "camera_model" gives the sensor and bracket.
 
-output: rig.json, e.g. copy its camera.model into an object capture's capture.json as
-"camera_model" (and its display into "rig") to decode with the calibration.
+output: rig.json; decode an object capture with it: infer.py (or decode.py) --input CAPTURE --rig rig.json.
 """
 
 

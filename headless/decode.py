@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 from headless._cli import held_warnings  # noqa: E402
 from pbrdf.data.capture import CAPTURE_FORMAT, CAPTURE_JSON, load_capture  # noqa: E402
 from pbrdf.data.capture_decode import check_usable, decode_capture  # noqa: E402
+from pbrdf.data.capture_rig import read_rig, with_rig  # noqa: E402
 from pbrdf.io.atomic import atomic_folder  # noqa: E402
 from pbrdf.sensor.decode import NINE_MAP_NAMES  # noqa: E402
 
@@ -67,6 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
         "--grid", choices=("half", "full"), default="half", help="output grid (default: half resolution)"
     )
     parser.add_argument("--preview", action="store_true", help="also write preview.png of the nine maps")
+    parser.add_argument("--rig", type=Path, metavar="RIG_JSON",
+                        help="decode with a calibrated rig (headless/calibrate.py's rig.json; bracket and sensor stay "
+                        "capture.json's)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress output (decode shows none)")
     return parser
 
@@ -107,7 +111,9 @@ def _preview_png(maps: np.ndarray, mask: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = False) -> list[Path]:
+def run(
+    capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = False, rig: Path | None = None
+) -> list[Path]:
     """Load, decode and write the outputs.
 
     Args:
@@ -115,6 +121,7 @@ def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = Fal
         out: output folder, created if missing.
         grid: ``"half"`` or ``"full"`` output grid.
         preview: also write ``preview.png``.
+        rig: a calibrated rig file to decode with (:func:`pbrdf.data.capture_rig.with_rig`), or None.
 
     Returns:
         The written paths.
@@ -127,6 +134,7 @@ def run(capture_dir: Path, out: Path, *, grid: str = "half", preview: bool = Fal
         CaptureWarning: no object stands out from the background.
     """
     capture = load_capture(capture_dir)
+    capture = capture if rig is None else with_rig(capture, read_rig(rig))
     decoded = decode_capture(capture, grid=grid)
     check_usable(decoded, capture)
     # Render everything before writing anything.
@@ -149,7 +157,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
 
     def work() -> int:
-        for path in run(args.input, args.out, grid=args.grid, preview=args.preview):
+        for path in run(args.input, args.out, grid=args.grid, preview=args.preview, rig=args.rig):
             print(path)
         return 0
 

@@ -104,6 +104,9 @@ def build_parser() -> argparse.ArgumentParser:
                         help="object distance in metres along the viewing axis (a tape measure; overrides "
                         "capture.json's distance_m; 0.2-3 m). A light-input model needs one: without it 0.75 m is "
                         "assumed and albedo is relative; the distance used goes to <name>_light.json")  # fmt: skip
+    parser.add_argument("--rig", type=Path, metavar="RIG_JSON",
+                        help="decode the capture with a calibrated rig (headless/calibrate.py's rig.json: optics and "
+                        "geometry; bracket, sensor: capture.json's); record dark_files for ambient light")  # fmt: skip
     parser.add_argument("--refine", action="store_true", help=_REFINE_HELP)
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
     parser.add_argument("--progress-lines", action="store_true",
@@ -174,9 +177,10 @@ def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, prog
     """The maps (with the relief depth unless ``--card``), the camera and a light model's distance record."""
     from network.infer import load_input, predict, relief_depth  # noqa: PLC0415
     from network.model.dense import auto_stride  # noqa: PLC0415
+    from pbrdf.data.capture_rig import read_rig  # noqa: PLC0415
 
     progress(start, "decoding the capture")
-    inp = load_input(source, require_object=True)
+    inp = load_input(source, require_object=True, rig=None if args.rig is None else read_rig(args.rig))
     distance, light = _light(model, inp, args.distance, source)
     stride = auto_stride(int(inp.mask.sum())) if args.stride == "auto" else int(args.stride)
     progress(start + 0.05 * span, f"predicting the maps ({int(inp.mask.sum())} pixels, stride {stride})")

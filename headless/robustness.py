@@ -17,6 +17,13 @@ the split's resolution, spp, seeds and Mitsuba variant), cached in OUT/basis/; t
 degrees must reproduce the split's raw brackets bit for bit (a warning says when it does not: the
 nominal cell then differs from a plain headless/evaluate.py run).
 
+With --cases, instead of the one-term sweep: each named rig (network/robustness_calibrated.py:
+every term at its worst level at once, rig_jitter draws at scale 2) re-captures every scene and
+the model is scored with the decoder given the nominal rig, the rig estimated by the
+self-calibration from synthetic targets of that rig (decoded as infer.py --rig rig.json), and the
+true rig; paired against the unperturbed rig. Writes OUT/calibrated/{cells,rigs}/ and
+OUT/calibrated.md; --pool-with OTHER_OUT ... adds a table over the scenes of every folder's cells.
+
 Writes OUT/cells/KEY.json (one per term, level and decoder, atomically: with --resume a killed
 sweep goes on from the finished cells), OUT/robustness.md (table and tolerances), OUT/robustness.png
 (figure) and OUT/robustness.json. One progress line per cell. OUT defaults to INPUT/robustness.
@@ -43,6 +50,7 @@ BASIS_ANGLES_DEG = {"v": 90.0, "h": 0.0, "d": 45.0}
 def build_parser() -> argparse.ArgumentParser:
     """The command line of this script (see the module docstring)."""
     from network.robustness import TERMS  # noqa: PLC0415
+    from network.robustness_calibrated import case_names  # noqa: PLC0415
 
     parser = argparse.ArgumentParser(
         prog="robustness.py", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -52,6 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--out", type=Path, help="output folder (default INPUT/robustness)")
     parser.add_argument("--terms", nargs="+", choices=[t.name for t in TERMS], metavar="TERM",
                         help="imperfections to sweep (default all): " + ", ".join(t.name for t in TERMS))  # fmt: skip
+    parser.add_argument("--cases", nargs="+", choices=case_names(), metavar="CASE",
+                        help="score perturbed rigs with the nominal, calibrated and true decoders instead of the "
+                        "sweep: " + ", ".join(case_names()))  # fmt: skip
+    parser.add_argument("--pool-with", nargs="+", type=Path, default=[], metavar="OUT",
+                        help="with --cases: other splits' output folders to pool into one more table")  # fmt: skip
     parser.add_argument("--resume", action="store_true", help="keep the finished cells in OUT/cells")
     parser.add_argument("--checkpoint", type=Path, help="model.pt/checkpoint.pt (default: the shipped model)")
     parser.add_argument("--train-stats", type=Path, help="training means (default: beside the checkpoint)")
@@ -179,6 +192,8 @@ def _run(args: argparse.Namespace) -> int:
     if cache.not_reproduced:
         warnings.warn(f"scenes {cache.not_reproduced}: the re-render does not reproduce the split's raw brackets "
                       "(another Mitsuba?); the nominal cell differs from a plain evaluation", stacklevel=1)  # fmt: skip
+    if args.cases:
+        return _calibrated(args, (model, ckpt, ckpt_path), root, indices, stats, cache, out, log, t0)
     cells = robustness.sweep(model, ckpt, root, indices, stats, cache, out / "cells", terms=args.terms,
                              resume=args.resume, log=log)  # fmt: skip
     head = f"Robustness of {ckpt_path} on {root} (scenes {indices[0]}-{indices[-1]}, {len(indices)} scenes)"
@@ -193,6 +208,32 @@ def _run(args: argparse.Namespace) -> int:
         warnings.warn("matplotlib is not installed: no figure", stacklevel=1)
     print(text)
     print(f"{time.perf_counter() - t0:.0f} s; wrote " + ", ".join(str(f) for f in files))
+    return 0
+
+
+def _calibrated(args, loaded, root: Path, indices, stats, cache, out: Path, log, t0: float) -> int:
+    """The --cases run: cells, tables (with the pooled one for --pool-with) and the written files."""
+    from network import robustness_calibrated as rc  # noqa: PLC0415
+    from network import robustness_report as rr  # noqa: PLC0415
+    from network.robustness import load_cells  # noqa: PLC0415
+    from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
+
+    model, ckpt, ckpt_path = loaded
+    cells = rc.calibration_sweep(model, ckpt, root, indices, stats, cache, out / "calibrated", cases=args.cases,
+                                 resume=args.resume, log=log)  # fmt: skip
+    head = f"{ckpt_path} on {root} (scenes {indices[0]}-{indices[-1]}, {len(indices)} scenes)"
+    text = f"{head}\n\n{rr.calibration_table(cells)}\n{rr.calibration_verdicts(cells)}"
+    if args.pool_with:
+        pooled = {root.name: cells}
+        for other in args.pool_with:
+            pooled[other.name] = load_cells(other / "calibrated" / "cells")
+        joined = rr.pool_cells(pooled)
+        n = len(joined[rc.UNPERTURBED]["scenes"])
+        text += (f"\nPooled over {', '.join(pooled)} ({n} scenes):\n\n{rr.calibration_table(joined)}\n"
+                 f"{rr.calibration_verdicts(joined)}")  # fmt: skip
+    path = atomic_write_text(out / "calibrated.md", text)
+    print(text)
+    print(f"{time.perf_counter() - t0:.0f} s; wrote {path}")
     return 0
 
 

@@ -35,7 +35,7 @@ import time
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import torch
@@ -59,6 +59,9 @@ from .inputs import checkpoint_inputs
 from .light_input import scene_light
 from .lpips import lpips_status
 from .statistics import correlation, summarize
+
+if TYPE_CHECKING:
+    from pbrdf.sensor.rig import Rig
 
 __all__ = [
     "METHODS",
@@ -243,6 +246,7 @@ def predict_scene(
     distance_scale: float = 1.0,
     refine: bool = False,
     capture: str | Path | None = None,
+    rig: Rig | None = None,
 ) -> ScenePredictions:
     """Run every method on one sample as on a user's input (its capture folder when it has raw brackets).
 
@@ -254,7 +258,8 @@ def predict_scene(
     ``refined`` row: the model's maps through :func:`network.refine.refine` with the sample's rig
     and one distance, the median true depth of the object (what a capture's ``distance_m`` gives;
     never the per-pixel depth). ``capture``: a capture folder of this scene to decode instead of its
-    own raw brackets (:mod:`network.robustness`: the same scene through another rig).
+    own raw brackets (:mod:`network.robustness`: the same scene through another rig), decoded with
+    ``rig`` when given (a calibrated rig file's, as ``headless/infer.py --rig``).
 
     Raises:
         ValueError: the decoded grid differs from the truth, or the model fails on a non-empty
@@ -268,7 +273,7 @@ def predict_scene(
     paths = psample.sample_paths(root, index)
     source = paths.raw if paths.raw.is_dir() else paths.sidecar  # the raw brackets: the user's capture path
     source = Path(capture) if capture is not None else source
-    inp = load_input(source)
+    inp = load_input(source, rig=rig)
     maps, auto = inp.maps, inp.mask
     if maps.shape[:2] != region.shape:
         raise ValueError(f"{source}: decoded grid {maps.shape[:2]} differs from the ground truth {region.shape}")

@@ -20,6 +20,7 @@ from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import sample as psample
 from pbrdf.data.capture import DEFAULT_DISTANCE_M
+from pbrdf.data.capture_rig import with_rig
 from pbrdf.data.predictions import OUTPUT_CHANNELS
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.io.errors import NothingToReconstruct
@@ -78,7 +79,7 @@ class InferenceInput:
     rig: Rig | None = None
 
 
-def load_input(path: str | Path, *, require_object: bool = False) -> InferenceInput:
+def load_input(path: str | Path, *, require_object: bool = False, rig: Rig | None = None) -> InferenceInput:
     """The nine maps, mask, display radiance and camera of a sample EXR/JSON or a capture folder.
 
     A capture folder is read once (:func:`pbrdf.data.capture.load_capture`: the raws and
@@ -94,6 +95,8 @@ def load_input(path: str | Path, *, require_object: bool = False) -> InferenceIn
         path: a sample ``.exr``/``.json`` or a capture folder.
         require_object: refuse an input with nothing to reconstruct (an empty mask; for a capture,
             :func:`pbrdf.data.capture_decode.check_usable` says why: all dark, all saturated, no object).
+        rig: a calibrated rig file's rig to decode a capture folder with
+            (:func:`pbrdf.data.capture_rig.with_rig`), or None (``capture.json``'s own).
 
     Raises:
         FileNotFoundError: ``path`` is neither.
@@ -103,12 +106,15 @@ def load_input(path: str | Path, *, require_object: bool = False) -> InferenceIn
     path = Path(path)
     if path.is_dir() and (path / pcapture.CAPTURE_JSON).is_file():
         cap = pcapture.load_capture(path)
+        cap = cap if rig is None else with_rig(cap, rig)
         dec = pdecode_capture.decode_capture(cap)
         if require_object:
             pdecode_capture.check_usable(dec, cap, need_object=True)
         k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
         return InferenceInput(dec.maps, dec.input_mask, cap.meta.radiance, k, cap.meta.distance_m, cap.meta.rig)
     if path.suffix in (".exr", ".json") and path.exists():
+        if rig is not None:
+            raise ValueError(f"{path}: a rig file decodes a capture folder; a rendered sample has its own rig")
         sample, meta = psample.read_sample(path, keys=("maps", "mask"))
         if require_object and not sample["mask"].any():
             raise NothingToReconstruct(f"{path}: the sample's mask is empty: nothing to reconstruct")

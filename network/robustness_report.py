@@ -19,7 +19,16 @@ import numpy as np
 from .robustness import DECODERS, SWEEP_METRICS, TERMS, cell_key
 from .statistics import summarize
 
-__all__ = ["paired_difference", "tolerance", "sweep_table", "tolerance_table", "plot_sweep"]
+__all__ = [
+    "paired_difference",
+    "tolerance",
+    "sweep_table",
+    "tolerance_table",
+    "plot_sweep",
+    "pool_cells",
+    "calibration_table",
+    "calibration_verdicts",
+]
 
 
 def paired_difference(cell: Mapping[str, Any], nominal: Mapping[str, Any], metric: str) -> dict[str, Any]:
@@ -175,3 +184,80 @@ def plot_sweep(cells: Mapping[str, Any], path: str | Path) -> Path:
     fig.savefig(out, dpi=110)
     plt.close(fig)
     return out
+
+
+# ---------------------------------------------------------------------------- calibrated decoder
+
+
+def pool_cells(per_split: Mapping[str, Mapping[str, Any]]) -> dict[str, dict[str, Any]]:
+    """Cells of several splits joined per key (keys all splits have): scenes ``SPLIT:INDEX``, rows concatenated.
+
+    >>> a = {"k": {"scenes": [0], "rows": [{"pixels": 1, "mask_iou": 1.0, "ours": dict.fromkeys(SWEEP_METRICS, 1.0)}]}}
+    >>> pool_cells({"x": a, "y": a})["k"]["scenes"]
+    ['x:0', 'y:0']
+    """
+    from .robustness import _summary  # noqa: PLC0415
+
+    keys = set.intersection(*(set(cells) for cells in per_split.values()))
+    out = {}
+    for key in sorted(keys):
+        scenes, rows = [], []
+        for split, cells in per_split.items():
+            scenes += [f"{split}:{s}" for s in cells[key]["scenes"]]
+            rows += cells[key]["rows"]
+        first = next(iter(per_split.values()))[key]
+        out[key] = {**{k: v for k, v in first.items() if k not in ("scenes", "rows", "summary", "seconds")},
+                    "scenes": scenes, "rows": rows, "summary": _summary(rows)}  # fmt: skip
+    return out
+
+
+def _case_cells(cells: Mapping[str, Any]) -> list[tuple[str, str, Mapping[str, Any]]]:
+    """``(case, decoder, cell)`` in table order (cases as in :data:`network.robustness_calibrated.CASES`)."""
+    from .robustness_calibrated import CAL_DECODERS, case_names  # noqa: PLC0415
+
+    return [(c, d, cells[f"{c}-{d}"]) for c in case_names() for d in CAL_DECODERS if f"{c}-{d}" in cells]
+
+
+def calibration_table(cells: Mapping[str, Any]) -> str:
+    """Markdown: per case and decoder, each metric's mean [95 % CI] and its paired change from the unperturbed rig."""
+    from .robustness_calibrated import UNPERTURBED  # noqa: PLC0415
+
+    base = cells[UNPERTURBED]
+    head = ["rig", "decoder", *(h for h, _, _ in SWEEP_METRICS.values()), "mask IoU",
+            *(f"change in {h.split(' (')[0]}" for h, _, _ in SWEEP_METRICS.values())]  # fmt: skip
+    lines = ["| " + " | ".join(head) + " |", "|---|---|" + "---:|" * (len(head) - 2)]
+    for case, decoder, cell in [(UNPERTURBED, "-", base), *_case_cells(cells)]:
+        s = cell["summary"]
+        vals = [_fmt(s[k], d) for k, (_, d, _) in SWEEP_METRICS.items()]
+        deltas = [_fmt(paired_difference(cell, base, k), d, signed=True) for k, (_, d, _) in SWEEP_METRICS.items()]
+        lines.append("| " + " | ".join([case, decoder, *vals, _fmt(s["mask_iou"], 3), *deltas]) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def calibration_verdicts(cells: Mapping[str, Any]) -> str:
+    """Markdown: per case and metric, is the calibrated decoder back within the unperturbed rig's interval?
+
+    Two readings: the calibrated mean inside the unperturbed mean's 95 % interval (the issue's
+    criterion), and the paired per-scene change's 95 % interval containing 0 (no change detected;
+    much stricter). Also the paired calibrated - true change (what the estimate's error costs).
+    """
+    from .robustness_calibrated import UNPERTURBED  # noqa: PLC0415
+
+    base = cells[UNPERTURBED]
+    head = ["rig", "metric", "unperturbed [95 % CI]", "calibrated", "within the CI", "calibrated - unperturbed",
+            "0 in the paired CI", "calibrated - true", "nominal - unperturbed"]  # fmt: skip
+    lines = ["| " + " | ".join(head) + " |", "|---|---|---:|---:|---|---:|---|---:|---:|"]
+    cases = [c for c, d, _ in _case_cells(cells) if d == "calibrated"]
+    for case in cases:
+        cal, true, nom = (cells.get(f"{case}-{d}") for d in ("calibrated", "true", "nominal"))
+        for k, (header, digits, _) in SWEEP_METRICS.items():
+            ref, mean = base["summary"][k], cal["summary"][k]["mean"]
+            within = "n/a" if mean is None or not ref["ci"] else "yes" if ref["ci"][0] <= mean <= ref["ci"][1] else "no"
+            d = paired_difference(cal, base, k)
+            zero = "n/a" if not d["ci"] or d["ci"][0] is None else "yes" if d["ci"][0] <= 0 <= d["ci"][1] else "no"
+            vs_true = "-" if true is None else _fmt(paired_difference(cal, true, k), digits, signed=True)
+            vs_nom = "-" if nom is None else _fmt(paired_difference(nom, base, k), digits, signed=True)
+            lines.append("| " + " | ".join([case, header, _fmt(ref, digits), _fmt(cal["summary"][k], digits)
+                                            if mean is not None else "n/a", within,
+                                            _fmt(d, digits, signed=True), zero, vs_true, vs_nom]) + " |")  # fmt: skip
+    return "\n".join(lines) + "\n"
