@@ -2,6 +2,7 @@
 
     python headless/relight.py --input DIR [--name NAME] --out DIR [--frames 8] [--size 160]
         [--samples 4] [--[no-]denoise] [--hdr FILE] [--sun] [--device CPU|GPU] [--save-blend] [--quiet]
+    python headless/relight.py --jobs JOBS.json [the same settings]
 
 Reads DIR/<NAME>_normal/_albedo/_roughness/_metallic/_mask.exr (what headless/infer.py writes;
 any names the add-on's "Import PBR maps" recognises), builds the camera-parented asset, then
@@ -13,6 +14,11 @@ images. Runs with the bpy wheel (`pip install bpy`) or inside Blender 4.2+:
 `blender -b --python-exit-code 1 -P headless/relight.py -- <args>` (an older Blender is refused
 with one line and status 2; inside the binary an uncaught error is one "error: ..." line with
 status 1).
+
+--jobs relights many assets in this one process (the demo's route: bpy starts once): JOBS.json is a
+list of {"input": DIR, "name": NAME, "out": DIR, "save_blend": true|false} ("name" and "save_blend"
+optional, "save_blend" defaulting to --save-blend); each asset is relit as its own run would relight
+it, and a line "wrote N files to OUT" is printed as each finishes.
 """
 
 from __future__ import annotations
@@ -42,7 +48,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--input", type=Path, metavar="DIR",
                         help="folder with the predicted maps, or one map file (required)")  # fmt: skip
     parser.add_argument("--name", default="", help="map name prefix NAME in NAME_normal.exr (default: all maps)")
-    parser.add_argument("--out", type=Path, required=True, help="output folder for frames and the .blend")
+    parser.add_argument("--out", type=Path, help="output folder for frames and the .blend (required)")
+    parser.add_argument("--jobs", type=Path, metavar="JOBS.json",
+                        help="relight every asset listed in this file in one process (for --input, --out)")  # fmt: skip
     parser.add_argument("--frames", type=int, default=8, help="point-light orbit frames; 0 = no rendering")
     parser.add_argument("--size", type=int, default=SIZE, help=f"longest side of the rendered frames (default {SIZE})")
     parser.add_argument("--samples", type=int, default=SAMPLES, help=f"Cycles samples per pixel (default {SAMPLES})")
@@ -60,15 +68,45 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def read_jobs(path: Path, save_blend: bool) -> list[dict]:
+    """The assets of a ``--jobs`` file: ``{"maps", "out", "name", "save_blend"}`` per entry, checked.
+
+    Raises:
+        ValueError: not a JSON list of objects with the fields above (one line naming the file and entry).
+        OSError: the file cannot be read.
+    """
+    import json  # noqa: PLC0415
+
+    try:
+        entries = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not JSON ({exc.msg} at line {exc.lineno})") from None
+    if not isinstance(entries, list) or not entries:
+        raise ValueError(f"{path}: expected a non-empty JSON list of jobs")
+    jobs = []
+    for i, entry in enumerate(entries):
+        fields = set(entry) if isinstance(entry, dict) else set()
+        if not {"input", "out"} <= fields or fields - {"input", "out", "name", "save_blend"}:
+            raise ValueError(f"{path}: job {i}: expected an object with input, out (and name, save_blend)")
+        if not isinstance(entry.get("save_blend", save_blend), bool):
+            raise ValueError(f"{path}: job {i}: save_blend must be true or false")
+        jobs.append({"maps": Path(entry["input"]), "out": Path(entry["out"]), "name": str(entry.get("name", "")),
+                     "save_blend": entry.get("save_blend", save_blend)})  # fmt: skip
+    return jobs
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run the script; returns the exit status (0, or 2 on an error or without bpy)."""
     parser = build_parser()
     args = parser.parse_args(script_args(sys.argv) if argv is None else argv)
-    require(parser, args, "--input")
+    if args.jobs is None:
+        require(parser, args, "--input", "--out")
+    elif args.input is not None or args.out is not None:
+        parser.error("--jobs lists each asset's input and out: give neither --input nor --out with it")
     if args.frames < 0 or args.size < 8 or args.samples < 1:
         parser.error("--frames >= 0, --size >= 8 and --samples >= 1 are required")
     try:
-        from blender_addon.relight_job import relight_maps  # noqa: PLC0415 - imports bpy
+        from blender_addon.relight_job import RelightJob, relight_batch  # noqa: PLC0415 - imports bpy
     except ImportError as exc:
         print(f"error: bpy is not importable ({exc}): `pip install bpy` (Python 3.11) or run inside Blender",
               file=sys.stderr)  # fmt: skip
@@ -79,16 +117,21 @@ def main(argv: list[str] | None = None) -> int:
     if problem:  # the bpy wheel's route (the binary's was refused at start-up)
         print(f"error: relight.py {problem}", file=sys.stderr)
         return 2
+    settings = {
+        "frames": args.frames, "size": args.size, "samples": args.samples, "distance": args.distance,
+        "exposure": args.exposure, "hdr": args.hdr, "env_strength": args.env_strength, "sun": args.sun,
+        "device": args.device, "denoise": args.denoise,
+    }  # fmt: skip
     try:
-        written = relight_maps(
-            args.input, args.out, name=args.name, frames=args.frames, size=args.size, samples=args.samples,
-            distance=args.distance, exposure=args.exposure, hdr=args.hdr, env_strength=args.env_strength,
-            sun=args.sun, device=args.device, denoise=args.denoise, save_blend=args.save_blend,
-        )  # fmt: skip
+        if args.jobs is None:
+            jobs = [RelightJob(args.input, args.out, args.name, args.save_blend)]
+        else:
+            jobs = [RelightJob(**job) for job in read_jobs(args.jobs, args.save_blend)]
+        for job, written in zip(jobs, relight_batch(jobs, **settings), strict=False):
+            print(f"wrote {len(written)} files to {job.out.resolve()}", flush=True)
     except (ValueError, OSError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    print(f"wrote {len(written)} files to {args.out.resolve()}")
     return 0
 
 

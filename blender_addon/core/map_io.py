@@ -274,7 +274,22 @@ def extend_past_mask(maps: PBRMaps, rings: int = 2, *, max_step: float = 0.04) -
     """
     arrays = {k: getattr(maps, k) for k in ("normal", "albedo", "roughness", "metallic", "depth")}
     arrays = {k: v for k, v in arrays.items() if v is not None}
-    return replace(maps, **extend_maps(arrays, maps.valid, rings, max_step=max_step))
+    valid = maps.valid
+    rows, cols = np.flatnonzero(valid.any(axis=1)), np.flatnonzero(valid.any(axis=0))
+    if rows.size == 0:
+        return replace(maps, **extend_maps(arrays, valid, rings, max_step=max_step))
+    # Only the mask's bounding box and its rings change (the rest is zero): extend that crop alone.
+    margin = 2 * rings + 1
+    h, w = valid.shape
+    crop = np.s_[max(rows[0] - margin, 0) : rows[-1] + margin + 1, max(cols[0] - margin, 0) : cols[-1] + margin + 1]
+    extended = extend_maps({k: v[crop] for k, v in arrays.items()}, valid[crop], rings, max_step=max_step)
+    if not extended:
+        return replace(maps, **extend_maps(arrays, valid, rings, max_step=max_step))
+    out = {}
+    for k, v in extended.items():
+        out[k] = np.zeros((h, w, *v.shape[2:]), np.float32)
+        out[k][crop] = v
+    return replace(maps, **out)
 
 
 def _clip01(arr: NDArray, kind: str, path: Path, valid: NDArray, warnings: list[str]) -> NDArray:
