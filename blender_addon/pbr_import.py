@@ -68,6 +68,7 @@ from . import sequence_mesh
 from .core import map_io, map_names
 from .core.frustum import BlenderCamera, Frustum, blender_frustum, depth_mesh, read_camera_json
 from .images import image_from_array, read_channels, sequence_image
+from .mesh_arrays import mesh_from_arrays, set_vertex_normals
 
 __all__ = [
     "CLASSES",
@@ -150,50 +151,12 @@ def match_camera(scene, camera, blender_camera: BlenderCamera) -> None:
 # --------------------------------------------------------------------------- mesh and material
 
 
-def _mesh(name: str, vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray):
-    """A mesh of ``faces (F, k)`` (k corners each) with per-vertex UVs on every corner of the UV layer :data:`UV_NAME`.
-
-    Written through the mesh's attributes in bulk (``position``, ``.corner_vert``, the UV map):
-    a capture's relief has about 10^6 vertices, which Python lists (``from_pydata``) and
-    ``Mesh.validate`` take seconds over; the relief is valid by construction (tested).
-    """
-    v = np.ascontiguousarray(vertices, np.float32).reshape(-1, 3)
-    f = np.asarray(faces, np.int32)
-    corners = np.ascontiguousarray(f.ravel())
-    mesh = bpy.data.meshes.new(name)
-    mesh.vertices.add(len(v))
-    mesh.loops.add(len(corners))
-    mesh.polygons.add(len(f))
-    mesh.attributes["position"].data.foreach_set("vector", v.ravel())
-    mesh.polygons.foreach_set("loop_start", np.arange(0, len(corners), f.shape[1], dtype=np.int32))
-    mesh.attributes[".corner_vert"].data.foreach_set("value", corners)
-    mesh.update(calc_edges=True)
-    mesh.uv_layers.new(name=UV_NAME)
-    corner_uvs = np.asarray(uvs, np.float32)[corners]
-    mesh.attributes[UV_NAME].data.foreach_set("vector", np.ascontiguousarray(corner_uvs).ravel())
-    return mesh
-
-
-def _vertex_normals(mesh, normals: np.ndarray) -> None:
-    """Smooth shading with ``normals (N, 3)`` (object frame) as the custom normals of the N vertices.
-
-    Stored as Blender's ``custom_normal`` attribute on the points (float3, exact: the older
-    ``normals_split_custom_set_from_vertices`` encodes each corner's normal in two int16 and
-    takes seconds for a capture's relief).
-    """
-    mesh.shade_smooth()
-    n = np.asarray(normals, np.float32).reshape(-1, 3)
-    n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
-    attribute = mesh.attributes.new("custom_normal", "FLOAT_VECTOR", "POINT")
-    attribute.data.foreach_set("vector", np.ascontiguousarray(n).ravel())
-
-
 def _plane(name: str, frustum: Frustum, distance: float):
     """A plane mesh centred at its origin covering the frustum at ``distance`` (UV (0, 0) at the lower left)."""
     hw, hh = frustum.half_width * distance, frustum.half_height * distance
     vertices = np.array([[-hw, -hh, 0.0], [hw, -hh, 0.0], [hw, hh, 0.0], [-hw, hh, 0.0]])
     uvs = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
-    return _mesh(name, vertices, np.array([[0, 1, 2, 3]]), uvs)
+    return mesh_from_arrays(name, vertices, np.array([[0, 1, 2, 3]]), uvs, UV_NAME)
 
 
 def _tex(nodes, image, label: str, location: tuple[float, float], frames: int = 0):
@@ -396,7 +359,7 @@ def _import_sequence(context, sequence: map_names.SequenceFiles, options: Import
     elif len(reliefs) > 1:
         geometry = "objects"
         for i, r in enumerate(reliefs[1:], start=2):
-            frame_mesh = _mesh(f"{name}_{i:04d}", r.vertices, r.faces, r.uvs)
+            frame_mesh = mesh_from_arrays(f"{name}_{i:04d}", r.vertices, r.faces, r.uvs, UV_NAME)
             objects.append(_link(context, frame_mesh.name, frame_mesh, camera, local))
         sequence_mesh.key_visibility(objects)
     images = {k: sequence_image(p, k) for k, p in files.files.items() if k != "depth"}
@@ -524,9 +487,9 @@ def _asset_mesh(name: str, files: map_names.MapFiles, maps: map_io.PBRMaps, frus
         local = Matrix.Translation(Vector((frustum.center_x * d, frustum.center_y * d, -d)))
         return _plane(name, frustum, d), local, options.normal_space
     relief = _relief(files, maps, frustum)
-    mesh = _mesh(name, relief.vertices, relief.faces, relief.uvs)
+    mesh = mesh_from_arrays(name, relief.vertices, relief.faces, relief.uvs, UV_NAME)
     if custom_normals:
-        _vertex_normals(mesh, maps.normal[map_io.dilate(maps.valid)])  # the relief's support, vertex order
+        set_vertex_normals(mesh, maps.normal[map_io.dilate(maps.valid)])  # the relief's support, vertex order
     if options.normal_space != "OBJECT":
         warnings.warn(
             "depth mesh: normals use OBJECT space (tangent frames of a curved mesh are not the camera frame)",

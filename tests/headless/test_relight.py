@@ -165,3 +165,70 @@ def test_relight_defaults_are_the_measured_ones_everywhere():
     # the demo's relit frames at its maps' resolution (more pixels would only interpolate the maps)
     assert cli.relight_size == cfg.relight_size == cli.resolution == cfg.resolution
     assert f"{samples} Cycles samples" in (ROOT / "README.md").read_text()
+
+
+def _pixels(folder: Path) -> dict[str, np.ndarray]:
+    from PIL import Image
+
+    return {p.name: np.asarray(Image.open(p)) for p in sorted(folder.glob("*.png"))}
+
+
+@pytest.mark.bpy
+def test_jobs_in_one_process_write_what_separate_runs_write(tmp_path):
+    """--jobs (the demo's route): a relief asset with its .blend, then a card without, relit in one process.
+
+    Each asset's frames are those of its own relight.py process, pixel for pixel (the second job
+    starts from an empty session, not from the first one's scene), and only the first has a .blend.
+    """
+    pytest.importorskip("bpy")
+    from pbrdf.data.predictions import write_predictions
+
+    pred, depth = _blob()
+    write_predictions(tmp_path / "relief", "blob", {**pred, "depth": depth})
+    write_predictions(tmp_path / "card", "card", {**pred, "albedo": pred["albedo"] * [1.0, 0.6, 0.3]})
+    assets = [("relief", "blob", True), ("card", "card", False)]
+    settings = ["--frames", "2", "--size", "16", "--samples", "2", "--denoise", "--quiet"]
+    for folder, name, blend in assets:
+        proc = _run("--input", tmp_path / folder, "--name", name, "--out", tmp_path / "one" / folder, *settings,
+                    *(["--save-blend"] if blend else []))  # fmt: skip
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    jobs = [{"input": str(tmp_path / f), "name": n, "out": str(tmp_path / "batch" / f), "save_blend": b}
+            for f, n, b in assets]  # fmt: skip
+    (tmp_path / "jobs.json").write_text(json.dumps(jobs))
+    proc = _run("--jobs", tmp_path / "jobs.json", *settings)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert [line for line in proc.stdout.splitlines() if line.startswith("wrote ")] == [
+        f"wrote 4 files to {tmp_path / 'batch' / 'relief'}", f"wrote 3 files to {tmp_path / 'batch' / 'card'}"
+    ]  # fmt: skip
+    for folder, _, _ in assets:
+        one, batch = _pixels(tmp_path / "one" / folder), _pixels(tmp_path / "batch" / folder)
+        assert list(one) == list(batch) == ["env_0001.png", "point_0001.png", "point_0002.png"]
+        for key in one:
+            np.testing.assert_array_equal(batch[key], one[key], err_msg=f"{folder}/{key}")
+    assert (tmp_path / "batch" / "relief" / "blob.blend").is_file()
+    assert not (tmp_path / "batch" / "card" / "card.blend").exists()
+    different = (
+        _pixels(tmp_path / "batch" / "relief")["point_0001.png"]
+        != _pixels(tmp_path / "batch" / "card")["point_0001.png"]
+    )
+    assert different.any()  # the two assets do relight differently (the comparison above can fail)
+
+
+@pytest.mark.parametrize(
+    ("content", "says"),
+    [("[]", "non-empty JSON list"), ("{", "not JSON"), ('[{"input": "x"}]', "job 0: expected an object"),
+     ('[{"input": "x", "out": "y", "save_blend": "yes"}]', "job 0: save_blend must be true or false")],
+)  # fmt: skip
+def test_bad_jobs_file_is_one_line(tmp_path, content, says):
+    pytest.importorskip("bpy")
+    (tmp_path / "jobs.json").write_text(content)
+    proc = _run("--jobs", tmp_path / "jobs.json", "--frames", "0")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1].startswith("error: ") and says in proc.stderr, proc.stderr
+
+
+def test_jobs_excludes_input_and_out(tmp_path):
+    proc = _run("--jobs", tmp_path / "jobs.json", "--input", tmp_path)
+    assert proc.returncode == 2 and "give neither --input nor --out" in proc.stderr
+    proc = _run("--frames", "1")
+    assert proc.returncode == 2 and "--input, --out" in proc.stderr
