@@ -57,7 +57,6 @@ a successful run.
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -159,14 +158,22 @@ def main(argv: list[str] | None = None) -> int:
 
     progress(0.0, "starting Python and torch")
     summary: list[str] = []
-    code = held_warnings(lambda: _infer(args, progress, summary))
+    blend = _start_blend(args) if args.blend else None  # Blender starts while the maps are predicted
+    try:
+        code = held_warnings(lambda: _infer(args, progress, summary))
+    finally:
+        if blend is not None and not summary:  # an error, returned or raised: no .blend
+            blend.cancel()
     if code:
         return code
     print(summary[0])
-    if not args.blend:
+    if blend is None:
         return 0
     progress(0.97, "saving the .blend (Blender in its own process)")
-    return _save_blend(args)
+    code = blend.finish()
+    if code:
+        print("error: the Blender scene could not be written (see above)", file=sys.stderr)
+    return code
 
 
 def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, progress, start: float = 0.3,
@@ -286,16 +293,12 @@ def _write_gltf(args: argparse.Namespace, prefix: str, asset) -> None:
         write_asset(args.out / f"{prefix}.glb", asset, name=prefix)
 
 
-def _save_blend(args: argparse.Namespace) -> int:
-    """``--blend``: import the written maps into a Blender scene (headless/relight.py in its own process)."""
+def _start_blend(args: argparse.Namespace):
+    """``--blend``: headless/relight.py started now, saving the .blend once the maps are written (PendingBlend)."""
+    from headless.relight import PendingBlend  # noqa: PLC0415
+
     name = args.input.stem if args.input.is_file() else args.input.name
-    script = Path(__file__).resolve().parent / "relight.py"
-    cmd = [sys.executable, str(script), "--input", str(args.out), "--name", name, "--out", str(args.out),
-           "--frames", "0", "--save-blend", *(["--quiet"] if args.quiet else [])]  # fmt: skip
-    proc = subprocess.run(cmd, check=False)  # own process: bpy must not share one with torch/mitsuba
-    if proc.returncode:
-        print("error: the Blender scene could not be written (see above)", file=sys.stderr)
-    return proc.returncode
+    return PendingBlend(args.out, name, args.out, quiet=args.quiet)
 
 
 if __name__ == "__main__":

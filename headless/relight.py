@@ -65,7 +65,40 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--device", default="CPU", choices=["CPU", "GPU"], help="Cycles device (default CPU)")
     parser.add_argument("--save-blend", action="store_true", help="save OUT/<NAME>.blend")
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
+    parser.add_argument("--wait-for-go", action="store_true",
+                        help="start Blender, then wait for a line 'go' on stdin before reading the maps (infer.py "
+                        "--blend, while it predicts them); end of input instead: exit 0, nothing written")  # fmt: skip
     return parser
+
+
+class PendingBlend:
+    """``relight.py --frames 0 --save-blend --wait-for-go`` started now: Blender starts while the caller works.
+
+    :meth:`finish` once ``maps/<name>_*`` are written saves ``out/<name>.blend``; :meth:`cancel`
+    ends the process with nothing written.
+
+    Args:
+        maps: the folder the maps will be in.
+        name: their name prefix.
+        out: the folder of the ``.blend``.
+        quiet: no progress output.
+    """
+
+    def __init__(self, maps: Path, name: str, out: Path, *, quiet: bool) -> None:
+        import subprocess  # noqa: PLC0415
+
+        cmd = [sys.executable, str(Path(__file__).resolve()), "--input", str(maps), "--name", name, "--out",
+               str(out), "--frames", "0", "--save-blend", "--wait-for-go", *(["--quiet"] if quiet else [])]  # fmt: skip
+        self.process = subprocess.Popen(cmd, stdin=subprocess.PIPE, text=True)  # own process: no torch beside bpy
+
+    def finish(self) -> int:
+        """Let Blender read the maps and save the ``.blend``; returns its exit status."""
+        self.process.communicate("go\n")
+        return self.process.returncode
+
+    def cancel(self) -> None:
+        """End the process without writing anything."""
+        self.process.communicate("")
 
 
 def read_jobs(path: Path, save_blend: bool) -> list[dict]:
@@ -117,6 +150,8 @@ def main(argv: list[str] | None = None) -> int:
     if problem:  # the bpy wheel's route (the binary's was refused at start-up)
         print(f"error: relight.py {problem}", file=sys.stderr)
         return 2
+    if args.wait_for_go and sys.stdin.readline().strip() != "go":
+        return 0  # the caller gave up (its own error is the message)
     settings = {
         "frames": args.frames, "size": args.size, "samples": args.samples, "distance": args.distance,
         "exposure": args.exposure, "hdr": args.hdr, "env_strength": args.env_strength, "sun": args.sun,

@@ -232,3 +232,53 @@ def test_jobs_excludes_input_and_out(tmp_path):
     assert proc.returncode == 2 and "give neither --input nor --out" in proc.stderr
     proc = _run("--frames", "1")
     assert proc.returncode == 2 and "--input, --out" in proc.stderr
+
+
+@pytest.fixture(scope="module")
+def toy_sample(tmp_path_factory):
+    """``(checkpoint, sample EXR, dark sample EXR)``: a toy model, a 24 x 32 sample and one all dark."""
+    import torch
+
+    from pbrdf.data import sample as psample
+    from tests.helpers import make_model
+
+    root = tmp_path_factory.mktemp("infer_blend")
+    model = make_model()
+    torch.save({"config": model.config.to_dict(), "model": model.state_dict()}, root / "model.pt")
+    h, w = 24, 32
+    mask = np.zeros((h, w), bool)
+    mask[4:20, 6:26] = True
+    maps = np.random.default_rng(0).uniform(0.05, 1.0, (h, w, 9)).astype(np.float32)
+    maps[..., 6:] -= 0.5
+    paths = []
+    for folder, value in (("good", maps), ("dark", np.zeros_like(maps))):
+        sample = {"maps": value, "mask": mask, "normal": np.dstack([0 * mask, 0 * mask, mask]).astype(np.float32),
+                  "albedo": np.full((h, w, 3), 0.5, np.float32), "roughness": np.full((h, w), 0.5, np.float32),
+                  "metallic": np.zeros((h, w), np.float32), "depth": mask.astype(np.float32)}  # fmt: skip
+        psample.write_sample(root / folder, 0, sample, {"seed": 0})
+        paths.append(psample.sample_paths(root / folder, 0).exr)
+    return root / "model.pt", *paths
+
+
+@pytest.mark.bpy
+def test_infer_blend_starts_blender_early_and_saves_the_asset(tmp_path, toy_sample):
+    """infer.py --blend (Blender started beside the prediction): the .blend of the written maps; on an error, none.
+
+    --card: the toy model's normals integrate to no relief worth a mesh.
+    """
+    pytest.importorskip("bpy")
+    ckpt, good, dark = toy_sample
+    infer = [sys.executable, "headless/infer.py", "--checkpoint", str(ckpt), "--blend", "--card", "--quiet"]
+    proc = subprocess.run([*infer, "--input", str(good), "--out", str(tmp_path / "o")], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    blend = tmp_path / "o" / f"{good.stem}.blend"
+    check = subprocess.run([sys.executable, "-c", CHECK_BLEND, str(blend)], capture_output=True, text=True,
+                           timeout=600)  # fmt: skip
+    assert check.returncode == 0, check.stderr[-2000:]
+    got = json.loads(check.stdout.strip().splitlines()[-1])
+    assert got["asset_on_camera"] and all(got["packed"]) and len(got["images"]) == 5
+    proc = subprocess.run([*infer, "--input", str(dark), "--out", str(tmp_path / "d")], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and proc.stderr.startswith("error: "), proc.stderr
+    assert not (tmp_path / "d").exists()
