@@ -30,8 +30,9 @@ resized to the network's input size, and the per-pixel decoder reads every pixel
 pixels or more) and interpolates the rest where it is smooth, decoding edges exactly.
 
 Cost: a full sensor frame (2448 x 2048 raw, object on half of it) takes about 20 s and 1.1 GB on an
-idle 2-core machine (maps and depth; --gltf +3 s, --blend about 28 s in all; 2026-11-27,
-docs/measurements/fullframe.md). Every step prints "[elapsed s] stage" on stderr unless --quiet.
+idle 2-core machine (maps and depth; --gltf +3 s; --blend a few seconds more, Blender starting
+while the maps are predicted; 2026-11-27, docs/measurements/fullframe.md). Every step prints
+"[elapsed s] stage" on stderr unless --quiet.
 
 --refine checks the prediction against the capture (network/refine.py): the maps are re-rendered
 under the display at capture.json's distance_m and each object's albedo scale is fitted so that

@@ -165,6 +165,9 @@ def test_relight_defaults_are_the_measured_ones_everywhere():
     # the demo's relit frames at its maps' resolution (more pixels would only interpolate the maps)
     assert cli.relight_size == cfg.relight_size == cli.resolution == cfg.resolution
     assert f"{samples} Cycles samples" in (ROOT / "README.md").read_text()
+    from blender_addon import relight_operator  # the denoiser's prefilter the frames were measured with
+
+    assert f"with the {relight_operator.DENOISE_PREFILTER} prefilter" in doc
 
 
 def _pixels(folder: Path) -> dict[str, np.ndarray]:
