@@ -104,6 +104,13 @@ class PendingBlend:
 def read_jobs(path: Path, save_blend: bool) -> list[dict]:
     """The assets of a ``--jobs`` file: ``{"maps", "out", "name", "save_blend"}`` per entry, checked.
 
+    Args:
+        path: the JSON file (the module docstring gives its form).
+        save_blend: an entry's ``save_blend`` when it gives none (``--save-blend``).
+
+    Returns:
+        One dict per entry, in order, as :class:`blender_addon.relight_job.RelightJob` takes them.
+
     Raises:
         ValueError: not a JSON list of objects with the fields above (one line naming the file and entry).
         OSError: the file cannot be read.
