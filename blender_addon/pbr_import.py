@@ -68,6 +68,7 @@ from . import sequence_mesh
 from .core import map_io, map_names
 from .core.frustum import BlenderCamera, Frustum, blender_frustum, depth_mesh, read_camera_json
 from .images import image_from_array, read_channels, sequence_image
+from .mesh_arrays import mesh_from_arrays, set_vertex_normals
 
 __all__ = [
     "CLASSES",
@@ -150,31 +151,12 @@ def match_camera(scene, camera, blender_camera: BlenderCamera) -> None:
 # --------------------------------------------------------------------------- mesh and material
 
 
-def _mesh(name: str, vertices: np.ndarray, faces: np.ndarray, uvs: np.ndarray):
-    """A mesh with per-vertex UVs written to every loop of the UV layer :data:`UV_NAME`."""
-    mesh = bpy.data.meshes.new(name)
-    mesh.from_pydata(vertices.tolist(), [], faces.tolist())
-    layer = mesh.uv_layers.new(name=UV_NAME)
-    corner = np.empty(len(mesh.loops), np.int64)
-    mesh.loops.foreach_get("vertex_index", corner)
-    layer.data.foreach_set("uv", np.asarray(uvs, np.float32)[corner].ravel())
-    mesh.validate()
-    mesh.update()
-    return mesh
-
-
-def _vertex_normals(mesh, normals: np.ndarray) -> None:
-    """Smooth shading with ``normals (N, 3)`` (object frame) as the custom normals of the N vertices."""
-    mesh.shade_smooth()
-    mesh.normals_split_custom_set_from_vertices(np.asarray(normals, np.float64).tolist())
-
-
 def _plane(name: str, frustum: Frustum, distance: float):
     """A plane mesh centred at its origin covering the frustum at ``distance`` (UV (0, 0) at the lower left)."""
     hw, hh = frustum.half_width * distance, frustum.half_height * distance
     vertices = np.array([[-hw, -hh, 0.0], [hw, -hh, 0.0], [hw, hh, 0.0], [-hw, hh, 0.0]])
     uvs = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
-    return _mesh(name, vertices, np.array([[0, 1, 2, 3]]), uvs)
+    return mesh_from_arrays(name, vertices, np.array([[0, 1, 2, 3]]), uvs, UV_NAME)
 
 
 def _tex(nodes, image, label: str, location: tuple[float, float], frames: int = 0):
@@ -377,7 +359,7 @@ def _import_sequence(context, sequence: map_names.SequenceFiles, options: Import
     elif len(reliefs) > 1:
         geometry = "objects"
         for i, r in enumerate(reliefs[1:], start=2):
-            frame_mesh = _mesh(f"{name}_{i:04d}", r.vertices, r.faces, r.uvs)
+            frame_mesh = mesh_from_arrays(f"{name}_{i:04d}", r.vertices, r.faces, r.uvs, UV_NAME)
             objects.append(_link(context, frame_mesh.name, frame_mesh, camera, local))
         sequence_mesh.key_visibility(objects)
     images = {k: sequence_image(p, k) for k, p in files.files.items() if k != "depth"}
@@ -505,9 +487,9 @@ def _asset_mesh(name: str, files: map_names.MapFiles, maps: map_io.PBRMaps, frus
         local = Matrix.Translation(Vector((frustum.center_x * d, frustum.center_y * d, -d)))
         return _plane(name, frustum, d), local, options.normal_space
     relief = _relief(files, maps, frustum)
-    mesh = _mesh(name, relief.vertices, relief.faces, relief.uvs)
+    mesh = mesh_from_arrays(name, relief.vertices, relief.faces, relief.uvs, UV_NAME)
     if custom_normals:
-        _vertex_normals(mesh, maps.normal[map_io.dilate(maps.valid)])  # the relief's support, vertex order
+        set_vertex_normals(mesh, maps.normal[map_io.dilate(maps.valid)])  # the relief's support, vertex order
     if options.normal_space != "OBJECT":
         warnings.warn(
             "depth mesh: normals use OBJECT space (tangent frames of a curved mesh are not the camera frame)",

@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import math
 import os
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 
 import bpy
@@ -24,7 +26,17 @@ from pbrdf.io.atomic import atomic_folder
 
 from . import pbr_import, relight_operator
 
-__all__ = ["relight_maps", "relit_scene", "point_light_power", "ARTIST_SAMPLES", "SAMPLES", "SIZE", "DENOISE"]
+__all__ = [
+    "relight_maps",
+    "relight_batch",
+    "RelightJob",
+    "relit_scene",
+    "point_light_power",
+    "ARTIST_SAMPLES",
+    "SAMPLES",
+    "SIZE",
+    "DENOISE",
+]
 
 #: The orbit's target: an empty at the asset's centre.
 ASSET_CENTRE_NAME = "PDIR Asset Centre"
@@ -115,6 +127,42 @@ def relight_maps(
     return written
 
 
+@dataclass(frozen=True)
+class RelightJob:
+    """One asset of :func:`relight_batch`: its maps, output folder, name prefix and whether to save a ``.blend``.
+
+    Attributes:
+        maps: as :func:`relight_maps`'s ``maps``.
+        out: as :func:`relight_maps`'s ``out``.
+        name: as :func:`relight_maps`'s ``name``.
+        save_blend: as :func:`relight_maps`'s ``save_blend``.
+    """
+
+    maps: Path
+    out: Path
+    name: str = ""
+    save_blend: bool = False
+
+
+def relight_batch(jobs: Iterable[RelightJob], **settings) -> Iterator[list[Path]]:
+    """:func:`relight_maps` of each job in turn, in this one Blender session; yields each job's written files.
+
+    One session for many assets spares each a process and bpy's start-up; every job begins from an
+    empty session (:func:`relit_scene`), so its files are those of :func:`relight_maps` in a
+    process of its own (tested).
+
+    Args:
+        jobs: the assets.
+        **settings: :func:`relight_maps`'s keyword arguments other than ``name`` and ``save_blend``
+            (``frames``, ``size``, ``samples``, ``denoise``, ...), shared by every job.
+
+    Yields:
+        Each job's written files, as :func:`relight_maps` returns them, once the job is done.
+    """
+    for job in jobs:
+        yield relight_maps(job.maps, job.out, name=job.name, save_blend=job.save_blend, **settings)
+
+
 def relit_scene(
     maps: str | os.PathLike, *, name: str = "", frames: int = 8, size: int = SIZE, distance: float = 1.0,
     exposure: float = 1.0,
@@ -180,6 +228,7 @@ def _prepare_for_artists(scene, samples: int) -> None:
     scene.cycles.samples = max(samples, ARTIST_SAMPLES)
     scene.cycles.use_adaptive_sampling = True
     scene.cycles.use_denoising = True
+    scene.cycles.denoising_prefilter = "ACCURATE"  # Blender's default for final renders (the frames used FAST)
     scene.cycles.use_preview_denoising = True
     scene.frame_set(scene.frame_start)
     for image in bpy.data.images:

@@ -30,8 +30,9 @@ resized to the network's input size, and the per-pixel decoder reads every pixel
 pixels or more) and interpolates the rest where it is smooth, decoding edges exactly.
 
 Cost: a full sensor frame (2448 x 2048 raw, object on half of it) takes about 20 s and 1.1 GB on an
-idle 2-core machine (maps and depth; --gltf +3 s, --blend about 28 s in all; 2026-11-27,
-docs/measurements/fullframe.md). Every step prints "[elapsed s] stage" on stderr unless --quiet.
+idle 2-core machine (maps and depth; --gltf +3 s; --blend a few seconds more, Blender starting
+while the maps are predicted; 2026-11-27, docs/measurements/fullframe.md). Every step prints
+"[elapsed s] stage" on stderr unless --quiet.
 
 --refine checks the prediction against the capture (network/refine.py): the maps are re-rendered
 under the display at capture.json's distance_m and each object's albedo scale is fitted so that
@@ -57,7 +58,6 @@ a successful run.
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 import time
 from pathlib import Path
@@ -162,14 +162,22 @@ def main(argv: list[str] | None = None) -> int:
 
     progress(0.0, "starting Python and torch")
     summary: list[str] = []
-    code = held_warnings(lambda: _infer(args, progress, summary))
+    blend = _start_blend(args) if args.blend else None  # Blender starts while the maps are predicted
+    try:
+        code = held_warnings(lambda: _infer(args, progress, summary))
+    finally:
+        if blend is not None and not summary:  # an error, returned or raised: no .blend
+            blend.cancel()
     if code:
         return code
     print(summary[0])
-    if not args.blend:
+    if blend is None:
         return 0
     progress(0.97, "saving the .blend (Blender in its own process)")
-    return _save_blend(args)
+    code = blend.finish()
+    if code:
+        print("error: the Blender scene could not be written (see above)", file=sys.stderr)
+    return code
 
 
 def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, progress, start: float = 0.3,
@@ -290,16 +298,12 @@ def _write_gltf(args: argparse.Namespace, prefix: str, asset) -> None:
         write_asset(args.out / f"{prefix}.glb", asset, name=prefix)
 
 
-def _save_blend(args: argparse.Namespace) -> int:
-    """``--blend``: import the written maps into a Blender scene (headless/relight.py in its own process)."""
+def _start_blend(args: argparse.Namespace):
+    """``--blend``: headless/relight.py started now, saving the .blend once the maps are written (PendingBlend)."""
+    from headless.relight import PendingBlend  # noqa: PLC0415
+
     name = args.input.stem if args.input.is_file() else args.input.name
-    script = Path(__file__).resolve().parent / "relight.py"
-    cmd = [sys.executable, str(script), "--input", str(args.out), "--name", name, "--out", str(args.out),
-           "--frames", "0", "--save-blend", *(["--quiet"] if args.quiet else [])]  # fmt: skip
-    proc = subprocess.run(cmd, check=False)  # own process: bpy must not share one with torch/mitsuba
-    if proc.returncode:
-        print("error: the Blender scene could not be written (see above)", file=sys.stderr)
-    return proc.returncode
+    return PendingBlend(args.out, name, args.out, quiet=args.quiet)
 
 
 if __name__ == "__main__":

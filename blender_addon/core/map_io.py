@@ -257,10 +257,14 @@ class PBRMaps:
         )
 
 
-def extend_past_mask(maps: PBRMaps, rings: int = 2, *, max_step: float = 0.04) -> PBRMaps:
+def extend_past_mask(maps: PBRMaps, rings: int = 2, *, max_step: float = 0.04, tile: int = 32) -> PBRMaps:
     """A copy of ``maps`` whose normal, albedo, roughness, metallic and depth go on ``rings`` pixels past the mask.
 
-    :func:`pbrdf.geometry.relief.extend_maps` (which says how and why); the mask is unchanged. The
+    :func:`pbrdf.geometry.relief.extend_maps` (which says how and why); the mask is unchanged.
+    Only pixels within ``rings`` of the mask change, each from values within ``2 * rings`` of it,
+    so only the ``tile`` x ``tile`` tiles holding such pixels are extended (with that margin), in
+    one call: a capture's outline is a few thousand of its million pixels. The result is
+    :func:`~pbrdf.geometry.relief.extend_maps` over the whole frame, value for value (tested). The
     import needs this at the outline: with the maps extended, the relief mesh reaches past the
     outline (as a continuation of the surface, not a shelf that the edge would see and reflect)
     and the mask, as alpha, cuts it where the mask's pixels end.
@@ -274,7 +278,37 @@ def extend_past_mask(maps: PBRMaps, rings: int = 2, *, max_step: float = 0.04) -
     """
     arrays = {k: getattr(maps, k) for k in ("normal", "albedo", "roughness", "metallic", "depth")}
     arrays = {k: v for k, v in arrays.items() if v is not None}
-    return replace(maps, **extend_maps(arrays, maps.valid, rings, max_step=max_step))
+    valid = maps.valid
+    if valid.all() or not valid.any() or not arrays:
+        return replace(maps, **extend_maps(arrays, valid, rings, max_step=max_step))
+    (h, w), halo = valid.shape, 2 * rings
+    changed = dilate(valid, rings) & ~valid
+    rows, cols = -(-h // tile), -(-w // tile)
+    grid = np.zeros((rows * tile, cols * tile), bool)
+    grid[:h, :w] = changed
+    tiles = np.argwhere(grid.reshape(rows, tile, cols, tile).any(axis=(1, 3))) * tile
+    # A window is a tile and its margin. Windows inside the frame are stacked in one column and extended in
+    # one call (a tile never reaches a neighbour's); one crossing the frame's edge is cut there and extended
+    # alone, since past the frame nothing may be filled (extend_maps' own border).
+    inner = (tiles >= halo).all(axis=1) & (tiles[:, 0] + tile + halo <= h) & (tiles[:, 1] + tile + halo <= w)
+    out = {
+        k: np.where(valid.reshape(h, w, *([1] * (v.ndim - 2))), v, 0.0).astype(np.float32) for k, v in arrays.items()
+    }
+    side = tile + 2 * halo
+    if inner.any():
+        windows = [np.s_[y - halo : y + tile + halo, x - halo : x + tile + halo] for y, x in tiles[inner]]
+        stacked = extend_maps({k: np.concatenate([v[s] for s in windows]) for k, v in arrays.items()},
+                              np.concatenate([valid[s] for s in windows]), rings, max_step=max_step)  # fmt: skip
+        for i, (y, x) in enumerate(tiles[inner]):
+            for k, v in stacked.items():
+                out[k][y : y + tile, x : x + tile] = v[i * side + halo : i * side + halo + tile, halo : halo + tile]
+    for y, x in tiles[~inner]:
+        y0, x0 = max(y - halo, 0), max(x - halo, 0)
+        window = np.s_[y0 : y + tile + halo, x0 : x + tile + halo]
+        alone = extend_maps({k: v[window] for k, v in arrays.items()}, valid[window], rings, max_step=max_step)
+        for k, v in alone.items():
+            out[k][y : y + tile, x : x + tile] = v[y - y0 : y - y0 + tile, x - x0 : x - x0 + tile]
+    return replace(maps, **out)
 
 
 def _clip01(arr: NDArray, kind: str, path: Path, valid: NDArray, warnings: list[str]) -> NDArray:

@@ -16,8 +16,8 @@ Stages, each timed and shown with a progress bar:
    photometric-stereo baseline (:mod:`network.evaluation`).
 6. ``blender``: the predictions are imported into Blender (bpy wheel) as Principled BSDF assets
    and relit under a rotating point light and an environment map with Cycles. bpy never shares a
-   process with torch: each asset runs ``headless/relight.py`` (over
-   ``blender_addon.relight_job``) in its own process, so this module imports no bpy.
+   process with torch: every asset is relit by one ``headless/relight.py --jobs`` process (over
+   ``blender_addon.relight_job``), so this module imports no bpy.
 7. ``report``: figures, ``metrics.json``, ``metrics.md``, ``timings.json`` and ``report.html``
    (:mod:`network.demo.report`).
 
@@ -286,27 +286,26 @@ def _evaluate(cfg: DemoConfig, out: Path, scenes: dict) -> _Results:
 
 
 def _relight(cfg: DemoConfig, out: Path, scenes: dict, results: _Results) -> None:
-    """Stage 6: import prediction and truth as Principled BSDF assets, relight both with Cycles, compare.
+    """Stage 6: import prediction, truth and constant predictor as Principled BSDF assets, relight them, compare.
 
-    One Blender process per asset: bpy never shares a process with torch.
+    One Blender process for every asset (bpy never shares a process with torch; it starts once).
     """
     kw = {"frames": cfg.relight_frames, "size": cfg.relight_size, "samples": cfg.relight_samples,
           "denoise": cfg.relight_denoise}  # fmt: skip
-    bar = _bar(len(scenes), "relight", cfg.progress)
-    for name, scene in scenes.items():
-        bar.update()
-        if scene.ours is None:
-            continue
-        frames = relight(out / "predictions" / name, name, out / "relit" / name, **kw)
-        truth = relight(out / "truth" / name, name, out / "relit_truth" / name, **kw)
-        constant = relight(out / "constant" / name, name, out / "relit_constant" / name, save_blend=False, **kw)
+    names = [name for name, scene in scenes.items() if scene.ours is not None]
+    kinds = (("predictions", "relit", True), ("truth", "relit_truth", True), ("constant", "relit_constant", False))
+    assets = [(out / src / name, name, out / dest / name, blend) for name in names for src, dest, blend in kinds]
+    bar = _bar(len(assets), "relight", cfg.progress)
+    relit = relight(assets, **kw, on_done=lambda _: bar.update()) if assets else []
+    bar.close()
+    for i, name in enumerate(names):
+        frames, truth, constant = relit[3 * i : 3 * i + 3]
         if frames:
             scores = compare_relit(frames, truth)
             const = _mean_scores(compare_relit(constant, truth))
             results.relight_rows.append({"scene": name, "frames": scores, **_mean_scores(scores), "constant": const})
             fig, caption = scene_figs.relit_figure(out / "figures" / f"{name}_relit.png", name, truth, frames, scores)
             results.relit.append((fig.relative_to(out).as_posix(), caption))
-    bar.close()
 
 
 def _write_assets(out: Path, name: str, scene) -> None:

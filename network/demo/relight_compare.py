@@ -19,8 +19,11 @@ Example:
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
+import tempfile
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -55,24 +58,47 @@ def truth_maps(gt: dict[str, np.ndarray], region: np.ndarray) -> dict[str, np.nd
     return out
 
 
-def relight(maps_dir: Path, name: str, dest: Path, *, frames: int, size: int, samples: int,
-            denoise: bool, save_blend: bool = True) -> list[Path]:  # fmt: skip
-    """Import ``maps_dir/<name>_*`` into Blender and relight it; returns the frames (orbit, then sky).
+def relight(assets: list[tuple[Path, str, Path, bool]], *, frames: int, size: int, samples: int, denoise: bool,
+            on_done: Callable[[int], None] | None = None) -> list[list[Path]]:  # fmt: skip
+    """Import each asset's ``maps_dir/<name>_*`` into Blender and relight it, all in one Blender process.
 
-    ``save_blend``: also save the scene as ``dest/<name>.blend``.
+    ``headless/relight.py --jobs``: bpy starts once for every asset, and each asset is relit as a
+    process of its own would relight it.
+
+    Args:
+        assets: ``(maps_dir, name, dest, save_blend)`` per asset: the frames go to ``dest``, and
+            with ``save_blend`` the scene to ``dest/<name>.blend``.
+        frames: point-light orbit frames per asset.
+        size: longest side of a frame in pixels.
+        samples: Cycles samples per pixel.
+        denoise: Cycles' denoiser on the frames.
+        on_done: called with the number of assets finished so far, as each finishes (a progress bar).
+
+    Returns:
+        Each asset's frames (orbit, then sky), in the order of ``assets``.
 
     Raises:
         RuntimeError: the relight process failed (its last error line).
     """
-    cmd = [sys.executable, str(RELIGHT_SCRIPT), "--input", str(maps_dir), "--name", name, "--out", str(dest),
-           "--frames", str(frames), "--size", str(size), "--samples", str(samples),
-           "--denoise" if denoise else "--no-denoise", *(["--save-blend"] if save_blend else []),
-           "--quiet"]  # fmt: skip
-    proc = subprocess.run(cmd, check=False, capture_output=True, text=True)
+    jobs = [{"input": str(m), "name": n, "out": str(d), "save_blend": b} for m, n, d, b in assets]
+    with tempfile.TemporaryDirectory(prefix="relight-jobs-") as tmp:
+        jobs_file = Path(tmp) / "jobs.json"
+        jobs_file.write_text(json.dumps(jobs, indent=1) + "\n")
+        cmd = [sys.executable, str(RELIGHT_SCRIPT), "--jobs", str(jobs_file), "--frames", str(frames),
+               "--size", str(size), "--samples", str(samples), "--denoise" if denoise else "--no-denoise",
+               "--quiet"]  # fmt: skip
+        errors = Path(tmp) / "stderr.txt"  # a file, not a pipe: a full pipe would stall the process
+        with errors.open("w") as err, subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, text=True) as proc:
+            done = 0
+            for line in proc.stdout:  # "wrote N files to OUT" as each asset finishes
+                if line.startswith("wrote ") and on_done is not None:
+                    done += 1
+                    on_done(done)
+        stderr = errors.read_text()
     if proc.returncode:
-        last = (proc.stderr.strip().splitlines() or ["(no message)"])[-1]
-        raise RuntimeError(f"Blender relighting of {name} failed: {last}")
-    return [*sorted(dest.glob("point_*.png")), *sorted(dest.glob("env_*.png"))]
+        last = (stderr.strip().splitlines() or ["(no message)"])[-1]
+        raise RuntimeError(f"Blender relighting failed: {last}")
+    return [[*sorted(d.glob("point_*.png")), *sorted(d.glob("env_*.png"))] for _, _, d, _ in assets]
 
 
 def frame_scores(pred: np.ndarray, truth: np.ndarray, *, lpips: bool = True) -> dict[str, float | None]:

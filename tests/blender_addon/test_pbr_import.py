@@ -181,6 +181,41 @@ def test_depth_mesh_lies_on_the_surface_and_keeps_normals(clean_file, tmp_path):
     assert covered.sum() > 0.5 * mask.sum() and np.median(err) < 0.1
 
 
+def test_flat_relief_shades_with_the_normals_it_carries(clean_file, tmp_path):
+    """A flat relief (constant depth) carrying tilted normals: Cycles shades with the maps' normals, not the plane's.
+
+    The relief's vertices lie on the pixel centres (a 0.01 px filter samples them) and its
+    Normal Map node is unlinked, so the rendered Normal pass is the carried vertex normal: the
+    tilts (up to 25 deg, far from the geometry's +z) come back, and the mesh is valid as built.
+    """
+    scene = clean_file
+    cam = add_camera(scene)
+    yy, xx = np.mgrid[0:H, 0:W]
+    tilt = np.radians(25.0) * np.stack([np.sin(xx / 5.0), np.cos(yy / 4.0)], -1)  # a smooth field of tilts
+    n = np.concatenate([np.sin(tilt), np.ones((H, W, 1))], -1)
+    n = (n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32)
+    mask = np.zeros((H, W), bool)
+    mask[4:-4, 5:-5] = True
+    obj = pbr_import.import_pbr_maps(
+        bpy.context, write_pbr_maps(tmp_path / "f", n * mask[..., None], mask=mask, depth=np.where(mask, 1.5, 0.0))
+    )
+    assert obj.data.validate(verbose=False) is False  # nothing to fix: the bulk-written mesh is valid
+    corner = np.empty(len(obj.data.loops) * 3, np.float32)
+    obj.data.corner_normals.foreach_get("vector", corner)
+    support = map_io.dilate(mask)
+    vertex = np.empty(len(obj.data.loops), np.int32)
+    obj.data.loops.foreach_get("vertex_index", vertex)
+    inside = mask[support][vertex]  # corners of mask pixels' vertices (the extension's are extrapolated)
+    assert _angles(corner.reshape(-1, 3)[inside], n[support][vertex[inside]]).max() < 0.05
+    scene.view_layers[0].use_pass_normal = True
+    scene.cycles.samples = 1
+    ch = _render_passes(scene, tmp_path / "f.exr")
+    rendered = np.stack([ch[f"ViewLayer.Normal.{c}"] for c in "XYZ"], -1) @ np.array(cam.matrix_world.to_3x3())
+    inner = ~map_io.dilate(~mask)  # away from the outline
+    err = _angles(rendered, n)[inner]
+    assert inner.sum() > 200 and np.percentile(err, 99) < 0.1, np.percentile(err, [50, 99, 100])
+
+
 def test_blender_png_reader_equals_pillow(clean_file, tmp_path):
     # Blender's bundled Python has no Pillow: the add-on then reads PNG maps with Blender's loader
     from PIL import Image

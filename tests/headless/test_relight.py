@@ -165,3 +165,123 @@ def test_relight_defaults_are_the_measured_ones_everywhere():
     # the demo's relit frames at its maps' resolution (more pixels would only interpolate the maps)
     assert cli.relight_size == cfg.relight_size == cli.resolution == cfg.resolution
     assert f"{samples} Cycles samples" in (ROOT / "README.md").read_text()
+    from blender_addon import relight_operator  # the denoiser's prefilter the frames were measured with
+
+    assert f"with the {relight_operator.DENOISE_PREFILTER} prefilter" in doc
+
+
+def _pixels(folder: Path) -> dict[str, np.ndarray]:
+    from PIL import Image
+
+    return {p.name: np.asarray(Image.open(p)) for p in sorted(folder.glob("*.png"))}
+
+
+@pytest.mark.bpy
+def test_jobs_in_one_process_write_what_separate_runs_write(tmp_path):
+    """--jobs (the demo's route): a relief asset with its .blend, then a card without, relit in one process.
+
+    Each asset's frames are those of its own relight.py process, pixel for pixel (the second job
+    starts from an empty session, not from the first one's scene), and only the first has a .blend.
+    """
+    pytest.importorskip("bpy")
+    from pbrdf.data.predictions import write_predictions
+
+    pred, depth = _blob()
+    write_predictions(tmp_path / "relief", "blob", {**pred, "depth": depth})
+    write_predictions(tmp_path / "card", "card", {**pred, "albedo": pred["albedo"] * [1.0, 0.6, 0.3]})
+    assets = [("relief", "blob", True), ("card", "card", False)]
+    settings = ["--frames", "2", "--size", "16", "--samples", "2", "--denoise", "--quiet"]
+    for folder, name, blend in assets:
+        proc = _run("--input", tmp_path / folder, "--name", name, "--out", tmp_path / "one" / folder, *settings,
+                    *(["--save-blend"] if blend else []))  # fmt: skip
+        assert proc.returncode == 0, proc.stderr[-2000:]
+    jobs = [{"input": str(tmp_path / f), "name": n, "out": str(tmp_path / "batch" / f), "save_blend": b}
+            for f, n, b in assets]  # fmt: skip
+    (tmp_path / "jobs.json").write_text(json.dumps(jobs))
+    proc = _run("--jobs", tmp_path / "jobs.json", *settings)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert [line for line in proc.stdout.splitlines() if line.startswith("wrote ")] == [
+        f"wrote 4 files to {tmp_path / 'batch' / 'relief'}", f"wrote 3 files to {tmp_path / 'batch' / 'card'}"
+    ]  # fmt: skip
+    for folder, _, _ in assets:
+        one, batch = _pixels(tmp_path / "one" / folder), _pixels(tmp_path / "batch" / folder)
+        assert list(one) == list(batch) == ["env_0001.png", "point_0001.png", "point_0002.png"]
+        for key in one:
+            np.testing.assert_array_equal(batch[key], one[key], err_msg=f"{folder}/{key}")
+    assert (tmp_path / "batch" / "relief" / "blob.blend").is_file()
+    assert not (tmp_path / "batch" / "card" / "card.blend").exists()
+    different = (
+        _pixels(tmp_path / "batch" / "relief")["point_0001.png"]
+        != _pixels(tmp_path / "batch" / "card")["point_0001.png"]
+    )
+    assert different.any()  # the two assets do relight differently (the comparison above can fail)
+
+
+@pytest.mark.parametrize(
+    ("content", "says"),
+    [("[]", "non-empty JSON list"), ("{", "not JSON"), ('[{"input": "x"}]', "job 0: expected an object"),
+     ('[{"input": "x", "out": "y", "save_blend": "yes"}]', "job 0: save_blend must be true or false")],
+)  # fmt: skip
+def test_bad_jobs_file_is_one_line(tmp_path, content, says):
+    pytest.importorskip("bpy")
+    (tmp_path / "jobs.json").write_text(content)
+    proc = _run("--jobs", tmp_path / "jobs.json", "--frames", "0")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().splitlines()[-1].startswith("error: ") and says in proc.stderr, proc.stderr
+
+
+def test_jobs_excludes_input_and_out(tmp_path):
+    proc = _run("--jobs", tmp_path / "jobs.json", "--input", tmp_path)
+    assert proc.returncode == 2 and "give neither --input nor --out" in proc.stderr
+    proc = _run("--frames", "1")
+    assert proc.returncode == 2 and "--input, --out" in proc.stderr
+
+
+@pytest.fixture(scope="module")
+def toy_sample(tmp_path_factory):
+    """``(checkpoint, sample EXR, dark sample EXR)``: a toy model, a 24 x 32 sample and one all dark."""
+    import torch
+
+    from pbrdf.data import sample as psample
+    from tests.helpers import make_model
+
+    root = tmp_path_factory.mktemp("infer_blend")
+    model = make_model()
+    torch.save({"config": model.config.to_dict(), "model": model.state_dict()}, root / "model.pt")
+    h, w = 24, 32
+    mask = np.zeros((h, w), bool)
+    mask[4:20, 6:26] = True
+    maps = np.random.default_rng(0).uniform(0.05, 1.0, (h, w, 9)).astype(np.float32)
+    maps[..., 6:] -= 0.5
+    paths = []
+    for folder, value in (("good", maps), ("dark", np.zeros_like(maps))):
+        sample = {"maps": value, "mask": mask, "normal": np.dstack([0 * mask, 0 * mask, mask]).astype(np.float32),
+                  "albedo": np.full((h, w, 3), 0.5, np.float32), "roughness": np.full((h, w), 0.5, np.float32),
+                  "metallic": np.zeros((h, w), np.float32), "depth": mask.astype(np.float32)}  # fmt: skip
+        psample.write_sample(root / folder, 0, sample, {"seed": 0})
+        paths.append(psample.sample_paths(root / folder, 0).exr)
+    return root / "model.pt", *paths
+
+
+@pytest.mark.bpy
+def test_infer_blend_starts_blender_early_and_saves_the_asset(tmp_path, toy_sample):
+    """infer.py --blend (Blender started beside the prediction): the .blend of the written maps; on an error, none.
+
+    --card: the toy model's normals integrate to no relief worth a mesh.
+    """
+    pytest.importorskip("bpy")
+    ckpt, good, dark = toy_sample
+    infer = [sys.executable, "headless/infer.py", "--checkpoint", str(ckpt), "--blend", "--card", "--quiet"]
+    proc = subprocess.run([*infer, "--input", str(good), "--out", str(tmp_path / "o")], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    blend = tmp_path / "o" / f"{good.stem}.blend"
+    check = subprocess.run([sys.executable, "-c", CHECK_BLEND, str(blend)], capture_output=True, text=True,
+                           timeout=600)  # fmt: skip
+    assert check.returncode == 0, check.stderr[-2000:]
+    got = json.loads(check.stdout.strip().splitlines()[-1])
+    assert got["asset_on_camera"] and all(got["packed"]) and len(got["images"]) == 5
+    proc = subprocess.run([*infer, "--input", str(dark), "--out", str(tmp_path / "d")], cwd=ROOT,
+                          capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and proc.stderr.startswith("error: "), proc.stderr
+    assert not (tmp_path / "d").exists()

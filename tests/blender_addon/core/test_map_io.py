@@ -136,3 +136,34 @@ def test_extend_past_mask_keeps_the_inside_and_continues_the_surface():
     np.testing.assert_allclose(out.albedo[ring], 0.4, rtol=1e-6)
     np.testing.assert_allclose(out.depth[ring], (2.0 + 0.01 * xx - 0.02 * yy)[ring], rtol=1e-6)  # a plane stays one
     assert maps.depth is depth and np.isinf(maps.depth[~inside]).all()  # the input is not changed
+
+
+@pytest.mark.parametrize("tile", [4, 5, 32])
+def test_extend_past_mask_by_tiles_is_the_whole_frame_extension(tile):
+    """Extending only the outline's tiles gives pbrdf's extend_maps over the whole frame, value for value.
+
+    Blobs and holes of random sizes, one touching two sides of a frame that is no multiple of the tile,
+    random values (so each ring's neighbours matter) and depth continued from two pixels away.
+    """
+    from pbrdf.geometry.relief import extend_maps
+
+    rng = np.random.default_rng(tile)
+    h, w = 37, 53
+    yy, xx = np.mgrid[0:h, 0:w]
+    mask = ((yy - 18) ** 2 / 100 + (xx - 20) ** 2 / 200 < 1) & ((yy - 17) ** 2 + (xx - 22) ** 2 > 9)
+    mask |= (yy - 36) ** 2 + (xx - 52) ** 2 < 30  # at the corner of the frame
+    mask |= (yy == 3) & (xx == 45)  # one pixel alone
+    n = rng.normal(size=(h, w, 3)) + [0, 0, 3]
+    maps = map_io.PBRMaps(
+        normal=(n / np.linalg.norm(n, axis=-1, keepdims=True)).astype(np.float32),
+        albedo=rng.uniform(size=(h, w, 3)).astype(np.float32),
+        roughness=rng.uniform(size=(h, w)).astype(np.float32),
+        depth=(2.0 + 0.05 * rng.uniform(size=(h, w))).astype(np.float32),
+        mask=mask.astype(np.float32),
+        mask_source="file",
+    )
+    whole = extend_maps({k: getattr(maps, k) for k in ("normal", "albedo", "roughness", "depth")}, mask, 2)
+    out = map_io.extend_past_mask(maps, 2, tile=tile)
+    for key, want in whole.items():
+        assert getattr(out, key).dtype == want.dtype == np.float32
+        np.testing.assert_array_equal(getattr(out, key), want, err_msg=key)
