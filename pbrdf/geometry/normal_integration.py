@@ -102,12 +102,13 @@ class _Solver:
     solution is the start. Two preconditioners: algebraic multigrid (pyamg smoothed aggregation,
     ``cell`` None), or a two-grid cycle (``cell``: each unknown's cell of :class:`_TwoGrid`), whose
     setup is a sparse product and a small factorisation instead of a hierarchy (6x less). Either is
-    rebuilt when a solve needed more than ``rebuild`` steps (a re-weighting that cut the surface at
-    its jumps leaves the first one a poor preconditioner: dozens of steps instead of about ten).
+    rebuilt when a solve needed more than 30 (two-grid: 12) steps: a re-weighting that cut the
+    surface at its jumps leaves the first one a poor preconditioner (dozens of steps, not ten).
     """
 
-    def __init__(self, rtol: float, cell: NDArray | None = None, rebuild: int = 30) -> None:
-        self.pre, self.rtol, self.cell, self.rebuild = None, rtol, cell, rebuild
+    def __init__(self, rtol: float, cell: NDArray | None = None) -> None:
+        self.pre, self.rtol, self.cell = None, rtol, cell
+        self.rebuild = 30 if cell is None else 12  # the two-grid setup is cheap: rebuilt sooner
 
     def __call__(self, a, b: NDArray[np.float64], x0: NDArray[np.float64]) -> NDArray[np.float64]:
         import pyamg  # noqa: PLC0415
@@ -144,11 +145,17 @@ class _TwoGrid:
 
     def __init__(self, a, cell: NDArray) -> None:
         from scipy import sparse  # noqa: PLC0415
+        from scipy.sparse.csgraph import connected_components  # noqa: PLC0415
         from scipy.sparse.linalg import splu  # noqa: PLC0415
 
-        n, self.cells = cell.size, int(cell.max()) + 1
-        self.cell = cell
-        p = sparse.csr_matrix((np.ones(n), (np.arange(n), cell)), shape=(n, self.cells))
+        # Cells cut where the re-weighting cut the surface: each connected piece of a cell's pixels
+        # (over its edges of weight >= _STRONG) is its own constant, so no constant spans a depth jump.
+        c = a.tocoo()
+        keep = (c.row < c.col) & (-c.data >= _STRONG) & (cell[c.row] == cell[c.col])
+        n = cell.size
+        strong = sparse.csr_matrix((np.ones(int(keep.sum())), (c.row[keep], c.col[keep])), shape=(n, n))
+        self.cells, self.cell = connected_components(strong, directed=False)
+        p = sparse.csr_matrix((np.ones(n), (np.arange(n), self.cell)), shape=(n, self.cells))
         self.lu = splu((p.T @ a @ p).tocsc())
 
     def preconditioner(self, a):
@@ -263,6 +270,8 @@ def auto_cell(pixels: int) -> int:
 
 # The two-grid preconditioner's cells number at most about this many (auto_cell).
 _CELLS = 40_000
+# Edges lighter than this (of about 1 on a smooth surface) cut a two-grid cell into pieces.
+_STRONG = 0.1
 
 
 @dataclass(frozen=True)
