@@ -72,7 +72,7 @@ def profile(capture: Path, checkpoint: Path, *, stride: int | None = None, blend
         capture: a capture folder (raw brackets + ``capture.json``).
         checkpoint: the model.
         stride: :func:`network.infer.predict`'s ``stride``; None: ``headless/infer.py``'s default
-            (:func:`network.model.dense.auto_stride`).
+            (:func:`network.model.dense.auto_stride`, with :func:`network.infer.auto_refine_deg`).
         blend: also time the ``.blend`` (``headless/relight.py --save-blend`` in its own process; skipped with a
             note when bpy is not installed).
 
@@ -83,8 +83,8 @@ def profile(capture: Path, checkpoint: Path, *, stride: int | None = None, blend
     import torch  # noqa: PLC0415
 
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
-    from network.infer import predict, relief_depth  # noqa: PLC0415
-    from network.model.dense import auto_stride  # noqa: PLC0415
+    from network.infer import auto_refine_deg, predict, relief_depth  # noqa: PLC0415
+    from network.model.dense import REFINE_DEG, auto_stride  # noqa: PLC0415
     from pbrdf.data import capture as pcapture  # noqa: PLC0415
     from pbrdf.data import capture_decode  # noqa: PLC0415
     from pbrdf.data.gltf_asset import build_asset, write_asset  # noqa: PLC0415
@@ -101,12 +101,13 @@ def profile(capture: Path, checkpoint: Path, *, stride: int | None = None, blend
         capture_decode.check_usable(dec, cap, need_object=True)
         mask = dec.input_mask
     k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
+    refine = auto_refine_deg(int(mask.sum())) if stride is None else REFINE_DEG
     stride = auto_stride(int(mask.sum())) if stride is None else stride
     model.encode = clock.wrap("encoder (crop resized to the input size)", model.encode)
     model.decode_dense = clock.wrap("per-pixel decoder", model.decode_dense)
     with clock.stage("crop, normalise, paste back"), torch.inference_mode():
         pred = predict(model, dec.maps, mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
-                       radiance=cap.meta.radiance, stride=stride)  # fmt: skip
+                       radiance=cap.meta.radiance, stride=stride, refine_deg=refine)  # fmt: skip
     inner = clock.seconds["encoder (crop resized to the input size)"] + clock.seconds["per-pixel decoder"]
     clock.seconds["crop, normalise, paste back"] -= inner
     with clock.stage("relief depth integration"):
