@@ -21,7 +21,8 @@ decoding stride against stride 1 (network.bench.model). With --frame (a full-fra
 `tools/make_example_capture.py --resolution 1224 --height 1024`): that capture's rows
 (network.bench.fullframe): every stage of headless/infer.py timed once (full_frame.profile,
 a Markdown table in .table), and predict at stride 1 and each --strides value side by side with
-the error of each against stride 1 and whether it holds the tolerance (full_frame.strides).
+the error of each against stride 1 and whether it holds the tolerance (full_frame.strides),
+and the relief depth by both preconditioners, side by side, with their difference (full_frame.depth).
 loader: training samples per second from EXR samples and from a pack (headless/pack.py) of
 the first --count samples of SPLIT written at each size, per loader worker count, next to the
 model's training step rate per batch size (network.bench.loader).
@@ -276,7 +277,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
 
 
 def _full_frame(args: argparse.Namespace) -> dict:
-    """``network --frame``: the capture's stage profile and its strides against stride 1."""
+    """``network --frame``: the capture's stage profile, its strides against stride 1 and its depth routes."""
     from network.bench import fullframe  # noqa: PLC0415
 
     if args.checkpoint is None or not args.checkpoint.is_file():
@@ -284,7 +285,8 @@ def _full_frame(args: argparse.Namespace) -> dict:
     strides = tuple(s for s in args.strides if s != 1)
     return {"profile": fullframe.profile(args.frame, args.checkpoint),
             "strides": fullframe.stride_rows(args.frame, args.checkpoint, strides, repeat=args.repeat,
-                                                warmup=args.warmup)}  # fmt: skip
+                                                warmup=args.warmup),
+            "depth": fullframe.depth_rows(args.frame, args.checkpoint, repeat=max(3, args.repeat))}  # fmt: skip
 
 
 def _network(args: argparse.Namespace, configs: tuple, common: dict) -> dict:

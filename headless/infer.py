@@ -183,18 +183,19 @@ def main(argv: list[str] | None = None) -> int:
 def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, progress, start: float = 0.3,
                  span: float = 0.65) -> tuple[dict, CameraRecord, dict | None]:  # fmt: skip
     """The maps (with the relief depth unless ``--card``), the camera and a light model's distance record."""
-    from network.infer import load_input, predict, relief_depth  # noqa: PLC0415
-    from network.model.dense import auto_stride  # noqa: PLC0415
+    from network.infer import auto_refine_deg, load_input, predict, relief_depth  # noqa: PLC0415
+    from network.model.dense import REFINE_DEG, auto_stride  # noqa: PLC0415
     from pbrdf.data.capture_rig import read_rig  # noqa: PLC0415
 
     progress(start, "decoding the capture")
     inp = load_input(source, require_object=True, rig=None if args.rig is None else read_rig(args.rig))
     distance, light = _light(model, inp, args.distance, source)
     stride = auto_stride(int(inp.mask.sum())) if args.stride == "auto" else int(args.stride)
+    refine = auto_refine_deg(int(inp.mask.sum())) if args.stride == "auto" else REFINE_DEG
     progress(start + 0.05 * span, f"predicting the maps ({int(inp.mask.sum())} pixels, stride {stride})")
     pred = predict(
         model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
-        radiance=inp.radiance, stride=stride, resolution=args.resolution, light=light,
+        radiance=inp.radiance, stride=stride, resolution=args.resolution, light=light, refine_deg=refine,
     )  # fmt: skip
     if args.refine:
         from dataclasses import replace  # noqa: PLC0415

@@ -30,12 +30,14 @@ from .data import exposure_radiance, input_radiance, normalize_maps
 from .inputs import apply_inputs
 from .light_input import LightGeometry, crop_light, sidecar_rig
 from .model import PolarInverseModel
-from .model.dense import REFINE_DEG
+from .model.dense import REFINE_DEG, auto_stride
 
 __all__ = [
     "RESOLUTIONS",
     "InferenceInput",
     "relief_depth",
+    "auto_refine_deg",
+    "FRAME_REFINE_DEG",
     "load_input",
     "predict",
     "mask_bbox",
@@ -48,6 +50,11 @@ DEFAULT_CHECKPOINT = Path(__file__).resolve().parents[1] / "models" / "small" / 
 
 #: :func:`predict`'s decoding resolutions: the maps' own (default), or the network's input size.
 RESOLUTIONS = ("full", "network")
+
+#: :func:`predict`'s ``refine_deg`` for a capture-sized object at stride 4 (:func:`auto_refine_deg`): cells whose
+#: decoded corners' normals differ by less than this are interpolated (measured within issue 30's tolerance of
+#: stride 1 on a full-frame capture, with less decoding than :data:`REFINE_DEG`: docs/measurements/fullframe.md).
+FRAME_REFINE_DEG = 8.0
 
 # |CP| may exceed 1 by float rounding in someone else's resampling; beyond this it is not CP.
 _CP_SLACK = 1e-3
@@ -137,6 +144,19 @@ def relief_depth(pred: dict[str, np.ndarray], intrinsics: np.ndarray, distance: 
     mask = pred["mask"][..., 0] > 0
     depth = integrate_normals(pred["normal"], mask, intrinsics, DEFAULT_DISTANCE_M if distance is None else distance)
     return depth[..., None]
+
+
+def auto_refine_deg(mask_pixels: int) -> float:
+    """The default ``refine_deg`` of :func:`predict` for a mask of ``mask_pixels`` pixels (beside its stride).
+
+    :data:`FRAME_REFINE_DEG` where :func:`network.model.dense.auto_stride` picks stride 4 (capture-sized
+    objects), else :data:`REFINE_DEG`.
+
+    Example:
+        >>> auto_refine_deg(9_000), auto_refine_deg(650_000)
+        (4.0, 8.0)
+    """
+    return FRAME_REFINE_DEG if auto_stride(mask_pixels) == 4 else REFINE_DEG
 
 
 def mask_bbox(mask: np.ndarray, margin: float = 0.05) -> tuple[int, int, int, int]:

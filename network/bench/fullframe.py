@@ -6,7 +6,10 @@ decoder, the relief depth integration, writing the maps and the glTF binary (and
 bpy wheel is installed, the ``.blend`` in its own process as ``--blend`` does). :func:`stride_rows` decodes the
 same capture at stride 1 and at each of the given strides (edge-aware, the default ``refine_deg``) and reports the
 time of :func:`network.infer.predict` and the error of each against stride 1 (normal angle p99, BRDF RMSE), the
-tolerance the defaults must keep (:data:`TOLERANCE`).
+tolerance the defaults must keep (:data:`TOLERANCE`). :func:`depth_rows` integrates the capture's predicted normals
+with both preconditioners of :func:`pbrdf.geometry.normal_integration.integrate_normals` (the default two-grid and
+algebraic multigrid, ``cell=1``), side by side, and reports their seconds and their difference
+(:func:`depth_error`: relative to the object's depth range, and as the angle between the integrated surfaces).
 
 Example:
     >>> rows = {"decode": 1.0, "predict": 3.0}
@@ -26,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["TOLERANCE", "profile", "stage_table", "stride_rows", "stride_error"]
+__all__ = ["TOLERANCE", "depth_error", "depth_rows", "profile", "stage_table", "stride_rows", "stride_error"]
 
 #: What a faster default must keep against the stride-1 full-resolution answer (issue 30): normal angle p99 in
 #: degrees, and RMSE of albedo, roughness and metallic.
@@ -69,7 +72,7 @@ def profile(capture: Path, checkpoint: Path, *, stride: int | None = None, blend
         capture: a capture folder (raw brackets + ``capture.json``).
         checkpoint: the model.
         stride: :func:`network.infer.predict`'s ``stride``; None: ``headless/infer.py``'s default
-            (:func:`network.model.dense.auto_stride`).
+            (:func:`network.model.dense.auto_stride`, with :func:`network.infer.auto_refine_deg`).
         blend: also time the ``.blend`` (``headless/relight.py --save-blend`` in its own process; skipped with a
             note when bpy is not installed).
 
@@ -80,8 +83,8 @@ def profile(capture: Path, checkpoint: Path, *, stride: int | None = None, blend
     import torch  # noqa: PLC0415
 
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
-    from network.infer import predict, relief_depth  # noqa: PLC0415
-    from network.model.dense import auto_stride  # noqa: PLC0415
+    from network.infer import auto_refine_deg, predict, relief_depth  # noqa: PLC0415
+    from network.model.dense import REFINE_DEG, auto_stride  # noqa: PLC0415
     from pbrdf.data import capture as pcapture  # noqa: PLC0415
     from pbrdf.data import capture_decode  # noqa: PLC0415
     from pbrdf.data.gltf_asset import build_asset, write_asset  # noqa: PLC0415
@@ -98,12 +101,13 @@ def profile(capture: Path, checkpoint: Path, *, stride: int | None = None, blend
         capture_decode.check_usable(dec, cap, need_object=True)
         mask = dec.input_mask
     k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
+    refine = auto_refine_deg(int(mask.sum())) if stride is None else REFINE_DEG
     stride = auto_stride(int(mask.sum())) if stride is None else stride
     model.encode = clock.wrap("encoder (crop resized to the input size)", model.encode)
     model.decode_dense = clock.wrap("per-pixel decoder", model.decode_dense)
     with clock.stage("crop, normalise, paste back"), torch.inference_mode():
         pred = predict(model, dec.maps, mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
-                       radiance=cap.meta.radiance, stride=stride)  # fmt: skip
+                       radiance=cap.meta.radiance, stride=stride, refine_deg=refine)  # fmt: skip
     inner = clock.seconds["encoder (crop resized to the input size)"] + clock.seconds["per-pixel decoder"]
     clock.seconds["crop, normalise, paste back"] -= inner
     with clock.stage("relief depth integration"):
@@ -213,3 +217,96 @@ def stride_rows(
         row["error_vs_stride_1"] = stride_error(ref, pred, inp.mask)
         rows[f"stride_{stride}"] = row
     return {"masked_pixels": int(inp.mask.sum()), "tolerance": TOLERANCE, "rows": rows}
+
+
+def surface_normals(depth: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
+    """``(H - 1, W - 1, 3)`` unit normals of the surface through the depth map's points (camera frame, OpenGL).
+
+    Each 2x2 block's normal is the cross product of its points' steps along a row and down a column.
+    """
+    from pbrdf.sensor.projection import pixel_rays  # noqa: PLC0415
+
+    pts = pixel_rays(intrinsics, *depth.shape) * depth[..., None].astype(np.float64)
+    n = np.cross(pts[:-1, 1:] - pts[:-1, :-1], pts[1:, :-1] - pts[:-1, :-1])
+    return n / np.maximum(np.linalg.norm(n, axis=-1, keepdims=True), 1e-300)
+
+
+def depth_error(ref: np.ndarray, got: np.ndarray, mask: np.ndarray, intrinsics: np.ndarray) -> dict[str, float]:
+    """How far depth ``got`` is from ``ref`` on ``mask``: relative to the object's depth range, and in surface angle.
+
+    Args:
+        ref: ``(H, W)`` the reference depth (m).
+        got: ``(H, W)`` the depth to check.
+        mask: ``(H, W)`` bool.
+        intrinsics: ``K (3, 3)`` of the maps' grid.
+
+    Returns:
+        ``range_m`` (p99 - p1 of ``ref`` on the mask), ``depth_rel_p50``, ``depth_rel_p99``, ``depth_rel_max``
+        (``|got - ref|`` over that range) and ``surface_deg_p50``, ``surface_deg_p99`` (angle between the two
+        surfaces' normals, :func:`surface_normals`, on 2x2 blocks inside the mask).
+
+    Example:
+        >>> k = np.array([[100.0, 0, 8], [0, 100.0, 8], [0, 0, 1]])
+        >>> m = np.ones((16, 16), bool)
+        >>> ref = np.linspace(0.7, 0.8, 16)[None].repeat(16, 0)
+        >>> e = depth_error(ref, ref + 0.001, m, k)
+        >>> round(e["depth_rel_max"], 3)
+        0.011
+    """
+    rng = float(np.quantile(ref[mask], 0.99) - np.quantile(ref[mask], 0.01))
+    rel = np.abs(got[mask].astype(np.float64) - ref[mask]) / max(rng, 1e-12)
+    block = mask[:-1, :-1] & mask[1:, :-1] & mask[:-1, 1:] & mask[1:, 1:]
+    a, b = surface_normals(ref, intrinsics)[block], surface_normals(got, intrinsics)[block]
+    deg = np.degrees(np.arctan2(np.linalg.norm(np.cross(a, b), axis=-1), np.sum(a * b, axis=-1)))
+    return {
+        "range_m": rng,
+        "depth_rel_p50": float(np.median(rel)),
+        "depth_rel_p99": float(np.quantile(rel, 0.99)),
+        "depth_rel_max": float(rel.max()),
+        "surface_deg_p50": float(np.median(deg)) if deg.size else 0.0,
+        "surface_deg_p99": float(np.quantile(deg, 0.99)) if deg.size else 0.0,
+    }
+
+
+def depth_rows(capture: Path, checkpoint: Path, *, stride: int | None = None, repeat: int = 3) -> dict:
+    """The relief depth of a capture's predicted normals by both preconditioners, side by side: seconds and error.
+
+    Args:
+        capture: a capture folder or sample.
+        checkpoint: the model.
+        stride: :func:`network.infer.predict`'s ``stride`` (None: :func:`network.model.dense.auto_stride`).
+        repeat: timed integrations per route, interleaved (the medians are reported).
+
+    Returns:
+        ``{"masked_pixels", "rows": {"two_grid" | "multigrid": {"what", "wall_median", "cpu_median", "wall_all",
+        "cpu_all"}}, "two_grid_vs_multigrid": depth_error(...)}``.
+    """
+    from network.checkpoint import load_checkpoint  # noqa: PLC0415
+    from network.infer import load_input, predict  # noqa: PLC0415
+    from network.model.dense import auto_stride  # noqa: PLC0415
+    from pbrdf.data.capture import DEFAULT_DISTANCE_M  # noqa: PLC0415
+    from pbrdf.geometry.normal_integration import auto_cell, integrate_normals  # noqa: PLC0415
+
+    model, ckpt = load_checkpoint(checkpoint)
+    inp = load_input(capture, require_object=True)
+    pixels = int(inp.mask.sum())
+    pred = predict(model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
+                   radiance=inp.radiance, stride=auto_stride(pixels) if stride is None else stride)  # fmt: skip
+    distance = inp.distance_m or DEFAULT_DISTANCE_M
+    routes = {"two_grid": None, "multigrid": 1}
+    times: dict[str, list[tuple[float, float]]] = {name: [] for name in routes}
+    depth = {}
+    for _ in range(max(1, repeat)):
+        for name, cell in routes.items():
+            wall, cpu = time.perf_counter(), time.process_time()
+            depth[name] = integrate_normals(pred["normal"], inp.mask, inp.intrinsics, distance, cell=cell)
+            times[name].append((time.perf_counter() - wall, time.process_time() - cpu))
+    rows = {}
+    for name, cell in routes.items():
+        wall, cpu = (sorted(t[j] for t in times[name]) for j in (0, 1))
+        how = f"two-grid preconditioner, cells of {auto_cell(pixels)} px" if cell is None else "algebraic multigrid"
+        what = f"integrate_normals of {pixels} predicted normals, {how}"
+        rows[name] = {"what": what, "wall_median": wall[len(wall) // 2], "cpu_median": cpu[len(cpu) // 2],
+                      "wall_all": [t[0] for t in times[name]], "cpu_all": [t[1] for t in times[name]]}  # fmt: skip
+    error = depth_error(depth["multigrid"], depth["two_grid"], inp.mask, inp.intrinsics)
+    return {"masked_pixels": pixels, "rows": rows, "two_grid_vs_multigrid": error}

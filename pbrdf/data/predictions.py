@@ -35,6 +35,7 @@ import json
 import math
 import os
 from collections.abc import Mapping, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -275,12 +276,19 @@ def write_predictions(
         if img.ndim != 3 or not np.all(np.isfinite(img)):
             raise ValueError(f"predicted {key} map is not a finite (H, W, C) array; nothing written")
     mask = pred["mask"][..., 0] > 0 if "mask" in pred else None
-    previews = {key: _png(_preview(key, img, mask)) for key, img in pred.items()}
+    # Two threads: PNG (zlib) and EXR compression release the GIL (a full frame's files: 1.4 s of CPU).
+    with ThreadPoolExecutor(2) as pool:
+        previews = dict(zip(pred, pool.map(lambda k: _png(_preview(k, pred[k], mask)), pred), strict=True))
     names = []
-    with atomic_folder(out, merge=True) as staging:
-        for key, img in pred.items():
+    with atomic_folder(out, merge=True) as staging, ThreadPoolExecutor(2) as pool:
+
+        def exr(key: str) -> None:
+            img = pred[key]
             chans = "XYZ" if key == "normal" else ("RGB" if img.shape[-1] == 3 else "Y")
             write_exr(staging / f"{name}_{key}.exr", {f"{key}.{c}": img[..., i] for i, c in enumerate(chans)})
+
+        list(pool.map(exr, pred))  # list: the first error is raised here, inside the staging folder
+        for key in pred:
             (staging / f"{name}_{key}.png").write_bytes(previews[key])
             names += [f"{name}_{key}.exr", f"{name}_{key}.png"]
         if camera is not None:

@@ -61,3 +61,33 @@ def test_identical_float32_normals_are_zero_degrees_apart():
     ref = {k: v.astype(np.float32) for k, v in _maps(np.random.default_rng(1)).items()}
     err = stride_error(ref, ref, np.ones((20, 30), bool))
     assert err["normal_deg_max"] == 0.0 and err["within"]
+
+
+def test_depth_error_reads_the_angle_between_two_planes():
+    """Two planes 2 deg apart (ray-plane intersections, not the error's own formula) read as 2 deg."""
+    from network.bench.fullframe import depth_error
+    from pbrdf.sensor.projection import pinhole_intrinsics, pixel_rays
+
+    k = pinhole_intrinsics(200.0, 40, 30)
+    rays = pixel_rays(k, 30, 40)
+
+    def plane(normal):
+        n = np.asarray(normal) / np.linalg.norm(normal)
+        return (np.array([0.0, 0.0, -0.7]) @ n) / (rays @ n)
+
+    a = np.radians(2.0)
+    ref, got = plane([0.2, 0.0, 1.0]), plane([0.2, np.sin(a), np.cos(a)])
+    mask = np.ones((30, 40), bool)
+    e = depth_error(ref, got, mask, k)
+    assert 1.7 < e["surface_deg_p50"] < 2.3 and e["depth_rel_max"] > 0.01
+    same = depth_error(ref, ref.copy(), mask, k)
+    assert same["surface_deg_p99"] < 1e-6 and same["depth_rel_max"] == 0.0
+
+
+def test_depth_rows_compares_the_two_preconditioners_on_the_example_capture():
+    from network.bench.fullframe import depth_rows
+
+    result = depth_rows(ROOT / "examples" / "capture", ROOT / "models" / "small" / "model.pt", repeat=1)
+    assert set(result["rows"]) == {"two_grid", "multigrid"} and result["masked_pixels"] > 0
+    assert all(r["wall_median"] > 0 and r["cpu_median"] > 0 for r in result["rows"].values())
+    assert result["two_grid_vs_multigrid"]["depth_rel_max"] < 1e-3
