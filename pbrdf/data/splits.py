@@ -248,7 +248,7 @@ SPLITS: dict[str, Split] = {
         ),
         Split("val-next", "val", seed=35_000, count=64, description="as train-next (selection)", **_NEXT),
         # The real-data branch's pseudo-real captures and their held-out split (docs/measurements/pseudo_real.md).
-        Split("train-pseudo-real", "train", seed=38_500, count=64, description="engine scenes, jittered rig", **_PSEUDO),
+        Split("train-pseudo-real", "train", seed=38_500, count=64, description="jittered rig", **_PSEUDO),
         Split("test-pseudo-real", "test", seed=28_500, count=32, description="as train-pseudo-real", **_PSEUDO),
         Split(
             "test-scenes",
