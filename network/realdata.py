@@ -24,8 +24,12 @@ key            shape         meaning
 
 Geometry per source:
 
-* rendered sample: the sidecar's ``rig`` and ``intrinsics`` (of the rendered crop, which is the
-  maps' grid) and, with ``use_depth``, the sample's ``depth`` map as the depth prior;
+* rendered sample without raw brackets: the sidecar's ``rig`` and ``intrinsics`` (of the rendered
+  crop, which is the maps' grid) and, with ``use_depth``, the sample's ``depth`` map as the depth
+  prior; a sample *with* raw brackets is read as its capture folder (:func:`find_real_inputs`):
+  decoded with the rig its ``capture.json`` names (for a jittered rig, the nominal one the
+  decoder assumes), the automatic foreground mask, no depth and no sidecar, so no ground truth
+  reaches training;
 * capture folder: optional keys of ``capture.json`` (parsed into :class:`pbrdf.data.capture.CaptureMeta`):
   ``rig`` (a partial rig dict, :meth:`pbrdf.sensor.rig.Rig.from_dict`; default the
   default rig), ``intrinsics`` (3x3 pinhole matrix of the raw mosaic's pixel grid; default the
@@ -76,14 +80,21 @@ def _is_dataset(path: Path) -> bool:
 
 
 def _dataset_samples(root: Path) -> list[Path]:
-    return [psample.sample_paths(root, i).sidecar for i in sorted(pdataset.completed_indices(root))]
+    """Each completed sample's capture folder when it kept its raw brackets, else its sidecar."""
+    out = []
+    for i in sorted(pdataset.completed_indices(root)):
+        paths = psample.sample_paths(root, i)
+        out.append(paths.raw if _is_capture(paths.raw) else paths.sidecar)
+    return out
 
 
 def find_real_inputs(root: str | Path) -> list[Path]:
     """Capture folders and sample sidecars under ``root``, sorted.
 
     ``root`` may itself be a capture folder or a rendered dataset, or hold such folders one level
-    down (other entries are ignored).
+    down (other entries are ignored). A rendered sample that kept its raw brackets
+    (``NNNNNN_raw/``) is listed as that capture folder, so it is read like a real capture (the
+    pseudo-real data of docs/measurements/pseudo_real.md): nothing of its sidecar is read.
 
     Raises:
         FileNotFoundError: ``root`` is not a folder.

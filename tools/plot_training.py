@@ -14,7 +14,8 @@ import csv
 import sys
 from pathlib import Path
 
-KEEP = ("step", "loss", "normal", "albedo", "roughness", "metallic", "chromaticity", "lr", "seconds")
+KEEP = ("step", "loss", "normal", "albedo", "roughness", "metallic", "chromaticity", "real", "real_weight", "lr",
+        "seconds")  # fmt: skip
 
 
 def _rows(path: Path) -> list[dict[str, str]]:
@@ -57,9 +58,16 @@ def main(argv: list[str] | None = None) -> int:
         vals = [float(r[key]) for r in log if r.get(key)]
         if len(vals) == len(steps):
             axes[0].plot(steps, _smooth(vals, k), label=key)
+    real = [(int(r["step"]), float(r["real"])) for r in log if r.get("real")]  # the steps with a real pass
+    if real:
+        axes[0].plot(*zip(*real, strict=True), "k--", label="real (re-render, unweighted)")
     axes[0].set(yscale="log", xlabel="step", title=f"training loss (running mean of {k})")
     axes[0].legend()
     axes[1].plot(steps, [float(r["lr"]) for r in log])
+    if real:
+        twin = axes[1].twinx()
+        twin.plot(steps, [float(r.get("real_weight") or 0.0) for r in log], "k--")
+        twin.set(ylabel="real-loss weight (dashed)")
     axes[1].set(xlabel="step", title="learning rate")
     if val:
         axes[2].plot([int(r["step"]) for r in val], [float(r["normal_mae_deg"]) for r in val], "o-")

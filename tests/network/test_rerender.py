@@ -332,7 +332,8 @@ def rendered(tmp_path_factory):
     res = render.render_stokes(spec, render.RenderSettings(resolution=32, spp=32))
     sample, meta = render.synthesize_sample(spec, res, rng=np.random.default_rng(0), noise=False, keep_raw=True)
     root = tmp_path_factory.mktemp("real")
-    psample.write_sample(root / "ds", 0, sample, meta)
+    # Without its raw bracket: a sample that kept one is read as that capture (network.realdata.find_real_inputs).
+    psample.write_sample(root / "ds", 0, {k: v for k, v in sample.items() if k != "raw"}, meta)
     raw_k = np.asarray(meta["intrinsics"]) * np.array([[2.0], [2.0], [1.0]])  # raw grid = 2x the maps' grid
     extra = {"rig": spec.rig.to_dict(), "intrinsics": raw_k.tolist(), "distance_m": 0.6}
     capture.save_capture(root / "cap", sample["raw"], spec.rig.camera.model, extra=extra)
