@@ -7,6 +7,7 @@ import pytest
 
 from pbrdf.data import sample as psample
 from pbrdf.data.splits import SPLITS
+from pbrdf.data.splits import test_splits as nominal_test_splits
 
 
 def test_light_splits_widen_the_engine_distances_only():
@@ -39,7 +40,10 @@ def test_next_splits_turn_on_jitter_and_the_corpus_and_every_other_split_stays_n
                                                                                    35_000, 64)  # fmt: skip
     assert train.objects == val.objects == (1, 5) and train.distance == (0.35, 1.6)
     assert train.rig_jitter == val.rig_jitter == 1.0 and train.corpus_fraction == val.corpus_fraction == 0.3
-    others = [s for s in SPLITS.values() if s.name not in ("train-next", "val-next")]
+    pseudo = ("train-pseudo-real", "test-pseudo-real")  # the real-data branch's jittered captures
+    assert all(SPLITS[n].rig_jitter == 1.5 and SPLITS[n].corpus_fraction == 0.0 for n in pseudo)
+    assert not set(pseudo) & {s.name for s in nominal_test_splits()}  # never in the ship gate's nominal test splits
+    others = [s for s in SPLITS.values() if s.name not in ("train-next", "val-next", *pseudo)]
     assert all(s.rig_jitter == 0.0 and s.corpus_fraction == 0.0 for s in others)
     with pytest.raises(ValueError, match="training only"):
         type(train)("x", "test", seed=1, count=1, corpus_fraction=0.3)
