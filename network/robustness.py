@@ -36,6 +36,7 @@ sweep resumes where it stopped.
 
 from __future__ import annotations
 
+import functools
 import math
 import shutil
 import tempfile
@@ -70,7 +71,9 @@ __all__ = [
     "cell_key",
     "cell_plan",
     "capture_scene",
+    "score_capture",
     "run_cell",
+    "run_cells",
     "sweep",
     "load_cells",
 ]
@@ -289,9 +292,20 @@ def capture_scene(
     return pcapture.save_capture(folder, raws, believed, extra=extra, dark=dark)
 
 
+def score_capture(model, checkpoint, root: Path, index: int, stats, folder: Path, rig=None) -> dict[str, Any]:
+    """One scene's row (``index``, ``pixels``, ``mask_iou``, ``ours``): the model on the capture in ``folder``.
+
+    ``rig`` (a calibrated :class:`pbrdf.sensor.rig.Rig`) decodes it as ``headless/infer.py --rig`` does.
+    """
+    scene = predict_scene(model, checkpoint_inputs(checkpoint), root, index, stats, baseline=False, capture=folder,
+                          input_scale=checkpoint_input_scale(checkpoint), rig=rig)  # fmt: skip
+    scene.intrinsics = None  # no depth integration: normals are scored directly
+    row = score_scene(scene, lpips=False)
+    return {"index": index, "pixels": row["pixels"], "mask_iou": row["mask_iou"], "ours": row["ours"]}
+
+
 def _cell_rows(model, checkpoint, root: Path, indices, stats, basis_fn, term, level, decoder) -> list[dict]:
     """Per-scene rows of one cell: pixels, mask IoU and the model's scores."""
-    variant, scale = checkpoint_inputs(checkpoint), checkpoint_input_scale(checkpoint)
     rows = []
     with tempfile.TemporaryDirectory(prefix="robustness-") as tmp:
         for i in indices:
@@ -300,10 +314,7 @@ def _cell_rows(model, checkpoint, root: Path, indices, stats, basis_fn, term, le
             cap = pcapture.load_capture(paths.raw)
             folder = capture_scene(Path(tmp) / f"{i:06d}", basis_fn(i), cap, int(meta["sample_seed"]), term, level,
                                    decoder)  # fmt: skip
-            scene = predict_scene(model, variant, root, i, stats, input_scale=scale, baseline=False, capture=folder)
-            scene.intrinsics = None  # no depth integration: normals are scored directly
-            row = score_scene(scene, lpips=False)
-            rows.append({"index": i, "pixels": row["pixels"], "mask_iou": row["mask_iou"], "ours": row["ours"]})
+            rows.append(score_capture(model, checkpoint, root, i, stats, folder))
             shutil.rmtree(folder)
     return rows
 
@@ -360,13 +371,45 @@ def _summary(rows: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     return out
 
 
-def _write_cell(path: Path, cell: Mapping[str, Any]) -> None:
-    atomic_write_text(path, dumps_strict(cell) + "\n")
-
-
 def load_cells(folder: str | Path) -> dict[str, dict[str, Any]]:
     """The finished cells in ``folder`` (``*.json``), by :func:`cell_key`."""
     return {p.stem: loads_strict(p.read_text()) for p in sorted(Path(folder).glob("*.json"))}
+
+
+def run_cells(
+    plan: Sequence[tuple[str, Callable[[], dict[str, Any]]]],
+    cells_dir: str | Path,
+    indices: Sequence[int],
+    *,
+    resume: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> dict[str, dict[str, Any]]:
+    """Compute each ``(key, compute)`` of ``plan`` into ``cells_dir/KEY.json``, keeping finished ones on ``resume``.
+
+    Raises:
+        ValueError: ``resume`` with a cell of other scenes than ``indices`` in ``cells_dir``.
+    """
+    out = Path(cells_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    done = load_cells(out) if resume else {}
+    cells = {}
+    for n, (key, compute) in enumerate(plan, 1):
+        if key in done:
+            if done[key]["scenes"] != list(indices):
+                raise ValueError(f"{out / key}.json: scored scenes {done[key]['scenes']}, not {list(indices)}; "
+                                 "use another output folder")  # fmt: skip
+            cells[key] = done[key]
+            if log:
+                log(f"[{n}/{len(plan)}] {key}: done before, skipped")
+            continue
+        cells[key] = c = compute()
+        atomic_write_text(out / f"{key}.json", dumps_strict(c) + "\n")
+        if log:
+            s, level = c["summary"], f" (level {c['level']:g})" if "level" in c else ""
+            log(f"[{n}/{len(plan)}] {key}{level}: normal MAE {s['normal_mae']['mean']:.2f} deg, albedo PSNR "
+                f"{s['albedo_psnr']['mean']:.2f} dB, roughness RMSE {s['roughness_rmse']['mean']:.3f}, "
+                f"{c['seconds']:.0f} s")  # fmt: skip
+    return cells
 
 
 def sweep(
@@ -400,26 +443,6 @@ def sweep(
     Raises:
         ValueError: ``resume`` with a cell of other scenes in ``cells_dir``.
     """
-    out = Path(cells_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    done = load_cells(out) if resume else {}
-    plan = cell_plan(terms)
-    cells = {}
-    for n, (term, index, decoder) in enumerate(plan, 1):
-        key = cell_key(term, index, decoder)
-        if key in done:
-            if done[key]["scenes"] != list(indices):
-                raise ValueError(f"{out / key}.json: scored scenes {done[key]['scenes']}, not {list(indices)}; "
-                                 "use another output folder")  # fmt: skip
-            cells[key] = done[key]
-            if log:
-                log(f"[{n}/{len(plan)}] {key}: done before, skipped")
-            continue
-        cells[key] = run_cell(model, checkpoint, root, indices, stats, basis_fn, term, index, decoder)
-        _write_cell(out / f"{key}.json", cells[key])
-        if log:
-            c, s = cells[key], cells[key]["summary"]
-            log(f"[{n}/{len(plan)}] {key} (level {c['level']:g}): normal MAE {s['normal_mae']['mean']:.2f} deg, "
-                f"albedo PSNR {s['albedo_psnr']['mean']:.2f} dB, roughness RMSE {s['roughness_rmse']['mean']:.3f}, "
-                f"{c['seconds']:.0f} s")  # fmt: skip
-    return cells
+    plan = [(cell_key(t, i, d), functools.partial(run_cell, model, checkpoint, root, indices, stats, basis_fn, t, i, d))
+            for t, i, d in cell_plan(terms)]  # fmt: skip
+    return run_cells(plan, cells_dir, indices, resume=resume, log=log)

@@ -41,7 +41,6 @@ import numpy as np
 from pbrdf.data import capture as pcapture
 from pbrdf.data import sample as psample
 from pbrdf.data.capture_rig import read_rig
-from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.strict_json import dumps_strict
 from pbrdf.sensor.calibration import calibrate, rig_errors
 from pbrdf.sensor.calibration_targets import simulate_targets
@@ -50,10 +49,7 @@ from pbrdf.sensor.projection import pinhole_intrinsics
 from pbrdf.sensor.rig import Rig
 from pbrdf.sensor.rig_jitter import draw_rig
 
-from .data import checkpoint_input_scale
-from .evaluation import predict_scene, score_scene
-from .inputs import checkpoint_inputs
-from .robustness import TERMS, _summary, display_stokes, load_cells, run_cell, true_camera
+from .robustness import TERMS, _summary, display_stokes, run_cell, run_cells, score_capture, true_camera
 
 __all__ = [
     "CAL_DECODERS",
@@ -293,7 +289,6 @@ def run_case_cell(
     if decoder not in CAL_DECODERS:
         raise ValueError(f"decoder must be one of {CAL_DECODERS}; got {decoder!r}")
     t0 = time.perf_counter()
-    variant, scale = checkpoint_inputs(checkpoint), checkpoint_input_scale(checkpoint)
     root = Path(root)
     rows, errors = [], None
     with tempfile.TemporaryDirectory(prefix="robustness-cal-") as tmp:
@@ -306,11 +301,7 @@ def run_case_cell(
             rig = None
             if decoder == "calibrated":  # the user's path: the rig.json calibrate.py wrote, read back
                 rig, errors = read_rig(rigs.folder / f"{c.name}-calibrated.json"), errors_i
-            scene = predict_scene(model, variant, root, i, stats, input_scale=scale, baseline=False, capture=folder,
-                                  rig=rig)  # fmt: skip
-            scene.intrinsics = None  # no depth integration: normals are scored directly
-            row = score_scene(scene, lpips=False)
-            rows.append({"index": i, "pixels": row["pixels"], "mask_iou": row["mask_iou"], "ours": row["ours"]})
+            rows.append(score_capture(model, checkpoint, root, i, stats, folder, rig=rig))
             shutil.rmtree(folder)
     cell = {"case": c.name, "decoder": decoder, "scenes": [r["index"] for r in rows], "rows": rows,
             "summary": _summary(rows), "seconds": time.perf_counter() - t0}  # fmt: skip
@@ -348,30 +339,13 @@ def calibration_sweep(
     for the same scenes are kept (ValueError for other scenes).
     """
     out = Path(out)
-    cells_dir = out / "cells"
-    cells_dir.mkdir(parents=True, exist_ok=True)
-    done = load_cells(cells_dir) if resume else {}
-    plan = calibration_plan(cases)
-    cells = {}
-    for n, (case, decoder) in enumerate(plan, 1):
-        key = UNPERTURBED if case == UNPERTURBED else f"{case}-{decoder}"
-        if key in done:
-            if done[key]["scenes"] != list(indices):
-                raise ValueError(f"{cells_dir / key}.json: scored scenes {done[key]['scenes']}, not {list(indices)}; "
-                                 "use another output folder")  # fmt: skip
-            cells[key] = done[key]
-            if log:
-                log(f"[{n}/{len(plan)}] {key}: done before, skipped")
-            continue
+
+    def compute(case: str, decoder: str) -> Callable[[], dict[str, Any]]:
         if case == UNPERTURBED:
-            cells[key] = run_cell(model, checkpoint, root, indices, stats, basis_fn, "nominal", 0, "nominal")
-        else:
-            cells[key] = run_case_cell(model, checkpoint, root, indices, stats, basis_fn, case, decoder,
-                                       rigs_dir=out / "rigs")  # fmt: skip
-        atomic_write_text(cells_dir / f"{key}.json", dumps_strict(cells[key]) + "\n")
-        if log:
-            s = cells[key]["summary"]
-            log(f"[{n}/{len(plan)}] {key}: normal MAE {s['normal_mae']['mean']:.2f} deg, albedo PSNR "
-                f"{s['albedo_psnr']['mean']:.2f} dB, roughness RMSE {s['roughness_rmse']['mean']:.3f}, "
-                f"{cells[key]['seconds']:.0f} s")  # fmt: skip
-    return cells
+            return lambda: run_cell(model, checkpoint, root, indices, stats, basis_fn, "nominal", 0, "nominal")
+        return lambda: run_case_cell(model, checkpoint, root, indices, stats, basis_fn, case, decoder,
+                                     rigs_dir=out / "rigs")  # fmt: skip
+
+    plan = [(UNPERTURBED if case == UNPERTURBED else f"{case}-{decoder}", compute(case, decoder))
+            for case, decoder in calibration_plan(cases)]  # fmt: skip
+    return run_cells(plan, out / "cells", indices, resume=resume, log=log)
