@@ -202,8 +202,8 @@ pseudo-real: setup  ## the real-data branch on pseudo-real captures against synt
 	    --out $(PSEUDO_OUT)/train-pseudo-real --resume --quiet
 	$(PY) headless/render.py --split test-pseudo-real --pbrdfs $(SPLITS_DIR)/pbrdfs-test \
 	    --out $(PSEUDO_OUT)/test-pseudo-real --resume --quiet
-	$(PY) -m pbrdf.data.dark_frames $(PSEUDO_OUT)/train-pseudo-real
-	$(PY) -m pbrdf.data.dark_frames $(PSEUDO_OUT)/test-pseudo-real
+	$(PY) headless/dark_frames.py --input $(PSEUDO_OUT)/train-pseudo-real --quiet
+	$(PY) headless/dark_frames.py --input $(PSEUDO_OUT)/test-pseudo-real --quiet
 	$(PSEUDO_TRAIN) --out $(PSEUDO_OUT)/runs/synthetic
 	$(PSEUDO_TRAIN) --out $(PSEUDO_OUT)/runs/pseudo-real --real $(PSEUDO_OUT)/train-pseudo-real --real-weight 0.1 \
 	    --real-start $(PSEUDO_REAL_START) --real-warmup $(PSEUDO_REAL_WARMUP)
