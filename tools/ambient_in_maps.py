@@ -58,6 +58,7 @@ def _paired(root: Path, indices: list[int], checkpoint: Path) -> None:
     from network.evaluation import score  # noqa: PLC0415
     from network.infer import load_input, predict  # noqa: PLC0415
     from network.light_input import scene_light  # noqa: PLC0415
+    from network.statistics import summarize, summary_text  # noqa: PLC0415
 
     torch.set_num_threads(1)
     model, ckpt = load_checkpoint(checkpoint)
@@ -77,12 +78,10 @@ def _paired(root: Path, indices: list[int], checkpoint: Path) -> None:
             row += [s["normal_mae"], s["albedo_psnr"], s["albedo_si_psnr"]]
         rows.append(row)
     r = np.array(rows)
-    print(f"{checkpoint}: as stored / ambient removed / removed - stored [95 % interval], {len(indices)} scenes")
+    print(f"{checkpoint}, {len(indices)} scenes: as stored / ambient removed / removed - stored [95 % bootstrap CI]")
     for j, name in enumerate(("normal MAE deg", "albedo PSNR dB", "albedo si-PSNR dB")):
-        d = r[:, j + 3] - r[:, j]
-        half = 1.96 * d.std(ddof=1) / np.sqrt(len(d))
-        print(f"  {name}: {r[:, j].mean():.2f} / {r[:, j + 3].mean():.2f} / {d.mean():+.3f} "
-              f"[{d.mean() - half:+.3f}, {d.mean() + half:+.3f}]")  # fmt: skip
+        change = summary_text(summarize(r[:, j + 3] - r[:, j]), 3, signed=True)
+        print(f"  {name}: {r[:, j].mean():.2f} / {r[:, j + 3].mean():.2f} / {change}")
 
 
 def main(argv: list[str] | None = None) -> int:
