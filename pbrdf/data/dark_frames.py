@@ -26,7 +26,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import DTypeLike, NDArray
 
 from pbrdf.data import capture as pcapture
 from pbrdf.data import dataset as pdataset
@@ -41,19 +41,30 @@ __all__ = ["DARK_STREAM", "add_dark_frames", "dark_frames"]
 DARK_STREAM = 3
 
 
-def dark_frames(model: CameraModel, shape: tuple[int, int], sample_seed: int) -> NDArray[np.uint16]:
+def dark_frames(
+    model: CameraModel,
+    shape: tuple[int, int],
+    sample_seed: int,
+    *,
+    stream: int = DARK_STREAM,
+    dtype: DTypeLike = np.float64,
+) -> NDArray[np.uint16]:
     """The raw bracket of ``model`` with no display light: ambient light (vignetted), black level and noise.
 
     Args:
         model: the camera model the scene was captured with (its exposures, sensor and ambient).
         shape: ``(H, W)`` of the raw mosaic (multiples of 4).
-        sample_seed: the sample's seed (noise stream ``[sample_seed, DARK_STREAM]``).
+        sample_seed: the sample's seed (noise stream ``[sample_seed, stream]``).
+        stream: the noise stream (:data:`DARK_STREAM` for rendered captures; the robustness sweep
+            keeps its own).
+        dtype: the float type the zero Stokes images are simulated in (that of the scene's
+            Stokes images, so that a capture and its dark frames round alike).
 
     Returns:
         ``(E, H, W)`` uint16, one frame per exposure of ``model.exposures``.
     """
-    rng = np.random.default_rng([int(sample_seed), DARK_STREAM])
-    return simulate_capture(np.zeros((*shape, 3, 4)), model, rng=rng, noise=True)
+    rng = np.random.default_rng([int(sample_seed), int(stream)])
+    return simulate_capture(np.zeros((*shape, 3, 4), dtype=dtype), model, rng=rng, noise=True)
 
 
 def add_dark_frames(
