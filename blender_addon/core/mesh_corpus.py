@@ -161,4 +161,3 @@ def corpus_digest(files: list[Path], root: str | os.PathLike) -> str:
             f"{Path(f).relative_to(root).as_posix()}\0{hashlib.sha256(Path(f).read_bytes()).hexdigest()}\n".encode()
         )
     return h.hexdigest()[:16]
-
