@@ -47,7 +47,7 @@ $(BLENDER_STAMP): $(STAMP) tools/ensure_blender.sh tools/apt_install.sh
 # (apt-get download, no install) into corpora/meshes and indexed once.
 # Not fatal: without an apt source the tests still run (the corpus tests skip, train-next refuses in one line).
 $(MESH_CORPUS)/.complete: tools/ensure_meshcorpus.sh | $(STAMP)
-	@if bash tools/ensure_meshcorpus.sh $(MESH_CORPUS); then $(PY) -m blender_addon.core.mesh_corpus $(MESH_CORPUS) && touch $@; \
+	@if bash tools/ensure_meshcorpus.sh $(MESH_CORPUS); then $(PY) headless/mesh_corpus.py --input $(MESH_CORPUS) && touch $@; \
 	else echo "warning: no mesh corpus (train-next/val-next need it; run make setup again with an apt source)" >&2; fi
 
 setup: $(STAMP) $(LLVM_STAMP) $(CHROMIUM_STAMP) $(MODELS_STAMP) $(BLENDER_STAMP) $(MESH_CORPUS)/.complete  ## create .venv with all extras; libllvm19, chromium, assimp-testmodels, blender, the mesh corpus if missing
@@ -202,8 +202,8 @@ pseudo-real: setup  ## the real-data branch on pseudo-real captures against synt
 	    --out $(PSEUDO_OUT)/train-pseudo-real --resume --quiet
 	$(PY) headless/render.py --split test-pseudo-real --pbrdfs $(SPLITS_DIR)/pbrdfs-test \
 	    --out $(PSEUDO_OUT)/test-pseudo-real --resume --quiet
-	$(PY) -m pbrdf.data.dark_frames $(PSEUDO_OUT)/train-pseudo-real
-	$(PY) -m pbrdf.data.dark_frames $(PSEUDO_OUT)/test-pseudo-real
+	$(PY) headless/dark_frames.py --input $(PSEUDO_OUT)/train-pseudo-real --quiet
+	$(PY) headless/dark_frames.py --input $(PSEUDO_OUT)/test-pseudo-real --quiet
 	$(PSEUDO_TRAIN) --out $(PSEUDO_OUT)/runs/synthetic
 	$(PSEUDO_TRAIN) --out $(PSEUDO_OUT)/runs/pseudo-real --real $(PSEUDO_OUT)/train-pseudo-real --real-weight 0.1 \
 	    --real-start $(PSEUDO_REAL_START) --real-warmup $(PSEUDO_REAL_WARMUP)

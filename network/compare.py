@@ -23,7 +23,7 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from .statistics import bootstrap_ci
+from .statistics import bootstrap_ci, summary_text
 
 __all__ = ["COMPARED", "compare_markdown", "compare_results", "paired_gain", "worse_cells"]
 
@@ -151,9 +151,8 @@ def compare_markdown(rows: Sequence[Mapping[str, Any]], before: str, after: str)
         def num(v: float | None, d: int = d) -> str:
             return "n/a" if v is None else f"{v:.{d}f}"
 
-        ci = "" if r["ci"] is None else f" [{r['ci'][0]:+.{d}f}, {r['ci'][1]:+.{d}f}]"
         lines.append(f"| {r['split']} | {header[r['metric']]} | {num(r['before'])} | {num(r['after'])} | "
-                     f"{r['gain']:+.{d}f}{ci} | {r['scenes']} | {r['verdict']} |")  # fmt: skip
+                     f"{summary_text(r, d, key='gain', signed=True)} | {r['scenes']} | {r['verdict']} |")  # fmt: skip
     worse = worse_cells(rows)
     lines += ["", f"Worse at 95 %: {', '.join(worse)}." if worse else "Worse at 95 %: none.", ""]
     return "\n".join(lines)

@@ -24,7 +24,7 @@ from pbrdf.data.splits import dataset_split
 from .data import checkpoint_input_scale
 from .evaluation import predict_scene, score
 from .inputs import checkpoint_inputs
-from .statistics import summarize
+from .statistics import summarize, summary_text
 
 __all__ = ["SENSITIVITY_METRICS", "distance_sensitivity", "sensitivity_markdown"]
 
@@ -96,15 +96,6 @@ def distance_sensitivity(
     }  # fmt: skip
 
 
-def _fmt(s: Mapping[str, Any], digits: int) -> str:
-    if s.get("mean") is None:
-        return "n/a"
-    ci = s.get("ci")
-    if not ci or ci[0] is None:
-        return f"{s['mean']:+.{digits}f}"
-    return f"{s['mean']:+.{digits}f} [{ci[0]:+.{digits}f}, {ci[1]:+.{digits}f}]"
-
-
 def sensitivity_markdown(result: Mapping[str, Any]) -> str:
     """A markdown table of :func:`distance_sensitivity`: per error, each metric's mean and paired change."""
     digits = {"albedo_psnr": 2, "albedo_si_psnr": 2, "normal_mae": 2, "roughness_rmse": 4}
@@ -115,7 +106,7 @@ def sensitivity_markdown(result: Mapping[str, Any]) -> str:
     for e in result["errors"]:
         row = result["rows"][str(e)]
         cells = [
-            f"{row[k]['mean']:.{digits[k]}f} (change {_fmt(row['delta_' + k], digits[k])})"
+            f"{row[k]['mean']:.{digits[k]}f} (change {summary_text(row['delta_' + k], digits[k], signed=True)})"
             if row[k].get("mean") is not None else "n/a"
             for k in SENSITIVITY_METRICS
         ]  # fmt: skip

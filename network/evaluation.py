@@ -58,7 +58,7 @@ from .infer import DEFAULT_CHECKPOINT, load_input, predict
 from .inputs import checkpoint_inputs
 from .light_input import scene_light
 from .lpips import lpips_status
-from .statistics import correlation, summarize
+from .statistics import correlation, summarize, summary_text
 
 if TYPE_CHECKING:
     from pbrdf.sensor.rig import Rig
@@ -532,15 +532,6 @@ def _stored(root: Path, index: int) -> set[str]:
     return {c.split(".")[0] for c in meta.get("channels", [])}
 
 
-def _cell(s: Mapping[str, Any], key: str, digits: int) -> str:
-    mean, ci = s.get(key), s.get("ci" if key == "mean" else "weighted_ci")
-    if mean is None:
-        return "n/a"
-    if not ci or ci[0] is None:
-        return f"{mean:.{digits}f}"
-    return f"{mean:.{digits}f} [{ci[0]:.{digits}f}, {ci[1]:.{digits}f}]"
-
-
 def summary_table(result: Mapping[str, Any], key: str = "mean") -> tuple[list[str], list[list[str]]]:
     """Header and rows (one per method) of a summary; ``key`` ``"mean"`` or ``"weighted_mean"``.
 
@@ -557,7 +548,8 @@ def summary_table(result: Mapping[str, Any], key: str = "mean") -> tuple[list[st
     header = ["method"] + [h for _, h in cols]
     refined = result["methods"].get("refined", {}).get("normal_mae", {}).get("count") or 0
     shown = [m for m in METHODS if (m != "object_mean" or scored) and (m != "refined" or refined)]
-    rows = [[labels[m]] + [_cell(result["methods"][m][k], key, digits.get(k, 3)) for k, _ in cols] for m in shown]
+    methods = result["methods"]
+    rows = [[labels[m]] + [summary_text(methods[m][k], digits.get(k, 3), key=key) for k, _ in cols] for m in shown]
     return header, rows
 
 
@@ -578,21 +570,21 @@ def results_markdown(result: Mapping[str, Any]) -> str:
         lines += _markdown_table(f"Per-object mean [95 % CI] ({result['objects']} objects)", *summary_table(per))
     corr = {m: c for m, c in (result.get("roughness_correlation") or {}).items() if c.get("count")}
     if corr:
-        cells = [f"{m} {c['r']:.2f} [{c['ci'][0]:.2f}, {c['ci'][1]:.2f}]" if c["r"] is not None
-                 else f"{m} none (constant)" for m, c in corr.items()]  # fmt: skip
+        cells = [f"{m} {summary_text(c, 2, key='r')}" if c["r"] is not None else f"{m} none (constant)"
+                 for m, c in corr.items()]  # fmt: skip
         n = max(c["count"] for c in corr.values())
         lines += [f"Per-object roughness correlation with the truth, dielectric objects (Pearson r [95 % CI], "
                   f"{n} objects): " + "; ".join(cells) + ".", ""]  # fmt: skip
     if result.get("paired"):
         cols = [(k, h) for k, h, _ in METRICS if k in ("normal_mae", "albedo_psnr", "albedo_si_psnr", "roughness_rmse")]
-        cells = [_cell(result["paired"][k], "mean", 2) for k, _ in cols]
+        cells = [summary_text(result["paired"][k], 2) for k, _ in cols]
         t = result.get("refine_seconds") or {}
         title = (f"Refinement minus network, paired per-scene mean [95 % CI] (refined {t.get('refined')} of "
                  f"{result['scenes']} scenes; {t.get('median', 0):.1f} s median, "
                  f"{t.get('max', 0):.1f} s max)")  # fmt: skip
         lines += _markdown_table(title, [h for _, h in cols], [cells])
     iou = result["mask_iou"]
-    lines.append(f"Automatic foreground mask vs object coverage: IoU {_cell(iou, 'mean', 3)} (per-scene mean).")
+    lines.append(f"Automatic foreground mask vs object coverage: IoU {summary_text(iou, 3)} (per-scene mean).")
     lines.append("")
     return "\n".join(lines)
 

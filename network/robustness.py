@@ -50,6 +50,7 @@ import numpy as np
 
 from pbrdf.data import capture as pcapture
 from pbrdf.data import sample as psample
+from pbrdf.data.dark_frames import dark_frames
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.strict_json import dumps_strict, loads_strict
 from pbrdf.sensor.camera import CameraModel, simulate_capture
@@ -284,7 +285,7 @@ def capture_scene(
     raws = simulate_capture(up, model, rng=np.random.default_rng([sample_seed, 1]))
     dark = None
     if decoder == "true" and any(model.ambient):  # the display off: the room light and the sensor's offset
-        dark = simulate_capture(np.zeros_like(up), model, rng=np.random.default_rng([sample_seed, 2]))
+        dark = dark_frames(model, up.shape[:2], sample_seed, stream=2, dtype=up.dtype)
     believed = model if decoder == "true" else nominal
     extra = dict(capture.metadata)
     if isinstance(extra.get("rig"), dict):  # the rig file's camera model is the decoder's belief too

@@ -41,6 +41,7 @@ import numpy as np
 from pbrdf.data import capture as pcapture
 from pbrdf.data import sample as psample
 from pbrdf.data.capture_rig import read_rig
+from pbrdf.data.dark_frames import dark_frames
 from pbrdf.io.strict_json import dumps_strict
 from pbrdf.sensor.calibration import calibrate, rig_errors
 from pbrdf.sensor.calibration_targets import simulate_targets
@@ -221,7 +222,7 @@ def case_capture(
     raws = simulate_capture(up, model, rng=np.random.default_rng([sample_seed, 1]))
     dark = None
     if decoder != "nominal":  # the display off: the room light and the sensor's offset
-        dark = simulate_capture(np.zeros_like(up), model, rng=np.random.default_rng([sample_seed, 2]))
+        dark = dark_frames(model, up.shape[:2], sample_seed, stream=2, dtype=up.dtype)
     believed = model if decoder == "true" else capture.model
     extra = dict(capture.metadata)
     if decoder == "true":

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from .robustness import DECODERS, SWEEP_METRICS, TERMS, cell_key
-from .statistics import summarize
+from .statistics import summarize, summary_text
 
 __all__ = [
     "paired_difference",
@@ -68,16 +68,6 @@ def tolerance(levels: Sequence[float], increase: Sequence[float | None], limit: 
     return None
 
 
-def _fmt(s: Mapping[str, Any], digits: int, signed: bool = False) -> str:
-    mean, ci = s.get("mean"), s.get("ci")
-    if mean is None:
-        return "n/a"
-    f = f"{{:+.{digits}f}}" if signed else f"{{:.{digits}f}}"
-    if not ci or ci[0] is None:
-        return f.format(mean)
-    return f"{f.format(mean)} [{f.format(ci[0])}, {f.format(ci[1])}]"
-
-
 def _cells_of(cells: Mapping[str, Any], term, decoder: str) -> list[Mapping[str, Any] | None]:
     """The cells of one term and decoder in level order (level 0: the nominal cell)."""
     return [cells.get(cell_key(term.name, i, decoder)) for i in range(len(term.levels))]
@@ -92,9 +82,9 @@ def sweep_table(cells: Mapping[str, Any]) -> str:
 
     def row(label: str, level: str, decoder: str, cell: Mapping[str, Any]) -> str:
         s = cell["summary"]
-        vals = [_fmt(s[k], d) for k, (_, d, _) in SWEEP_METRICS.items()]
-        delta = _fmt(paired_difference(cell, nominal, "normal_mae"), 2, signed=True)
-        return "| " + " | ".join([label, level, decoder, *vals, delta, _fmt(s["mask_iou"], 3)]) + " |"
+        vals = [summary_text(s[k], d) for k, (_, d, _) in SWEEP_METRICS.items()]
+        delta = summary_text(paired_difference(cell, nominal, "normal_mae"), 2, signed=True)
+        return "| " + " | ".join([label, level, decoder, *vals, delta, summary_text(s["mask_iou"], 3)]) + " |"
 
     lines.append(row("none (nominal rig)", "-", "-", nominal))
     for term in TERMS:
@@ -228,9 +218,11 @@ def calibration_table(cells: Mapping[str, Any]) -> str:
     lines = ["| " + " | ".join(head) + " |", "|---|---|" + "---:|" * (len(head) - 2)]
     for case, decoder, cell in [(UNPERTURBED, "-", base), *_case_cells(cells)]:
         s = cell["summary"]
-        vals = [_fmt(s[k], d) for k, (_, d, _) in SWEEP_METRICS.items()]
-        deltas = [_fmt(paired_difference(cell, base, k), d, signed=True) for k, (_, d, _) in SWEEP_METRICS.items()]
-        lines.append("| " + " | ".join([case, decoder, *vals, _fmt(s["mask_iou"], 3), *deltas]) + " |")
+        vals = [summary_text(s[k], d) for k, (_, d, _) in SWEEP_METRICS.items()]
+        deltas = [
+            summary_text(paired_difference(cell, base, k), d, signed=True) for k, (_, d, _) in SWEEP_METRICS.items()
+        ]
+        lines.append("| " + " | ".join([case, decoder, *vals, summary_text(s["mask_iou"], 3), *deltas]) + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -255,9 +247,10 @@ def calibration_verdicts(cells: Mapping[str, Any]) -> str:
             within = "n/a" if mean is None or not ref["ci"] else "yes" if ref["ci"][0] <= mean <= ref["ci"][1] else "no"
             d = paired_difference(cal, base, k)
             zero = "n/a" if not d["ci"] or d["ci"][0] is None else "yes" if d["ci"][0] <= 0 <= d["ci"][1] else "no"
-            vs_true = "-" if true is None else _fmt(paired_difference(cal, true, k), digits, signed=True)
-            vs_nom = "-" if nom is None else _fmt(paired_difference(nom, base, k), digits, signed=True)
-            lines.append("| " + " | ".join([case, header, _fmt(ref, digits), _fmt(cal["summary"][k], digits)
-                                            if mean is not None else "n/a", within,
-                                            _fmt(d, digits, signed=True), zero, vs_true, vs_nom]) + " |")  # fmt: skip
+            vs_true = "-" if true is None else summary_text(paired_difference(cal, true, k), digits, signed=True)
+            vs_nom = "-" if nom is None else summary_text(paired_difference(nom, base, k), digits, signed=True)
+            calibrated = summary_text(cal["summary"][k], digits) if mean is not None else "n/a"
+            row = [case, header, summary_text(ref, digits), calibrated, within, summary_text(d, digits, signed=True),
+                   zero, vs_true, vs_nom]  # fmt: skip
+            lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines) + "\n"

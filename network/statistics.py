@@ -19,11 +19,12 @@ Example:
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import numpy as np
 
-__all__ = ["bootstrap_ci", "correlation", "summarize"]
+__all__ = ["bootstrap_ci", "correlation", "summarize", "summary_text"]
 
 
 def bootstrap_ci(
@@ -151,3 +152,36 @@ def correlation(
     r = float(np.clip(pearson(a, b), -1.0, 1.0))
     ci = [float(np.quantile(boot, 0.025)), float(np.quantile(boot, 0.975))] if boot.size else None
     return {"r": r, "ci": ci, "count": int(a.size)}
+
+
+def summary_text(s: Mapping[str, Any], digits: int, *, key: str = "mean", signed: bool = False) -> str:
+    """``mean [low, high]`` of a summary, as every report table writes it; ``n/a`` without a value.
+
+    Args:
+        s: a summary with the value under ``key`` and its interval under ``"weighted_ci"`` for
+            ``key="weighted_mean"``, else ``"ci"`` (:func:`summarize`, :func:`correlation` with
+            ``key="r"``, a paired difference); the interval is left out where it is missing or None.
+        digits: decimals of every number.
+        key: the value's key.
+        signed: a ``+`` before positive numbers (differences).
+
+    Returns:
+        The text, e.g. ``"1.23 [1.00, 1.50]"``.
+
+    Example:
+        >>> summary_text({"mean": 1.234, "ci": [1.0, 1.5]}, 2)
+        '1.23 [1.00, 1.50]'
+        >>> summary_text({"mean": -0.5, "ci": None}, 1, signed=True)
+        '-0.5'
+        >>> summary_text({"weighted_mean": 0.26, "weighted_ci": [0.21, 0.3]}, 1, key="weighted_mean", signed=True)
+        '+0.3 [+0.2, +0.3]'
+        >>> summary_text(summarize([]), 2)
+        'n/a'
+    """
+    value, ci = s.get(key), s.get("weighted_ci" if key == "weighted_mean" else "ci")
+    if value is None:
+        return "n/a"
+    form = f"{{:{'+' if signed else ''}.{digits}f}}"
+    if not ci or ci[0] is None:
+        return form.format(value)
+    return f"{form.format(value)} [{form.format(ci[0])}, {form.format(ci[1])}]"

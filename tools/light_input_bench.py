@@ -6,7 +6,6 @@ PYTHONPATH=. python tools/light_input_bench.py
 from __future__ import annotations
 
 import sys
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from network.bench.timing import time_call  # noqa: E402
 from network.config import get_config  # noqa: E402
 from network.light_input import light_channels  # noqa: E402
 from network.model import PolarInverseModel  # noqa: E402
@@ -23,13 +23,8 @@ from pbrdf.sensor.rig import Rig  # noqa: E402
 
 
 def median_ms(f: Callable[[], object], n: int) -> float:
-    """Median wall time of ``n`` calls in ms."""
-    times = []
-    for _ in range(n):
-        t = time.perf_counter()
-        f()
-        times.append(time.perf_counter() - t)
-    return float(np.median(times) * 1000)
+    """Median wall time of ``n`` calls in ms (:func:`network.bench.timing.time_call`, no warm-up)."""
+    return time_call(f, "light input", repeat=n, warmup=0)[0].median * 1e3
 
 
 def main() -> None:

@@ -83,6 +83,7 @@ def bf16_weights(checkpoint: Path, capture: Path) -> dict:
 
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.infer import load_input, predict  # noqa: PLC0415
+    from network.metrics import normal_angle_deg  # noqa: PLC0415
 
     model, ckpt = load_checkpoint(checkpoint)
     inp = load_input(capture)
@@ -91,8 +92,7 @@ def bf16_weights(checkpoint: Path, capture: Path) -> dict:
     model.load_state_dict({k: v.to(torch.bfloat16) for k, v in ckpt["model"].items()})  # cast back on copy
     got = predict(model, inp.maps, inp.mask, **kw)
     m = inp.mask
-    cos = np.clip(np.sum(ref["normal"][m] * got["normal"][m], axis=-1), -1, 1)
-    angle = np.degrees(np.arccos(cos))
+    angle = normal_angle_deg(ref["normal"][m], got["normal"][m])
     result = {"checkpoint": str(checkpoint), "capture": str(capture), "masked_pixels": int(m.sum()),
               "normal_angle_deg_max": float(angle.max()), "normal_angle_deg_mean": float(angle.mean())}  # fmt: skip
     for key in ("albedo", "roughness", "metallic"):

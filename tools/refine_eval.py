@@ -29,7 +29,7 @@ from network.checkpoint import load_checkpoint  # noqa: E402
 from network.constant import STATS_FILE, load_statistics  # noqa: E402
 from network.evaluation import predict_scene  # noqa: E402
 from network.infer import DEFAULT_CHECKPOINT  # noqa: E402
-from network.statistics import summarize  # noqa: E402
+from network.statistics import summarize, summary_text  # noqa: E402
 
 
 def _row(scene) -> dict:
@@ -41,10 +41,6 @@ def _row(scene) -> dict:
         row[f"{m}_si_psnr"] = metrics.si_psnr(scene.preds[m]["albedo"], gt["albedo"], region)
     row["true_over_pred"] = metrics.ls_scale(scene.preds["ours"]["albedo"], gt["albedo"], region)
     return row
-
-
-def _fmt(s: dict) -> str:
-    return f"{s['mean']:.2f} [{s['ci'][0]:.2f}, {s['ci'][1]:.2f}]" if s.get("ci") else f"{s['mean']:.2f}"
 
 
 def _table(name: str, rows: list[dict]) -> str:
@@ -61,7 +57,7 @@ def _table(name: str, rows: list[dict]) -> str:
         a, b = [r["ours_psnr"] for r in rs], [r["refined_psnr"] for r in rs]
         d = summarize([y - x for x, y in zip(a, b, strict=True)])
         sec = [r["seconds"] for r in rs]
-        lines.append(f"| {label} | {len(rs)} | {np.mean(a):.2f} | {np.mean(b):.2f} | {_fmt(d)} | "
+        lines.append(f"| {label} | {len(rs)} | {np.mean(a):.2f} | {np.mean(b):.2f} | {summary_text(d, 2)} | "
                      f"{np.mean([r['ours_si_psnr'] for r in rs]):.2f} | {sum(r['refined'] for r in rs)} | "
                      f"{np.median(sec):.1f} / {np.max(sec):.1f} |")  # fmt: skip
     return "\n".join(lines)

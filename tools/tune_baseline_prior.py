@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network import baseline  # noqa: E402
 from network.infer import load_input  # noqa: E402
+from network.metrics import normal_mae_deg  # noqa: E402
 from pbrdf.data import sample as psample  # noqa: E402
 
 PRIORS = (0.02, 0.2, 1.0, 3.0, 10.0)
@@ -39,10 +40,7 @@ def mean_error(root: str, count: int, prior: float) -> float:
             sel = (s["object"] >= 0) & auto
             if not sel.any():
                 continue
-            n = baseline.predict_sample(maps, auto, meta)["normal"][sel]
-            g = s["normal"][sel]
-            cos = np.sum(n * g, -1) / np.maximum(np.linalg.norm(n, axis=-1), 1e-9)
-            errs.append(float(np.degrees(np.arccos(np.clip(cos, -1, 1))).mean()))
+            errs.append(normal_mae_deg(baseline.predict_sample(maps, auto, meta)["normal"], s["normal"], sel))
         return float(np.mean(errs))
     finally:
         baseline.albedo_chromaticity = original

@@ -161,13 +161,3 @@ def corpus_digest(files: list[Path], root: str | os.PathLike) -> str:
             f"{Path(f).relative_to(root).as_posix()}\0{hashlib.sha256(Path(f).read_bytes()).hexdigest()}\n".encode()
         )
     return h.hexdigest()[:16]
-
-
-if __name__ == "__main__":  # index a folder: python -m blender_addon.core.mesh_corpus [FOLDER]
-    import sys
-
-    from pbrdf.data.splits import MESH_CORPUS_DIR
-
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    files = corpus_files(sys.argv[1] if len(sys.argv) > 1 else MESH_CORPUS_DIR)
-    print(f"{len(files)} usable meshes")

@@ -26,16 +26,10 @@ from typing import Any, Literal
 
 import numpy as np
 
+from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.strict_json import read_json_object
-from pbrdf.sensor.rig import (
-    IDENTITY4,
-    Rig,
-    _as_float,
-    _as_int,
-    _as_matrix4,
-    _as_vec,
-    atomic_write_text,
-)
+from pbrdf.sensor.rig import Rig
+from pbrdf.sensor.spec_fields import IDENTITY4, as_float, as_int, as_matrix4, as_vec
 
 from . import assets
 from .generated_shapes import GENERATED_SHAPES
@@ -104,11 +98,11 @@ class MaterialSpec:
             put("table", os.fspath(self.table))
         if self.kind not in MATERIAL_KINDS:
             raise ValueError(f"{where}: unknown kind {self.kind!r}; valid: {list(MATERIAL_KINDS)}")
-        put("albedo", _as_vec(self.albedo, 3, f"{where}: albedo"))
+        put("albedo", as_vec(self.albedo, 3, f"{where}: albedo"))
         if not all(0.0 <= a <= 1.0 for a in self.albedo):
             raise ValueError(f"{where}: albedo must be in [0, 1], got {self.albedo}")
         for name in ("roughness", "metallic"):
-            value = _as_float(getattr(self, name), f"{where}: {name}")
+            value = as_float(getattr(self, name), f"{where}: {name}")
             if not 0.0 <= value <= 1.0:
                 raise ValueError(f"{where}: {name} must be in [0, 1], got {value}")
             put(name, value)
@@ -117,14 +111,14 @@ class MaterialSpec:
             if name not in own and getattr(self, name) is not None:
                 raise ValueError(f"{where}: field {name} is not used by kind {self.kind!r} (fields: {list(own)})")
         if self.kind == "pplastic":
-            put("ior", 1.5 if self.ior is None else _as_float(self.ior, f"{where}: ior"))
+            put("ior", 1.5 if self.ior is None else as_float(self.ior, f"{where}: ior"))
             if not self.ior > 0:
                 raise ValueError(f"{where}: ior must be > 0, got {self.ior}")
         elif self.kind == "conductor":
             for name in ("eta", "k"):
                 if getattr(self, name) is None:
                     raise ValueError(f"{where}: kind 'conductor' requires {name} (per channel R, G, B)")
-                put(name, _as_vec(getattr(self, name), 3, f"{where}: {name}"))
+                put(name, as_vec(getattr(self, name), 3, f"{where}: {name}"))
             if not all(n > 0 for n in self.eta):
                 raise ValueError(f"{where}: eta must be > 0, got {self.eta}")
             if not all(k >= 0 for k in self.k):
@@ -233,7 +227,7 @@ class ObjectSpec:
         if builtin is not None and builtin[0] not in PROCEDURAL_SHAPES + GENERATED_SHAPES + UNSEEN_SHAPES:
             valid = list(PROCEDURAL_SHAPES + GENERATED_SHAPES + UNSEEN_SHAPES)
             raise ValueError(f"{where}: unknown builtin shape {builtin[0]!r}; valid: {valid}")
-        m = _as_matrix4(self.to_world, f"{where}: to_world")
+        m = as_matrix4(self.to_world, f"{where}: to_world")
         if not np.linalg.det(np.asarray(m)[:3, :3]) > 0:
             raise ValueError(f"{where}: to_world must have a positive determinant (no mirroring or collapse)")
         object.__setattr__(self, "to_world", m)
@@ -294,7 +288,7 @@ class SceneSpec:
                 if not isinstance(item, cls):
                     raise ValueError(f"scene {name} must hold {cls.__name__} items, got {type(item).__name__}")
             object.__setattr__(self, name, items)
-        seed = _as_int(self.seed, "scene seed")
+        seed = as_int(self.seed, "scene seed")
         if seed < 0:
             raise ValueError(f"scene seed must be >= 0, got {seed}")
         object.__setattr__(self, "seed", seed)

@@ -17,7 +17,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from pbrdf.sensor.rig import IDENTITY4, _as_float, _as_matrix4, _as_vec, _check_rigid
+from pbrdf.sensor.spec_fields import IDENTITY4, as_float, as_matrix4, as_vec, check_rigid
 
 __all__ = ["AREA_SHAPES", "LIGHT_KINDS", "EnvironmentSpec", "LightSpec"]
 
@@ -49,7 +49,7 @@ def _check_name(value: Any, what: str) -> str:
 
 
 def _as_rgb(value: Any, name: str) -> tuple[float, float, float]:
-    rgb = _as_vec(value, 3, name)
+    rgb = as_vec(value, 3, name)
     if not all(c >= 0 for c in rgb):
         raise ValueError(f"{name} must be >= 0 per channel, got {rgb}")
     return rgb  # type: ignore[return-value]
@@ -106,11 +106,11 @@ class LightSpec:
         where = f"light {self.name!r}"
         if self.kind not in LIGHT_KINDS:
             raise ValueError(f"{where}: unknown kind {self.kind!r}; valid: {list(LIGHT_KINDS)}")
-        m = _as_matrix4(self.to_world, f"{where}: to_world")
-        _check_rigid(m, f"{where}: to_world")
+        m = as_matrix4(self.to_world, f"{where}: to_world")
+        check_rigid(m, f"{where}: to_world")
         put("to_world", m)
         put("color", _as_rgb(self.color, f"{where}: color"))
-        put("power", _as_float(self.power, f"{where}: power"))
+        put("power", as_float(self.power, f"{where}: power"))
         if self.power < 0:
             raise ValueError(f"{where}: power must be >= 0, got {self.power}")
         own = _LIGHT_FIELDS[self.kind]
@@ -118,7 +118,7 @@ class LightSpec:
             if name not in own and getattr(self, name) is not None:
                 raise ValueError(f"{where}: field {name} is not used by kind {self.kind!r} (fields: {list(own)})")
         if self.kind == "area":
-            size = (1.0, 1.0) if self.size is None else _as_vec(self.size, 2, f"{where}: size")
+            size = (1.0, 1.0) if self.size is None else as_vec(self.size, 2, f"{where}: size")
             if not all(v > 0 for v in size):
                 raise ValueError(f"{where}: size must be > 0, got {size}")
             put("size", size)
@@ -129,12 +129,10 @@ class LightSpec:
             if not isinstance(self.normalize, bool):
                 raise ValueError(f"{where}: normalize must be true or false, got {self.normalize!r}")
         elif self.kind == "spot":
-            angle = (
-                math.radians(45.0) if self.spot_angle is None else _as_float(self.spot_angle, f"{where}: spot_angle")
-            )
+            angle = math.radians(45.0) if self.spot_angle is None else as_float(self.spot_angle, f"{where}: spot_angle")
             if not 0 < angle <= math.pi:
                 raise ValueError(f"{where}: spot_angle must be in (0, pi] radians, got {angle}")
-            blend = 0.15 if self.spot_blend is None else _as_float(self.spot_blend, f"{where}: spot_blend")
+            blend = 0.15 if self.spot_blend is None else as_float(self.spot_blend, f"{where}: spot_blend")
             if not 0 <= blend <= 1:
                 raise ValueError(f"{where}: spot_blend must be in [0, 1], got {blend}")
             put("spot_angle", angle)
@@ -205,15 +203,15 @@ class EnvironmentSpec:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "color", _as_rgb(self.color, "environment: color"))
-        object.__setattr__(self, "strength", _as_float(self.strength, "environment: strength"))
+        object.__setattr__(self, "strength", as_float(self.strength, "environment: strength"))
         if self.strength < 0:
             raise ValueError(f"environment: strength must be >= 0, got {self.strength}")
         if isinstance(self.image, os.PathLike):
             object.__setattr__(self, "image", os.fspath(self.image))
         if self.image is not None and (not isinstance(self.image, str) or not self.image):
             raise ValueError(f"environment: image must be a file path or None, got {self.image!r}")
-        m = _as_matrix4(self.to_world, "environment: to_world")
-        _check_rigid(m, "environment: to_world")
+        m = as_matrix4(self.to_world, "environment: to_world")
+        check_rigid(m, "environment: to_world")
         if not np.allclose(np.asarray(m)[:3, 3], 0.0, atol=1e-9):
             raise ValueError("environment: to_world must be a pure rotation (no translation)")
         object.__setattr__(self, "to_world", m)

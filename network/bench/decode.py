@@ -22,13 +22,12 @@ Example:
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 
 import numpy as np
 
 from network.bench.memory import traced_peak_mib
-from network.bench.timing import RULE, Timing, machine
+from network.bench.timing import RULE, Timing, machine, time_interleaved
 from pbrdf.polar import stokes as pstokes
 from pbrdf.sensor import camera, decode
 
@@ -102,22 +101,6 @@ def _saturated_fractions(raws: np.ndarray, sensor: camera.SensorParams) -> list[
     return [float(b.mean()) for b in blocks]
 
 
-def _time_alternating(calls: dict[str, tuple[Callable[[], object], str]], *, repeat: int, warmup: int) -> dict:
-    """Time several calls under :data:`RULE`, their timed calls alternating.
-
-    ``warmup`` untimed calls of each, then ``repeat`` rounds of one timed call of each, in order.
-    """
-    warm: dict[str, list[float]] = {k: [] for k in calls}
-    timed: dict[str, list[float]] = {k: [] for k in calls}
-    for rounds, store in ((warmup, warm), (repeat, timed)):
-        for _ in range(rounds):
-            for key, (fn, _) in calls.items():
-                t0 = time.perf_counter()
-                fn()
-                store[key].append(time.perf_counter() - t0)
-    return {k: Timing(what, tuple(timed[k]), tuple(warm[k])) for k, (_, what) in calls.items()}
-
-
 def run(*, height: int = 2048, width: int = 2448, repeat: int = 5, warmup: int = 1, seed: int = 0) -> dict:
     """Run the benchmark.
 
@@ -163,7 +146,7 @@ def run(*, height: int = 2048, width: int = 2448, repeat: int = 5, warmup: int =
     pa_route = _polanalyser_route(raws[-1])
     if isinstance(pa_route, tuple):
         calls["polanalyser"] = pa_route
-    timings = _time_alternating(calls, repeat=repeat, warmup=warmup)
+    timings = {k: t for k, (t, _) in time_interleaved(calls, repeat=repeat, warmup=warmup).items()}
 
     # Float-exactness on a noise-free float mosaic (no quantisation): pure interpolation error.
     exact_model = model.replace(

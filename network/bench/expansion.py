@@ -31,7 +31,7 @@ from unittest import mock
 
 import numpy as np
 
-from network.bench.timing import RULE, Timing, machine, time_call
+from network.bench.timing import RULE, machine, time_call, time_interleaved
 
 __all__ = ["TARGET_MATRICES_PER_SECOND", "TARGET_MINUTES_FOR_2000", "filter_tables_before", "run"]
 
@@ -115,30 +115,18 @@ def _with_cpu(fn: Callable[[], Any], cpu: list[float]) -> Callable[[], Any]:
 
 
 def _interleaved(calls: dict[str, tuple[Callable[[], Any], str]], *, repeat: int, warmup: int) -> dict[str, dict]:
-    """Time several calls side by side: the warm-ups, then ``repeat`` rounds of one call each.
+    """:func:`network.bench.timing.time_interleaved` with each call's CPU seconds too.
 
-    Interleaving spreads a changing load on a shared machine over all calls alike. Each entry
-    is a :class:`network.bench.timing.Timing` dict with ``cpu_seconds_all`` and
+    Each entry is a :class:`network.bench.timing.Timing` dict with ``cpu_seconds_all`` and
     ``cpu_seconds_median`` (the timed calls only) and ``result``, the last return value.
     """
     cpu: dict[str, list[float]] = {k: [] for k in calls}
-    wrapped = {k: _with_cpu(fn, cpu[k]) for k, (fn, _) in calls.items()}
-    warm = {k: [time_call(wrapped[k], calls[k][1], repeat=1, warmup=0)[0].samples[0] for _ in range(warmup)]
-            for k in calls}  # fmt: skip
-    samples: dict[str, list[float]] = {k: [] for k in calls}
-    results: dict[str, Any] = {}
-    for _ in range(repeat):
-        for k in calls:
-            timing, results[k] = time_call(wrapped[k], calls[k][1], repeat=1, warmup=0)
-            samples[k].append(timing.samples[0])
+    wrapped = {k: (_with_cpu(fn, cpu[k]), what) for k, (fn, what) in calls.items()}
     out = {}
-    for k, (_, what) in calls.items():
+    for k, (timing, result) in time_interleaved(wrapped, repeat=repeat, warmup=warmup).items():
         timed_cpu = cpu[k][warmup:]
-        out[k] = {
-            **Timing(what, tuple(samples[k]), tuple(warm[k])).to_dict(),
-            "cpu_seconds_all": timed_cpu, "cpu_seconds_median": statistics.median(timed_cpu),
-            "result": results[k],
-        }  # fmt: skip
+        out[k] = {**timing.to_dict(), "cpu_seconds_all": timed_cpu, "cpu_seconds_median": statistics.median(timed_cpu),
+                  "result": result}  # fmt: skip
     return out
 
 

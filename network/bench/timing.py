@@ -25,7 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-__all__ = ["RULE", "Timing", "machine", "time_call"]
+__all__ = ["RULE", "Timing", "machine", "time_call", "time_interleaved"]
 
 #: The rule in words, written into every benchmark's JSON as ``timing_rule``.
 RULE = (
@@ -116,6 +116,52 @@ def time_call(
         sync()
         seconds.append(time.perf_counter() - t0)
     return Timing(what, tuple(seconds[warmup:]), tuple(seconds[:warmup])), result
+
+
+def time_interleaved(
+    calls: dict[str, tuple[Callable[[], Any], str]],
+    *,
+    repeat: int = 5,
+    warmup: int = 1,
+    sync: Callable[[], None] | None = None,
+) -> dict[str, tuple[Timing, Any]]:
+    """Time several calls side by side under the one rule, their calls alternating.
+
+    ``warmup`` rounds of one untimed call of each, then ``repeat`` rounds of one timed call of
+    each, in the order of ``calls``: a load that changes on a shared machine falls on every call
+    alike, so their ratios hold even when their absolute times drift.
+
+    Args:
+        calls: ``name -> (fn, what)``, as :func:`time_call`'s ``fn`` and ``what``.
+        repeat: timed calls of each, >= 1.
+        warmup: untimed calls of each before them, >= 0.
+        sync: as for :func:`time_call`.
+
+    Returns:
+        ``name -> (timing, result)``: each call's :class:`Timing` and its last return value.
+
+    Raises:
+        ValueError: ``repeat < 1`` or ``warmup < 0``.
+
+    Example:
+        >>> order = []
+        >>> out = time_interleaved({"a": (lambda: order.append("a"), "a"), "b": (lambda: order.append("b"), "b")},
+        ...                        repeat=2, warmup=1)
+        >>> "".join(order), out["a"][0].repeats, out["b"][0].warmup_runs
+        ('ababab', 2, 1)
+    """
+    if repeat < 1 or warmup < 0:
+        raise ValueError(f"need repeat >= 1 and warmup >= 0, got repeat={repeat}, warmup={warmup}")
+    seconds: dict[str, list[float]] = {k: [] for k in calls}
+    results: dict[str, Any] = {}
+    for _ in range(warmup + repeat):
+        for k, (fn, what) in calls.items():
+            timing, results[k] = time_call(fn, what, repeat=1, warmup=0, sync=sync)
+            seconds[k].append(timing.samples[0])
+    return {
+        k: (Timing(what, tuple(seconds[k][warmup:]), tuple(seconds[k][:warmup])), results[k])
+        for k, (_, what) in calls.items()
+    }
 
 
 def machine(**versions: str) -> dict[str, Any]:

@@ -36,22 +36,14 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf.io.atomic import atomic_write_bytes, atomic_write_text
+from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.strict_json import read_json_object
 from pbrdf.sensor import projection
 from pbrdf.sensor.camera import CameraModel
 from pbrdf.sensor.display_response import check_emission_exponent, check_tone_gamma, tone_response
+from pbrdf.sensor.spec_fields import IDENTITY4, as_float, as_int, as_matrix4, as_vec, check_rigid
 
-__all__ = [
-    "BUILTIN_PATTERNS",
-    "IDENTITY4",
-    "DisplaySpec",
-    "CameraSpec",
-    "Rig",
-    "atomic_write_bytes",
-    "atomic_write_text",
-    "merge_overrides",
-]
+__all__ = ["BUILTIN_PATTERNS", "DisplaySpec", "CameraSpec", "Rig", "merge_overrides"]
 
 #: Built-in display patterns: ``rgb_halves`` (red right half, green left half, blue upper half, as
 #: seen from the front) and ``white`` (every channel on everywhere).
@@ -63,60 +55,6 @@ DEFAULT_PATTERN_SIZE = (36, 64)
 
 #: A display-surface rectangle ``(x0, x1, y0, y1)`` in m.
 Rectangle = tuple[float, float, float, float]
-
-IDENTITY4: tuple[tuple[float, ...], ...] = tuple(tuple(float(i == j) for j in range(4)) for i in range(4))
-
-
-# --------------------------------------------------------------------------- field coercion
-# Shared with spec.py. Every helper raises ValueError naming the field, so a bad rig or scene file
-# says which number is wrong.
-
-
-def _as_float(value: Any, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
-        raise ValueError(f"{name} must be a number, got {value!r}")
-    out = float(value)
-    if not math.isfinite(out):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return out
-
-
-def _as_int(value: Any, name: str) -> int:
-    if isinstance(value, bool):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)) and float(value).is_integer():
-        return int(value)
-    raise ValueError(f"{name} must be an integer, got {value!r}")
-
-
-def _as_vec(value: Any, n: int, name: str) -> tuple[float, ...]:
-    if isinstance(value, (str, bytes)) or not hasattr(value, "__len__"):
-        raise ValueError(f"{name} must be a sequence of {n} numbers, got {value!r}")
-    if len(value) != n:
-        raise ValueError(f"{name} must have {n} entries, got {len(value)}: {value!r}")
-    return tuple(_as_float(v, f"{name}[{i}]") for i, v in enumerate(value))
-
-
-def _as_matrix4(value: Any, name: str) -> tuple[tuple[float, ...], ...]:
-    try:
-        a = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError) as e:
-        raise ValueError(f"{name} must be a 4x4 matrix of numbers: {e}") from None
-    if a.shape != (4, 4):
-        raise ValueError(f"{name} must be a 4x4 matrix, got shape {a.shape}")
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} contains NaN or Inf")
-    if not np.allclose(a[3], (0.0, 0.0, 0.0, 1.0), atol=1e-9):
-        raise ValueError(f"{name} must be affine (last row 0 0 0 1), got last row {a[3].tolist()}")
-    return tuple(tuple(float(v) for v in row) for row in a)
-
-
-def _check_rigid(m: tuple[tuple[float, ...], ...], name: str) -> None:
-    r = np.asarray(m)[:3, :3]
-    if not np.allclose(r.T @ r, np.eye(3), atol=1e-6) or np.linalg.det(r) < 0:
-        raise ValueError(f"{name} must be a rigid transform (rotation + translation, no scale or mirror)")
 
 
 def merge_overrides(base: dict, override: Any, path: str) -> dict:
@@ -206,16 +144,16 @@ class DisplaySpec:
             object.__setattr__(self, name, value)
 
         for name in ("width", "height", "yaw", "pitch", "polarization_angle", "degree_of_polarization"):
-            put(name, _as_float(getattr(self, name), f"display.{name}"))
+            put(name, as_float(getattr(self, name), f"display.{name}"))
         for name in ("radiance", "luminance_cd_m2"):
-            put(name, _as_float(getattr(self, name), f"display.{name}"))
-        put("center", _as_vec(self.center, 3, "display.center"))
+            put(name, as_float(getattr(self, name), f"display.{name}"))
+        put("center", as_vec(self.center, 3, "display.center"))
         put("emission_exponent", check_emission_exponent(self.emission_exponent))
         put("tone_gamma", check_tone_gamma(self.tone_gamma))
         res = self.resolution
         if isinstance(res, (str, bytes)) or not hasattr(res, "__len__") or len(res) != 2:
             raise ValueError(f"display.resolution must be (W, H) pixels, got {self.resolution!r}")
-        put("resolution", tuple(_as_int(v, f"display.resolution[{i}]") for i, v in enumerate(self.resolution)))
+        put("resolution", tuple(as_int(v, f"display.resolution[{i}]") for i, v in enumerate(self.resolution)))
         for name in ("width", "height", "radiance", "luminance_cd_m2"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"display.{name} must be > 0, got {getattr(self, name)}")
@@ -224,7 +162,7 @@ class DisplaySpec:
         if not 0.0 <= self.degree_of_polarization <= 1.0:
             raise ValueError(f"display.degree_of_polarization must be in [0, 1], got {self.degree_of_polarization}")
         if self.curvature_radius is not None:
-            put("curvature_radius", _as_float(self.curvature_radius, "display.curvature_radius"))
+            put("curvature_radius", as_float(self.curvature_radius, "display.curvature_radius"))
             if not self.curvature_radius >= self.width / math.pi:
                 raise ValueError(
                     f"display.curvature_radius must be >= width / pi = {self.width / math.pi:.4f} m "
@@ -367,8 +305,8 @@ class DisplaySpec:
 
     def _commanded_pattern(self, height: int | None, width: int | None) -> NDArray[np.float32]:
         if self.pattern in BUILTIN_PATTERNS:
-            h = DEFAULT_PATTERN_SIZE[0] if height is None else _as_int(height, "height")
-            w = DEFAULT_PATTERN_SIZE[1] if width is None else _as_int(width, "width")
+            h = DEFAULT_PATTERN_SIZE[0] if height is None else as_int(height, "height")
+            w = DEFAULT_PATTERN_SIZE[1] if width is None else as_int(width, "width")
             if h < 1 or w < 1:
                 raise ValueError(f"pattern size must be positive, got {h}x{w}")
             img = np.zeros((h, w, 3), dtype=np.float32)
@@ -458,17 +396,17 @@ class CameraSpec:
 
     def __post_init__(self) -> None:
         for name in ("sensor_width_px", "sensor_height_px"):
-            value = _as_int(getattr(self, name), f"camera.{name}")
+            value = as_int(getattr(self, name), f"camera.{name}")
             if value < 1:
                 raise ValueError(f"camera.{name} must be >= 1, got {value}")
             object.__setattr__(self, name, value)
         for name in ("pixel_pitch", "focal_length"):
-            value = _as_float(getattr(self, name), f"camera.{name}")
+            value = as_float(getattr(self, name), f"camera.{name}")
             if not value > 0:
                 raise ValueError(f"camera.{name} must be > 0, got {value}")
             object.__setattr__(self, name, value)
-        object.__setattr__(self, "to_world", _as_matrix4(self.to_world, "camera.to_world"))
-        _check_rigid(self.to_world, "camera.to_world")
+        object.__setattr__(self, "to_world", as_matrix4(self.to_world, "camera.to_world"))
+        check_rigid(self.to_world, "camera.to_world")
         if not isinstance(self.model, CameraModel):
             raise ValueError(f"camera.model must be a pbrdf.sensor.camera.CameraModel, got {type(self.model).__name__}")
 

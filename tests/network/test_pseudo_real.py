@@ -54,13 +54,19 @@ def test_dark_frames_give_back_the_object_under_ambient_light(pseudo_real, tmp_p
     # Without dark frames the ambient light lifts the whole background above the noise floor.
     before = pdecode.decode_capture(pcapture.load_capture(paths.raw)).input_mask
     assert before.mean() > 0.9 > sample["mask"].mean() + 0.15
-    assert add_dark_frames(root) == 3 and add_dark_frames(root) == 0  # resumable: done captures are skipped
+    calls = []
+    assert add_dark_frames(root, progress=lambda done, total: calls.append((done, total))) == 3
+    assert calls == [(1, 3), (2, 3), (3, 3)]
+    assert add_dark_frames(root) == 0  # resumable: done captures are skipped
     cap = pcapture.load_capture(paths.raw)
     assert cap.dark is not None and Rig.from_dict(cap.metadata["rig"]) == Rig()  # decoded with the nominal rig
     after = pdecode.decode_capture(cap).input_mask
     assert _iou(after, sample["mask"]) > 0.85
+    (tmp_path / "empty").mkdir()
     with pytest.raises(ValueError, match="no raw captures"):
         add_dark_frames(tmp_path / "empty")
+    with pytest.raises(FileNotFoundError, match="not a folder"):
+        add_dark_frames(tmp_path / "missing")
 
 
 def _corrupt_ground_truth(root):

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from network.statistics import bootstrap_ci, correlation, summarize
+from network.statistics import bootstrap_ci, correlation, summarize, summary_text
 
 
 def test_interval_covers_the_true_mean_about_95_percent_of_the_time():
@@ -56,3 +56,15 @@ def test_correlation_of_a_constant_or_too_few_pairs_is_none_and_bad_pairs_are_dr
     c = correlation([0.1, None, 0.5, 0.9, float("nan")], [0.2, 0.3, 0.55, 0.8, 0.1])
     assert c["count"] == 3 and c["r"] == pytest.approx(np.corrcoef([0.1, 0.5, 0.9], [0.2, 0.55, 0.8])[0, 1])
     assert correlation([0.1, 0.5, 0.9], [-0.1, -0.5, -0.9])["r"] == pytest.approx(-1.0)
+
+
+def test_summary_text_is_the_report_tables_form():
+    s = summarize([1.0, 2.0, 4.0], weights=[1, 1, 2], seed=0)
+    lo, hi = s["ci"]
+    assert summary_text(s, 3) == f"2.333 [{lo:.3f}, {hi:.3f}]"  # (1 + 2 + 4) / 3
+    both = {"mean": 2.0, "ci": [1.0, 4.0], "weighted_mean": 2.75, "weighted_ci": [2.5, 3.0]}
+    assert summary_text(both, 2, key="weighted_mean") == "2.75 [2.50, 3.00]"  # the weighted mean's own interval
+    assert summary_text({"mean": -0.25, "ci": [-0.5, 0.125]}, 2, signed=True) == "-0.25 [-0.50, +0.12]"
+    assert summary_text({"mean": 0.0, "ci": [None, None]}, 1, signed=True) == "+0.0"  # no interval to show
+    assert summary_text({"r": 0.91, "ci": [0.8, 0.97]}, 2, key="r") == "0.91 [0.80, 0.97]"
+    assert summary_text(summarize([None, float("nan")]), 2) == "n/a"
