@@ -49,6 +49,7 @@ __all__ = [
     "SMOOTH_SHARE",
     "STRIDE_PIXELS",
     "auto_stride",
+    "box_max",
     "context_pixels",
     "decode_dense",
     "decode_dense_reference",
@@ -159,6 +160,40 @@ def fill_from_decoded(values: Tensor, decoded: Tensor, stride: int) -> tuple[Ten
     return num / den.clamp_min(0.5 / stride**2), den
 
 
+def box_max(x: Tensor, k: int) -> Tensor:
+    """``F.max_pool2d(x, k, 1, k // 2)`` (odd ``k``) from shifted maxima: the same values, several times less CPU.
+
+    Separable, and each 1-D window max by doubling (``max`` over ``[i, i + 2^j)``, then two overlapping spans of
+    the window), so about ``2 log2(k)`` elementwise maxima instead of torch's CPU pooling kernel.
+
+    Args:
+        x: (..., H, W).
+        k: Odd window size.
+
+    Returns:
+        (..., H, W): each pixel the maximum over the ``k x k`` window centred on it, inside the image.
+
+    Example:
+        >>> box_max(torch.tensor([[0.0, 0, 5, 0], [1, 0, 0, 0]]), 3)
+        tensor([[1., 5., 5., 5.],
+                [1., 5., 5., 5.]])
+    """
+    return _window_max(_window_max(x, k, x.ndim - 2), k, x.ndim - 1)
+
+
+def _window_max(x: Tensor, k: int, dim: int) -> Tensor:
+    """The maximum over the ``k`` (odd) entries centred on each entry along ``dim``, inside the array."""
+    n, pad = x.shape[dim], k // 2
+    shape = list(x.shape)
+    shape[dim] = pad
+    fill = torch.full(shape, -math.inf, dtype=x.dtype, device=x.device)
+    m, span = torch.cat([fill, x, fill], dim), 1
+    while span * 2 <= k:  # m[i] = max over [i, i + span)
+        m = torch.maximum(m.narrow(dim, 0, m.shape[dim] - span), m.narrow(dim, span, m.shape[dim] - span))
+        span *= 2
+    return torch.maximum(m.narrow(dim, 0, n), m.narrow(dim, k - span, n))  # span <= k < 2 span: covers the window
+
+
 def unreliable_fill(
     values: Tensor, decoded: Tensor, weight: Tensor, stride: int, refine_deg: float, refine_brdf: float
 ) -> Tensor:
@@ -193,7 +228,7 @@ def unreliable_fill(
     with torch.autocast(values.device.type, enabled=False):
         hi = torch.where(decoded, values, -big)[None]
         lo = torch.where(decoded, -values, -big)[None]
-        span = (F.max_pool2d(hi, k, 1, stride - 1) + F.max_pool2d(lo, k, 1, stride - 1))[0]
+        span = (box_max(hi, k) + box_max(lo, k))[0]
         span = torch.where(weight > 0, span, torch.zeros_like(span))
         candidate = (span[:3].square().sum(0) > chord**2) | (span[3:] > refine_brdf).any(0)
         # Interpolation error estimated at each grid pixel from its second differences; a grid pixel without
@@ -213,7 +248,7 @@ def unreliable_fill(
         # Spread each grid pixel's verdict to the pixels within its tent reach.
         node = torch.zeros_like(decoded, dtype=values.dtype)
         node[o::stride, o::stride] = rough.to(values.dtype)
-        near_rough = F.max_pool2d(node[None, None], k, 1, stride - 1)[0, 0] > 0
+        near_rough = box_max(node[None, None], k)[0, 0] > 0
     return (candidate & near_rough) | (weight < 1 - 0.5 / stride**2)
 
 

@@ -19,6 +19,7 @@ from network.infer import DEFAULT_CHECKPOINT
 from network.model.dense import (
     REFINE_BRDF,
     REFINE_DEG,
+    box_max,
     context_pixels,
     fill_from_decoded,
     grid_pixels,
@@ -142,6 +143,21 @@ class TestStride:
         kept = grid_pixels(pixels, 10, 3)
         assert sorted(kept.tolist()) == [r * 10 + c for r in (1, 4, 7) for c in (1, 4, 7)]
         assert torch.equal(grid_pixels(pixels, 10, 1), pixels)
+
+    @pytest.mark.parametrize("k", [1, 3, 5, 7, 15])
+    def test_box_max_is_the_window_maximum(self, k):
+        # Against a loop over each pixel's window (clipped to the image), with the -max sentinels unreliable_fill
+        # puts where nothing was decoded, on a non-square image smaller than the window in one case.
+        gen = torch.Generator().manual_seed(k)
+        for h, w in ((13, 9), (3, 20)):
+            x = torch.randn(2, h, w, generator=gen)
+            x[x > 1.2] = -torch.finfo(x.dtype).max
+            want = torch.empty_like(x)
+            for r in range(h):
+                for c in range(w):
+                    win = x[:, max(r - k // 2, 0) : r + k // 2 + 1, max(c - k // 2, 0) : c + k // 2 + 1]
+                    want[:, r, c] = win.amax(dim=(1, 2))
+            assert torch.equal(box_max(x, k), want)
 
     def test_fill_reproduces_affine_fields(self):
         # Bilinear interpolation is exact for affine fields, and the tent-kernel normalised convolution is bilinear
