@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import torch
 import torch.nn.functional as F
@@ -55,6 +56,7 @@ __all__ = [
     "decode_dense_reference",
     "fill_from_decoded",
     "grid_pixels",
+    "query_workers",
     "unreliable_fill",
 ]
 
@@ -74,6 +76,10 @@ SMOOTH_SHARE = 1 / 16
 #: pixel) has about this many elements (16 MiB in float32), so that a piece stays cache-sized
 #: (docs/measurements/network.md has the timings behind the choice).
 EMBED_ELEMENTS = 1 << 22
+
+# False: every chunk on the calling thread (torch's intra-op threads), the route before query_workers; the full-frame
+# bench and the tests compare the two.
+_PARALLEL_QUERIES = True
 
 
 #: :func:`auto_stride` decodes masks of at least this many pixels at stride 4 (a capture-sized object: on a full
@@ -399,12 +405,56 @@ def _decode_queries(
     pool_query: Tensor,
     chunk: int,
 ) -> None:
-    """Decode ``pixels`` (P,) of image ``i`` against the cached context, in chunks, into ``out``."""
+    """Decode ``pixels`` (P,) of image ``i`` against the cached context, in chunks, into ``out``.
+
+    On a CPU with ``torch.get_num_threads()`` = n > 1 the chunks go to n Python threads that run torch on one
+    thread each (:func:`query_workers`); the chunks are independent, so the outputs are those of one thread.
+    """
     if pixels.numel() == 0:
         return
-    for part in pixels.split(chunk):
+
+    def decode(part: Tensor) -> dict[str, Tensor]:
         x = decoder.transform_cached(_embed_rows(decoder, config, inputs, part, pool_query)[None], cache)
-        _store(out, i, part, decoder.heads(x))
+        return decoder.heads(x)
+
+    workers = query_workers(pixels.device, pixels.numel(), chunk)
+    if workers == 1:
+        for part in pixels.split(chunk):
+            _store(out, i, part, decode(part))
+        return
+    parts = pixels.tensor_split(workers * math.ceil(pixels.numel() / (workers * chunk)))  # even shares
+    threads = torch.get_num_threads()
+    inference, grad = torch.is_inference_mode_enabled(), torch.is_grad_enabled()  # thread-local in torch
+    dev = pixels.device.type
+    cast = {"enabled": torch.is_autocast_enabled(dev), "dtype": torch.get_autocast_dtype(dev)}  # thread-local too
+
+    def decode_alone(part: Tensor) -> dict[str, Tensor]:
+        torch.set_num_threads(1)
+        with torch.inference_mode(inference), torch.set_grad_enabled(grad), torch.autocast(dev, **cast):
+            return decode(part)
+
+    try:
+        with ThreadPoolExecutor(workers, thread_name_prefix="decode") as pool:
+            for part, pred in zip(parts, pool.map(decode_alone, parts), strict=True):
+                _store(out, i, part, pred)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def query_workers(device: torch.device, pixels: int, chunk: int) -> int:
+    """Python threads for :func:`decode_dense`'s chunks: torch's thread count on a CPU with 2+ chunks' worth, else 1.
+
+    On 2 cores, two chunks decoded side by side on one torch thread each keep both cores busy with less
+    synchronisation than one chunk on two intra-op threads (docs/measurements/fullframe.md); a GPU decodes one
+    chunk at a time.
+
+    Example:
+        >>> query_workers(torch.device("cpu"), 100, 8192), query_workers(torch.device("meta"), 10**6, 8192)
+        (1, 1)
+    """
+    if device.type != "cpu" or pixels < 2 * min(chunk, 2048) or not _PARALLEL_QUERIES:
+        return 1
+    return max(1, torch.get_num_threads())
 
 
 def _store(out: dict[str, Tensor], i: int, pixels: Tensor, pred: dict[str, Tensor]) -> None:

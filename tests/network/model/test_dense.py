@@ -319,6 +319,42 @@ class TestStride:
             a, b = full[key].reshape(full[key].shape[1], -1), fast[key].reshape(fast[key].shape[1], -1)
             torch.testing.assert_close(b[:, lonely], a[:, lonely], rtol=0, atol=1e-6)
 
+    @pytest.mark.parametrize("stride", [2, 4])
+    def test_chunks_on_worker_threads_equal_one_thread(self, stride, monkeypatch):
+        # Two torch threads: the chunks go to two Python threads of one torch thread each (query_workers); the
+        # outputs are those of the calling thread's route, torch's thread count is restored, and the threads ran.
+        import threading
+
+        from network.model import dense
+
+        model = make_model()
+        maps, mask = smooth_maps(64), disc_mask(64, 0.6)
+        names = set()
+        heads = model.decoder.heads
+
+        def spy(x):
+            names.add(threading.current_thread().name)
+            return heads(x)
+
+        with torch.inference_mode():
+            feats = model.encode(maps, mask)
+            torch.set_num_threads(2)
+            monkeypatch.setattr(dense, "_PARALLEL_QUERIES", False)
+            serial = model.decode_dense(feats, maps, mask, chunk=64, stride=stride)
+            monkeypatch.setattr(dense, "_PARALLEL_QUERIES", True)
+            monkeypatch.setattr(model.decoder, "heads", spy)
+            parallel = model.decode_dense(feats, maps, mask, chunk=64, stride=stride)
+            with torch.autocast("cpu", dtype=torch.bfloat16):  # the caller's autocast reaches the worker threads
+                cast = model.decode_dense(feats, maps, mask, chunk=64, stride=stride)
+                monkeypatch.setattr(dense, "_PARALLEL_QUERIES", False)
+                cast_serial = model.decode_dense(feats, maps, mask, chunk=64, stride=stride)
+        assert torch.get_num_threads() == 2
+        assert sum(name.startswith("decode") for name in names) == 2, names
+        for key in KEYS:
+            torch.testing.assert_close(parallel[key], serial[key], rtol=0, atol=1e-5)
+            torch.testing.assert_close(cast[key], cast_serial[key], rtol=0, atol=1e-5)
+        assert_valid(parallel, mask)
+
     def test_bad_stride(self):
         model = make_model()
         maps, mask = smooth_maps(64), disc_mask(64)
