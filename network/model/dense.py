@@ -11,8 +11,9 @@ the context's keys, so its output is the context pass's own output, which is reu
 :func:`decode_dense` is the fast route and :func:`decode_dense_reference` the straightforward one (equal to float
 rounding): the fast route gathers features and map values as rows of channels-last tables
 (:func:`~network.model.sampling.sample_bilinear_rows`), folds the pooling's constant query into its key projection
-(:meth:`~network.model.decoder.PoolingAttention.forward_folded`) and embeds pixels in cache-sized pieces
-(:data:`EMBED_ELEMENTS`).
+(:meth:`~network.model.decoder.PoolingAttention.forward_folded`), embeds pixels in cache-sized pieces
+(:data:`EMBED_ELEMENTS`) and, on a CPU, decodes its chunks on several Python threads of one torch thread each
+(:func:`query_workers`).
 
 ``stride`` > 1 trades accuracy for time: it decodes every s-th row and column (:func:`grid_pixels`) and fills the
 rest by normalised convolution (:func:`fill_from_decoded`), about s^2 times less decoder work. Interpolation is
