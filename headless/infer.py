@@ -60,12 +60,14 @@ from __future__ import annotations
 import argparse
 import sys
 import time
+from concurrent.futures import Future
 from pathlib import Path
 
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from headless._cli import held_warnings  # noqa: E402
+from headless._overlap import decode_while_loading, relief_later  # noqa: E402
 from pbrdf.data.capture import CAPTURE_JSON  # noqa: E402
 from pbrdf.data.predictions import (  # noqa: E402
     SEQUENCE_SUFFIX,
@@ -181,14 +183,18 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, progress, start: float = 0.3,
-                 span: float = 0.65) -> tuple[dict, CameraRecord, dict | None]:  # fmt: skip
-    """The maps (with the relief depth unless ``--card``), the camera and a light model's distance record."""
-    from network.infer import auto_refine_deg, load_input, predict, relief_depth  # noqa: PLC0415
+                 span: float = 0.65, inp=None) -> tuple[dict, CameraRecord, dict | None, Future | None]:  # fmt: skip
+    """The maps, the camera, a light model's distance record and the relief depth integrating (None with ``--card``).
+
+    ``inp``: the decoded input (:func:`headless._overlap.decode_while_loading`), else it is read here.
+    """
+    from network.infer import auto_refine_deg, load_input, predict  # noqa: PLC0415
     from network.model.dense import REFINE_DEG, auto_stride  # noqa: PLC0415
     from pbrdf.data.capture_rig import read_rig  # noqa: PLC0415
 
-    progress(start, "decoding the capture")
-    inp = load_input(source, require_object=True, rig=None if args.rig is None else read_rig(args.rig))
+    if inp is None:
+        progress(start, "decoding the capture")
+        inp = load_input(source, require_object=True, rig=None if args.rig is None else read_rig(args.rig))
     distance, light = _light(model, inp, args.distance, source)
     stride = auto_stride(int(inp.mask.sum())) if args.stride == "auto" else int(args.stride)
     refine = auto_refine_deg(int(inp.mask.sum())) if args.stride == "auto" else REFINE_DEG
@@ -207,11 +213,12 @@ def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, prog
         pred = res.pred
         if res.refined and not args.quiet:
             print(f"{source.name}: {res.message} in {res.seconds:.1f} s")
-    if not args.card:
+    relief = None
+    if not args.card:  # on its own thread, while the maps are written (headless._overlap)
         progress(start + 0.6 * span, "integrating the relief")
-        pred["depth"] = relief_depth(pred, inp.intrinsics, distance)
+        relief = relief_later(pred, inp.intrinsics, distance)
     record = None if light is None else light.to_dict()
-    return pred, CameraRecord.of_maps(inp.intrinsics, inp.mask.shape, distance), record
+    return pred, CameraRecord.of_maps(inp.intrinsics, inp.mask.shape, distance), record, relief
 
 
 def _light(model, inp, flag: float | None, source: Path):
@@ -225,22 +232,30 @@ def _light(model, inp, flag: float | None, source: Path):
     return distance, LightGeometry.resolve(inp.rig, inp.intrinsics, distance, origin, str(source))
 
 
-def _write(out: Path, prefix: str, pred: dict, camera: CameraRecord, light: dict | None) -> None:
-    """The maps and camera (:func:`write_predictions`), and ``<prefix>_light.json`` for a light-input model."""
-    write_predictions(out, prefix, pred, camera)
+def _write(args: argparse.Namespace, prefix: str, pred: dict, camera: CameraRecord, light: dict | None,
+           relief: Future | None) -> int:  # fmt: skip
+    """The maps and camera, the relief depth as it is ready, ``--gltf``'s binary and a light model's record.
+
+    Returns the number of maps written. Everything is checked before the first file is written.
+    """
+    if args.gltf and relief is not None:  # the asset needs the depth before any file is written
+        pred, relief = dict(pred, depth=relief.result()["depth"]), None
+    asset = _gltf_asset(args, pred, camera)
+    out = args.out
+    write_predictions(out, prefix, pred, camera, pending=relief)
+    _write_gltf(args, prefix, asset)
     if light is not None:
         import json  # noqa: PLC0415
 
         from pbrdf.io.atomic import atomic_write_text  # noqa: PLC0415
 
         atomic_write_text(out / f"{prefix}_light.json", json.dumps(light, indent=2) + "\n")
+    return len(pred) + (relief is not None)
 
 
 def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
     """Predict and write one input's or one sequence's maps; appends the summary line."""
     from tqdm import tqdm  # noqa: PLC0415
-
-    from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
 
     name = args.input.stem if args.input.is_file() else args.input.name
     frames = sequence_frames(args.input)
@@ -250,29 +265,35 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
         from pbrdf.data.capture_decode import check_sequence  # noqa: PLC0415
 
         check_sequence(frames)
-    progress(0.25, "loading the model")
-    model, ckpt = _load_model(args.checkpoint or DEFAULT_CHECKPOINT)
-    if frames is None:
-        pred, camera, light = _reconstruct(model, ckpt, args.input, args, progress)
+
+    def load():  # torch's import (network.infer) is most of the start-up: on a thread while a capture decodes
+        from network.infer import DEFAULT_CHECKPOINT  # noqa: PLC0415
+
+        return _load_model(args.checkpoint or DEFAULT_CHECKPOINT)
+
+    if frames is None:  # the model loads while a capture decodes (headless._overlap)
+        progress(0.25, "loading the model and decoding the input")
+        (model, ckpt), inp = decode_while_loading(args.input, args.rig, load)
+        pred, camera, light, relief = _reconstruct(model, ckpt, args.input, args, progress, inp=inp)
         progress(0.95, "writing the maps" + (" and the glTF binary" if args.gltf else ""))
-        asset = _gltf_asset(args, pred, camera)
-        _write(args.out, name, pred, camera, light)
-        _write_gltf(args, name, asset)
-        glb = f", {name}.glb" if asset else ""
-        summary.append(f"wrote {len(pred)} maps ({name}_*.exr/.png{glb}) to {args.out.resolve()}")
+        count = _write(args, name, pred, camera, light, relief)
+        glb = f", {name}.glb" if args.gltf else ""
+        summary.append(f"wrote {count} maps ({name}_*.exr/.png{glb}) to {args.out.resolve()}")
         return 0
+    progress(0.25, "loading the model")
+    model, ckpt = load()
     seconds = []
     for i, frame in enumerate(tqdm(frames, desc="frames", unit="frame", disable=args.quiet), start=1):
         start = time.perf_counter()
         try:
-            pred, camera, light = _reconstruct(model, ckpt, frame, args, progress, 0.3 + 0.7 * (i - 1) / len(frames),
-                                        0.7 / len(frames))  # fmt: skip
+            at = 0.3 + 0.7 * (i - 1) / len(frames)
+            pred, camera, light, relief = _reconstruct(model, ckpt, frame, args, progress, at, 0.7 / len(frames))
+            if relief is not None:  # a frame's time and errors include its relief
+                pred["depth"], relief = relief.result()["depth"], None
         except (ValueError, OSError) as exc:
             raise ValueError(f"frame {i} ({frame.name}): {exc}") from None
         seconds.append(time.perf_counter() - start)
-        asset = _gltf_asset(args, pred, camera)
-        _write(args.out, f"{name}_{i:04d}", pred, camera, light)
-        _write_gltf(args, f"{name}_{i:04d}", asset)
+        _write(args, f"{name}_{i:04d}", pred, camera, light, relief)
     record = SequenceRecord.of_frames(name, frames, seconds)
     write_sequence(args.out, record)
     summary.append(

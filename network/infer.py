@@ -85,6 +85,12 @@ class InferenceInput:
     distance_m: float | None = None
     rig: Rig | None = None
 
+    @classmethod
+    def of_capture(cls, cap: pcapture.Capture, dec: pdecode_capture.DecodedCapture) -> InferenceInput:
+        """A capture folder's input from its read capture and decoded maps (:func:`load_input`'s capture route)."""
+        k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
+        return cls(dec.maps, dec.input_mask, cap.meta.radiance, k, cap.meta.distance_m, cap.meta.rig)
+
 
 def load_input(path: str | Path, *, require_object: bool = False, rig: Rig | None = None) -> InferenceInput:
     """The nine maps, mask, display radiance and camera of a sample EXR/JSON or a capture folder.
@@ -117,8 +123,7 @@ def load_input(path: str | Path, *, require_object: bool = False, rig: Rig | Non
         dec = pdecode_capture.decode_capture(cap)
         if require_object:
             pdecode_capture.check_usable(dec, cap, need_object=True)
-        k = cap.meta.grid_intrinsics(cap.raws.shape[1:], dec.maps.shape[:2])
-        return InferenceInput(dec.maps, dec.input_mask, cap.meta.radiance, k, cap.meta.distance_m, cap.meta.rig)
+        return InferenceInput.of_capture(cap, dec)
     if path.suffix in (".exr", ".json") and path.exists():
         if rig is not None:
             raise ValueError(f"{path}: a rig file decodes a capture folder; a rendered sample has its own rig")

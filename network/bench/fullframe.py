@@ -2,8 +2,9 @@
 
 :func:`profile` times each stage of what ``headless/infer.py`` does to one capture folder, in one process:
 reading the raw brackets, decoding them into the nine maps, the object mask, the crop and encoder, the per-pixel
-decoder, the relief depth integration, writing the maps and the glTF binary (and, where ``blend`` is set and the
-bpy wheel is installed, the ``.blend`` in its own process as ``--blend`` does). :func:`stride_rows` decodes the
+decoder, the relief depth integration with the maps written meanwhile (one stage, overlapped as there), the glTF
+binary (and, where ``blend`` is set and the bpy wheel is installed, the ``.blend`` in its own process as
+``--blend`` does). :func:`stride_rows` decodes the
 same capture at stride 1 and at each of the given strides (edge-aware, the default ``refine_deg``) and reports the
 time of :func:`network.infer.predict` and the error of each against stride 1 (normal angle p99, BRDF RMSE), the
 tolerance the defaults must keep (:data:`TOLERANCE`). :func:`depth_rows` integrates the capture's predicted normals
@@ -24,6 +25,7 @@ import sys
 import tempfile
 import time
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -110,12 +112,13 @@ def profile(capture: Path, checkpoint: Path, *, stride: int | None = None, blend
                        radiance=cap.meta.radiance, stride=stride, refine_deg=refine)  # fmt: skip
     inner = clock.seconds["encoder (crop resized to the input size)"] + clock.seconds["per-pixel decoder"]
     clock.seconds["crop, normalise, paste back"] -= inner
-    with clock.stage("relief depth integration"):
-        pred["depth"] = relief_depth(pred, k, cap.meta.distance_m)
     camera = CameraRecord.of_maps(k, mask.shape, cap.meta.distance_m)
-    with tempfile.TemporaryDirectory() as tmp:
-        with clock.stage("write the maps (EXR + PNG)"):
-            write_predictions(tmp, "frame", pred, camera)
+    with tempfile.TemporaryDirectory() as tmp, ThreadPoolExecutor(1) as pool:
+        # As headless/infer.py (headless._overlap): the relief integrates on a thread while the maps are written.
+        with clock.stage("relief depth integration, the maps written (EXR + PNG) meanwhile"):
+            relief = pool.submit(lambda: {"depth": relief_depth(pred, k, cap.meta.distance_m)})
+            write_predictions(tmp, "frame", pred, camera, pending=relief)
+        pred["depth"] = relief.result()["depth"]
         with clock.stage("glTF binary"):
             write_asset(Path(tmp) / "frame.glb", build_asset(pred, k, distance=camera.distance_m or 0.75), name="f")
         if blend:

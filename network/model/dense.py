@@ -11,8 +11,9 @@ the context's keys, so its output is the context pass's own output, which is reu
 :func:`decode_dense` is the fast route and :func:`decode_dense_reference` the straightforward one (equal to float
 rounding): the fast route gathers features and map values as rows of channels-last tables
 (:func:`~network.model.sampling.sample_bilinear_rows`), folds the pooling's constant query into its key projection
-(:meth:`~network.model.decoder.PoolingAttention.forward_folded`) and embeds pixels in cache-sized pieces
-(:data:`EMBED_ELEMENTS`).
+(:meth:`~network.model.decoder.PoolingAttention.forward_folded`), embeds pixels in cache-sized pieces
+(:data:`EMBED_ELEMENTS`) and, on a CPU, decodes its chunks on several Python threads of one torch thread each
+(:func:`query_workers`).
 
 ``stride`` > 1 trades accuracy for time: it decodes every s-th row and column (:func:`grid_pixels`) and fills the
 rest by normalised convolution (:func:`fill_from_decoded`), about s^2 times less decoder work. Interpolation is
@@ -31,6 +32,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 
 import torch
 import torch.nn.functional as F
@@ -49,11 +51,13 @@ __all__ = [
     "SMOOTH_SHARE",
     "STRIDE_PIXELS",
     "auto_stride",
+    "box_max",
     "context_pixels",
     "decode_dense",
     "decode_dense_reference",
     "fill_from_decoded",
     "grid_pixels",
+    "query_workers",
     "unreliable_fill",
 ]
 
@@ -73,6 +77,10 @@ SMOOTH_SHARE = 1 / 16
 #: pixel) has about this many elements (16 MiB in float32), so that a piece stays cache-sized
 #: (docs/measurements/network.md has the timings behind the choice).
 EMBED_ELEMENTS = 1 << 22
+
+# False: every chunk on the calling thread (torch's intra-op threads), the route before query_workers; the full-frame
+# bench and the tests compare the two.
+_PARALLEL_QUERIES = True
 
 
 #: :func:`auto_stride` decodes masks of at least this many pixels at stride 4 (a capture-sized object: on a full
@@ -159,6 +167,40 @@ def fill_from_decoded(values: Tensor, decoded: Tensor, stride: int) -> tuple[Ten
     return num / den.clamp_min(0.5 / stride**2), den
 
 
+def box_max(x: Tensor, k: int) -> Tensor:
+    """``F.max_pool2d(x, k, 1, k // 2)`` (odd ``k``) from shifted maxima: the same values, several times less CPU.
+
+    Separable, and each 1-D window max by doubling (``max`` over ``[i, i + 2^j)``, then two overlapping spans of
+    the window), so about ``2 log2(k)`` elementwise maxima instead of torch's CPU pooling kernel.
+
+    Args:
+        x: (..., H, W).
+        k: Odd window size.
+
+    Returns:
+        (..., H, W): each pixel the maximum over the ``k x k`` window centred on it, inside the image.
+
+    Example:
+        >>> box_max(torch.tensor([[0.0, 0, 5, 0], [1, 0, 0, 0]]), 3)
+        tensor([[1., 5., 5., 5.],
+                [1., 5., 5., 5.]])
+    """
+    return _window_max(_window_max(x, k, x.ndim - 2), k, x.ndim - 1)
+
+
+def _window_max(x: Tensor, k: int, dim: int) -> Tensor:
+    """The maximum over the ``k`` (odd) entries centred on each entry along ``dim``, inside the array."""
+    n, pad = x.shape[dim], k // 2
+    shape = list(x.shape)
+    shape[dim] = pad
+    fill = torch.full(shape, -math.inf, dtype=x.dtype, device=x.device)
+    m, span = torch.cat([fill, x, fill], dim), 1
+    while span * 2 <= k:  # m[i] = max over [i, i + span)
+        m = torch.maximum(m.narrow(dim, 0, m.shape[dim] - span), m.narrow(dim, span, m.shape[dim] - span))
+        span *= 2
+    return torch.maximum(m.narrow(dim, 0, n), m.narrow(dim, k - span, n))  # span <= k < 2 span: covers the window
+
+
 def unreliable_fill(
     values: Tensor, decoded: Tensor, weight: Tensor, stride: int, refine_deg: float, refine_brdf: float
 ) -> Tensor:
@@ -193,7 +235,7 @@ def unreliable_fill(
     with torch.autocast(values.device.type, enabled=False):
         hi = torch.where(decoded, values, -big)[None]
         lo = torch.where(decoded, -values, -big)[None]
-        span = (F.max_pool2d(hi, k, 1, stride - 1) + F.max_pool2d(lo, k, 1, stride - 1))[0]
+        span = (box_max(hi, k) + box_max(lo, k))[0]
         span = torch.where(weight > 0, span, torch.zeros_like(span))
         candidate = (span[:3].square().sum(0) > chord**2) | (span[3:] > refine_brdf).any(0)
         # Interpolation error estimated at each grid pixel from its second differences; a grid pixel without
@@ -213,7 +255,7 @@ def unreliable_fill(
         # Spread each grid pixel's verdict to the pixels within its tent reach.
         node = torch.zeros_like(decoded, dtype=values.dtype)
         node[o::stride, o::stride] = rough.to(values.dtype)
-        near_rough = F.max_pool2d(node[None, None], k, 1, stride - 1)[0, 0] > 0
+        near_rough = box_max(node[None, None], k)[0, 0] > 0
     return (candidate & near_rough) | (weight < 1 - 0.5 / stride**2)
 
 
@@ -364,12 +406,56 @@ def _decode_queries(
     pool_query: Tensor,
     chunk: int,
 ) -> None:
-    """Decode ``pixels`` (P,) of image ``i`` against the cached context, in chunks, into ``out``."""
+    """Decode ``pixels`` (P,) of image ``i`` against the cached context, in chunks, into ``out``.
+
+    On a CPU with ``torch.get_num_threads()`` = n > 1 the chunks go to n Python threads that run torch on one
+    thread each (:func:`query_workers`); the chunks are independent, so the outputs are those of one thread.
+    """
     if pixels.numel() == 0:
         return
-    for part in pixels.split(chunk):
+
+    def decode(part: Tensor) -> dict[str, Tensor]:
         x = decoder.transform_cached(_embed_rows(decoder, config, inputs, part, pool_query)[None], cache)
-        _store(out, i, part, decoder.heads(x))
+        return decoder.heads(x)
+
+    workers = query_workers(pixels.device, pixels.numel(), chunk)
+    if workers == 1:
+        for part in pixels.split(chunk):
+            _store(out, i, part, decode(part))
+        return
+    parts = pixels.tensor_split(workers * math.ceil(pixels.numel() / (workers * chunk)))  # even shares
+    threads = torch.get_num_threads()
+    inference, grad = torch.is_inference_mode_enabled(), torch.is_grad_enabled()  # thread-local in torch
+    dev = pixels.device.type
+    cast = {"enabled": torch.is_autocast_enabled(dev), "dtype": torch.get_autocast_dtype(dev)}  # thread-local too
+
+    def decode_alone(part: Tensor) -> dict[str, Tensor]:
+        torch.set_num_threads(1)
+        with torch.inference_mode(inference), torch.set_grad_enabled(grad), torch.autocast(dev, **cast):
+            return decode(part)
+
+    try:
+        with ThreadPoolExecutor(workers, thread_name_prefix="decode") as pool:
+            for part, pred in zip(parts, pool.map(decode_alone, parts), strict=True):
+                _store(out, i, part, pred)
+    finally:
+        torch.set_num_threads(threads)
+
+
+def query_workers(device: torch.device, pixels: int, chunk: int) -> int:
+    """Python threads for :func:`decode_dense`'s chunks: torch's thread count on a CPU with 2+ chunks' worth, else 1.
+
+    On 2 cores, two chunks decoded side by side on one torch thread each keep both cores busy with less
+    synchronisation than one chunk on two intra-op threads (docs/measurements/fullframe.md); a GPU decodes one
+    chunk at a time.
+
+    Example:
+        >>> query_workers(torch.device("cpu"), 100, 8192), query_workers(torch.device("meta"), 10**6, 8192)
+        (1, 1)
+    """
+    if device.type != "cpu" or pixels < 2 * min(chunk, 2048) or not _PARALLEL_QUERIES:
+        return 1
+    return max(1, torch.get_num_threads())
 
 
 def _store(out: dict[str, Tensor], i: int, pixels: Tensor, pred: dict[str, Tensor]) -> None:

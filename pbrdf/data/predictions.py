@@ -35,7 +35,7 @@ import json
 import math
 import os
 from collections.abc import Mapping, Sequence
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -244,7 +244,12 @@ def _preview(key: str, img: NDArray, mask: NDArray | None) -> NDArray:
 
 
 def write_predictions(
-    out: str | os.PathLike, name: str, pred: Mapping[str, NDArray], camera: CameraRecord | None = None
+    out: str | os.PathLike,
+    name: str,
+    pred: Mapping[str, NDArray],
+    camera: CameraRecord | None = None,
+    *,
+    pending: Future | None = None,
 ) -> list[Path]:
     """Write ``<name>_<map>.exr`` (float32) and a ``.png`` preview for every predicted map.
 
@@ -261,36 +266,54 @@ def write_predictions(
             ``"depth"`` where a relief was integrated).
         camera: the maps' camera, written as ``<name>_camera.json`` (the Blender import gives its
             camera these intrinsics, so a relief mesh keeps the capture's shape).
+        pending: more maps still being computed (a future of ``{map: (H, W, C)}``, e.g. the relief depth on
+            another thread): ``pred``'s files are encoded while it runs, its own once it is done, and all are
+            put into place together; its exception is raised with nothing written.
 
     Returns:
         The written paths (EXR then PNG per map).
 
     Raises:
         ValueError: a map that is not ``(H, W, C)`` or holds NaN/Inf (nothing written).
+        Exception: whatever ``pending`` raised (nothing written).
         OSError: the folder cannot be written (nothing left behind).
     """
-    from pbrdf.io.exr import write_exr  # noqa: PLC0415 (the add-on reads these names without OpenEXR)
-
     out = Path(out)
-    for key, img in pred.items():
-        if img.ndim != 3 or not np.all(np.isfinite(img)):
-            raise ValueError(f"predicted {key} map is not a finite (H, W, C) array; nothing written")
+    _check_maps(pred)
     mask = pred["mask"][..., 0] > 0 if "mask" in pred else None
-    # Two threads: PNG (zlib) and EXR compression release the GIL (a full frame's files: 1.4 s of CPU).
-    with ThreadPoolExecutor(2) as pool:
-        previews = dict(zip(pred, pool.map(lambda k: _png(_preview(k, pred[k], mask)), pred), strict=True))
     names = []
-    with atomic_folder(out, merge=True) as staging, ThreadPoolExecutor(2) as pool:
-
-        def exr(key: str) -> None:
-            img = pred[key]
-            chans = "XYZ" if key == "normal" else ("RGB" if img.shape[-1] == 3 else "Y")
-            write_exr(staging / f"{name}_{key}.exr", {f"{key}.{c}": img[..., i] for i, c in enumerate(chans)})
-
-        list(pool.map(exr, pred))  # list: the first error is raised here, inside the staging folder
-        for key in pred:
-            (staging / f"{name}_{key}.png").write_bytes(previews[key])
-            names += [f"{name}_{key}.exr", f"{name}_{key}.png"]
+    with atomic_folder(out, merge=True) as staging:
+        names += _encode(staging, name, pred, mask)
+        if pending is not None:
+            more = dict(pending.result())  # raised here: inside the staging folder, so nothing is written
+            _check_maps(more)
+            names += _encode(staging, name, more, mask)
         if camera is not None:
             (staging / f"{name}{CAMERA_SUFFIX}").write_text(json.dumps(camera.to_dict(), indent=1) + "\n")
     return [out / n for n in names]
+
+
+def _check_maps(pred: Mapping[str, NDArray]) -> None:
+    for key, img in pred.items():
+        if img.ndim != 3 or not np.all(np.isfinite(img)):
+            raise ValueError(f"predicted {key} map is not a finite (H, W, C) array; nothing written")
+
+
+def _encode(staging: Path, name: str, pred: Mapping[str, NDArray], mask: NDArray | None) -> list[str]:
+    """``<name>_<map>.exr`` and ``.png`` of every map into ``staging``; returns their names (EXR then PNG per map)."""
+    from pbrdf.io.exr import write_exr  # noqa: PLC0415 (the add-on reads these names without OpenEXR)
+
+    def exr(key: str) -> None:
+        img = pred[key]
+        chans = "XYZ" if key == "normal" else ("RGB" if img.shape[-1] == 3 else "Y")
+        write_exr(staging / f"{name}_{key}.exr", {f"{key}.{c}": img[..., i] for i, c in enumerate(chans)})
+
+    # Two threads: PNG (zlib) and EXR compression release the GIL (a full frame's files: 1.4 s of CPU).
+    with ThreadPoolExecutor(2) as pool:
+        previews = dict(zip(pred, pool.map(lambda k: _png(_preview(k, pred[k], mask)), pred), strict=True))
+        list(pool.map(exr, pred))  # list: the first error is raised here, inside the staging folder
+    names = []
+    for key in pred:
+        (staging / f"{name}_{key}.png").write_bytes(previews[key])
+        names += [f"{name}_{key}.exr", f"{name}_{key}.png"]
+    return names

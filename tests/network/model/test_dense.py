@@ -19,6 +19,7 @@ from network.infer import DEFAULT_CHECKPOINT
 from network.model.dense import (
     REFINE_BRDF,
     REFINE_DEG,
+    box_max,
     context_pixels,
     fill_from_decoded,
     grid_pixels,
@@ -142,6 +143,21 @@ class TestStride:
         kept = grid_pixels(pixels, 10, 3)
         assert sorted(kept.tolist()) == [r * 10 + c for r in (1, 4, 7) for c in (1, 4, 7)]
         assert torch.equal(grid_pixels(pixels, 10, 1), pixels)
+
+    @pytest.mark.parametrize("k", [1, 3, 5, 7, 15])
+    def test_box_max_is_the_window_maximum(self, k):
+        # Against a loop over each pixel's window (clipped to the image), with the -max sentinels unreliable_fill
+        # puts where nothing was decoded, on a non-square image smaller than the window in one case.
+        gen = torch.Generator().manual_seed(k)
+        for h, w in ((13, 9), (3, 20)):
+            x = torch.randn(2, h, w, generator=gen)
+            x[x > 1.2] = -torch.finfo(x.dtype).max
+            want = torch.empty_like(x)
+            for r in range(h):
+                for c in range(w):
+                    win = x[:, max(r - k // 2, 0) : r + k // 2 + 1, max(c - k // 2, 0) : c + k // 2 + 1]
+                    want[:, r, c] = win.amax(dim=(1, 2))
+            assert torch.equal(box_max(x, k), want)
 
     def test_fill_reproduces_affine_fields(self):
         # Bilinear interpolation is exact for affine fields, and the tent-kernel normalised convolution is bilinear
@@ -302,6 +318,42 @@ class TestStride:
         for key in KEYS:
             a, b = full[key].reshape(full[key].shape[1], -1), fast[key].reshape(fast[key].shape[1], -1)
             torch.testing.assert_close(b[:, lonely], a[:, lonely], rtol=0, atol=1e-6)
+
+    @pytest.mark.parametrize("stride", [2, 4])
+    def test_chunks_on_worker_threads_equal_one_thread(self, stride, monkeypatch):
+        # Two torch threads: the chunks go to two Python threads of one torch thread each (query_workers); the
+        # outputs are those of the calling thread's route, torch's thread count is restored, and the threads ran.
+        import threading
+
+        from network.model import dense
+
+        model = make_model()
+        maps, mask = smooth_maps(64), disc_mask(64, 0.6)
+        names = set()
+        heads = model.decoder.heads
+
+        def spy(x):
+            names.add(threading.current_thread().name)
+            return heads(x)
+
+        with torch.inference_mode():
+            feats = model.encode(maps, mask)
+            torch.set_num_threads(2)
+            monkeypatch.setattr(dense, "_PARALLEL_QUERIES", False)
+            serial = model.decode_dense(feats, maps, mask, chunk=64, stride=stride)
+            monkeypatch.setattr(dense, "_PARALLEL_QUERIES", True)
+            monkeypatch.setattr(model.decoder, "heads", spy)
+            parallel = model.decode_dense(feats, maps, mask, chunk=64, stride=stride)
+            with torch.autocast("cpu", dtype=torch.bfloat16):  # the caller's autocast reaches the worker threads
+                cast = model.decode_dense(feats, maps, mask, chunk=64, stride=stride)
+                monkeypatch.setattr(dense, "_PARALLEL_QUERIES", False)
+                cast_serial = model.decode_dense(feats, maps, mask, chunk=64, stride=stride)
+        assert torch.get_num_threads() == 2
+        assert sum(name.startswith("decode") for name in names) == 2, names
+        for key in KEYS:
+            torch.testing.assert_close(parallel[key], serial[key], rtol=0, atol=1e-5)
+            torch.testing.assert_close(cast[key], cast_serial[key], rtol=0, atol=1e-5)
+        assert_valid(parallel, mask)
 
     def test_bad_stride(self):
         model = make_model()

@@ -69,3 +69,38 @@ def test_sequence_record_round_trip(tmp_path):
     # A hand-written file: only the prefixes are required, the name comes from the file name.
     path.write_text('{"frames": [{"prefix": "face_0001"}]}')
     assert pr.SequenceRecord.read(path) == pr.SequenceRecord("face", ("face_0001",), (None,), (None,))
+
+
+def _files(folder):
+    return {p.name: p.read_bytes() for p in sorted(folder.iterdir())}
+
+
+def test_pending_maps_are_written_as_if_given_with_the_others(tmp_path):
+    # A map computed on another thread while the others are encoded gives the same files, byte for byte, as the
+    # map passed with them (its PNG preview uses the mask of the others: the depth's range over the mask).
+    from concurrent.futures import ThreadPoolExecutor
+
+    pred = _pred()
+    pred["mask"][:3] = 0
+    depth = np.linspace(0.5, 0.9, 12 * 16, dtype=np.float32).reshape(12, 16, 1)
+    cam = pr.CameraRecord.of_maps(K, (12, 16), 0.7)
+    serial = pr.write_predictions(tmp_path / "serial", "x", dict(pred, depth=depth), cam)
+    with ThreadPoolExecutor(1) as pool:
+        later = pool.submit(lambda: {"depth": depth})
+        overlapped = pr.write_predictions(tmp_path / "overlap", "x", pred, cam, pending=later)
+    assert [p.name for p in overlapped] == [p.name for p in serial]
+    assert _files(tmp_path / "overlap") == _files(tmp_path / "serial")
+
+
+@pytest.mark.parametrize("result", ["raise", "nan"])
+def test_failed_pending_maps_write_nothing(tmp_path, result):
+    from concurrent.futures import Future
+
+    later = Future()
+    if result == "raise":
+        later.set_exception(ValueError("the relief could not be integrated"))
+    else:
+        later.set_result({"depth": np.full((12, 16, 1), np.nan, np.float32)})
+    with pytest.raises(ValueError, match="relief could not|depth map is not a finite"):
+        pr.write_predictions(tmp_path / "o", "x", _pred(), pending=later)
+    assert not (tmp_path / "o").exists() and not list(tmp_path.iterdir())
