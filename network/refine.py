@@ -283,6 +283,8 @@ def refine_input(pred: dict[str, np.ndarray], inp) -> RefineResult:
                  roughness=REFINE_ROUGHNESS)  # fmt: skip
     if not res.refined:
         warnings.warn(f"refinement: {res.message}; the network's maps are kept", stacklevel=2)
+    elif res.message.startswith("not refined"):  # the roughness changed, the albedo did not
+        warnings.warn(f"refinement: {res.message}; the network's albedo is kept", stacklevel=2)
     elif not inp.distance_m:
         warnings.warn(f"refinement at the default distance {DEFAULT_DISTANCE_M} m (no distance_m given): the albedo "
                       "scale is only as good as that guess", stacklevel=2)  # fmt: skip

@@ -237,6 +237,29 @@ def _pixel_weight(obs: np.ndarray, metallic: np.ndarray, view_cos: np.ndarray) -
     return ((metallic < 0.5) & lit & unsaturated & (view_cos > 0.3)).astype(np.float64)
 
 
+def _samples(
+    pred: dict[str, np.ndarray], maps: np.ndarray, intrinsics: np.ndarray, distance_m: float, params, seed: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """At most :data:`MAX_PIXELS` trusted pixels: flat indices, normals, points on the integrated surface, maps."""
+    from scipy import ndimage  # noqa: PLC0415
+
+    mask = pred["mask"][..., 0] > 0
+    h, w = mask.shape
+    angle, depth = normal_trust(pred["normal"], mask, intrinsics, distance_m)
+    inner = ndimage.distance_transform_edt(mask) > params.edge_px
+    idx = np.flatnonzero(mask & inner & (angle < params.max_angle_deg))
+    if idx.size > MAX_PIXELS:  # the rendering's cost: an even sample of the trusted pixels
+        idx = np.sort(np.random.default_rng(seed).choice(idx, MAX_PIXELS, replace=False))
+    z = depth.reshape(-1)[idx]
+    points = projection.pixel_rays(intrinsics, h, w).reshape(-1, 3)[idx] * np.where(z > 0, z, distance_m)[:, None]
+    normal = pred["normal"].reshape(-1, 3)[idx].astype(np.float64)
+    norms = np.linalg.norm(points, axis=1) * np.linalg.norm(normal, axis=1)
+    view_cos = -np.sum(normal * points, 1) / np.maximum(norms, 1e-12)
+    obs = np.nan_to_num(maps.reshape(h * w, -1)[idx].astype(np.float64))
+    keep = np.flatnonzero(_pixel_weight(obs, pred["metallic"].reshape(-1)[idx], view_cos) > 0)  # only these rendered
+    return idx[keep], normal[keep], points[keep], obs[keep]
+
+
 def refine_roughness(
     pred: dict[str, np.ndarray],
     maps: np.ndarray,
@@ -269,39 +292,25 @@ def refine_roughness(
     if not mask.any():
         return RoughnessResult(pred, False, {}, time.perf_counter() - start, "roughness kept: the mask is empty")
     labels, _ = ndimage.label(mask)
-    angle, depth = normal_trust(pred["normal"], mask, intrinsics, distance_m)
-    inner = ndimage.distance_transform_edt(mask) > params.edge_px
-    trusted = mask & inner & (angle < params.max_angle_deg)
-    idx = np.flatnonzero(trusted)
-    if idx.size > MAX_PIXELS:
-        idx = np.sort(np.random.default_rng(seed).choice(idx, MAX_PIXELS, replace=False))
-    h, w = mask.shape
-    rays = projection.pixel_rays(intrinsics, h, w).reshape(-1, 3)[idx]
-    z = depth.reshape(-1)[idx]
-    points = rays * np.where(z > 0, z, distance_m)[:, None]
-    normal = pred["normal"].reshape(-1, 3)[idx].astype(np.float64)
-    view_cos = -np.sum(normal * points, 1) / np.maximum(
-        np.linalg.norm(points, axis=1) * np.linalg.norm(normal, axis=1), 1e-12
-    )
-    obs = np.nan_to_num(maps.reshape(h * w, -1)[idx].astype(np.float64))
-    weight = _pixel_weight(obs, pred["metallic"].reshape(-1)[idx], view_cos)
+    idx, normal, points, obs = _samples(pred, maps, intrinsics, distance_m, params, seed)
     model = lp_profiles(normal, points, rig) if idx.size else np.zeros((len(ROUGHNESS_GRID), 0, 3))
+    h, w = mask.shape
     rough = pred["roughness"][..., 0].astype(np.float64)
     lab = labels.reshape(-1)[idx]
     out_rough, objects = rough.copy(), {}
     for k in range(1, int(labels.max()) + 1):
-        sel = (lab == k) & (weight > 0)
+        sel = lab == k
         obj = {"network": float(rough[labels == k].mean()), "pixels": int(sel.sum()), "kept": True}
         objects[k] = obj
         if sel.sum() < params.min_pixels:
             obj["why"] = "too few trusted pixels"
             continue
-        profile = object_profile(obs[sel, 3:6], model[:, sel], weight[sel], params.scale_prior)
+        profile = object_profile(obs[sel, 3:6], model[:, sel], np.ones(int(sel.sum())), params.scale_prior)
         chosen, loss_chosen, loss_net = map_roughness(profile, float(rough[idx[sel] // w, idx[sel] % w].mean()), params)
         obj.update(fit=float(ROUGHNESS_GRID[np.argmin(profile)]), chosen=chosen, residual=float(profile.min()))
         if profile.min() > params.max_residual:
             obj["why"] = "the LP lobe explains too little of the decoded LP"
-        elif not loss_chosen < loss_net:
+        elif not loss_chosen < loss_net * (1.0 - 1e-3):  # a float-level gain is no gain
             obj["why"] = "no lower fit loss than the network's roughness"
         else:
             obj["kept"] = False

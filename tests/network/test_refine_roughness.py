@@ -14,7 +14,7 @@ from network import refine_roughness as rr
 from network.rerender import display_patches, points_from_depth, rerender
 from pbrdf.sensor.rig import Rig
 
-SIZE, DIST = 48, 0.6
+SIZE, DIST = 32, 0.6
 K = np.array([[300.0, 0.0, SIZE / 2], [0.0, 300.0, SIZE / 2], [0.0, 0.0, 1.0]])
 #: A weak prior: the test asks what the LP alone says.
 FREE = rr.RoughnessParams(sigma=10.0, broadening=0.0)
@@ -73,15 +73,29 @@ def test_the_prior_pulls_towards_the_network():
     assert free < tight < 0.7
 
 
+def _noisy(pred, sigma=0.45):
+    """``pred`` with normals off by ~40 deg at random (not integrable)."""
+    noisy = pred["normal"] + np.random.default_rng(0).normal(0.0, sigma, pred["normal"].shape).astype(np.float32)
+    noisy[..., 2] = np.abs(noisy[..., 2])
+    return {**pred, "normal": noisy / np.linalg.norm(noisy, axis=-1, keepdims=True)}
+
+
+def test_normal_trust_separates_integrable_from_noisy_normals():
+    pred, _ = _scene(0.25, 0.7)
+    mask = pred["mask"][..., 0] > 0
+    inner = mask & (np.hypot(*np.mgrid[:SIZE, :SIZE] + 0.5 - SIZE / 2) < SIZE / 2.4 * 0.8)  # off the rim
+    good, depth = rr.normal_trust(pred["normal"], mask, K, DIST)
+    bad, _ = rr.normal_trust(_noisy(pred)["normal"], mask, K, DIST)
+    assert np.median(good[inner]) < 5.0 and np.median(bad[inner]) > 25.0
+    assert np.median(depth[mask]) == pytest.approx(DIST, rel=0.1) and (depth[~mask] == 0).all()
+
+
 def test_wrong_normals_fall_back_to_the_network():
     pred, maps = _scene(0.25, 0.7)
-    rng = np.random.default_rng(0)
-    noisy = pred["normal"] + rng.normal(0.0, 0.45, pred["normal"].shape).astype(np.float32)
-    noisy[..., 2] = np.abs(noisy[..., 2])
-    pred["normal"] = noisy / np.linalg.norm(noisy, axis=-1, keepdims=True)  # not integrable: ~25 deg apart
-    res = rr.refine_roughness(pred, maps, K, Rig(), DIST, params=FREE)
-    assert not res.refined and res.pred is pred
-    assert "too few trusted" in res.objects[1]["why"]
+    noisy = _noisy(pred)
+    res = rr.refine_roughness(noisy, maps, K, Rig(), DIST, params=FREE)
+    assert not res.refined and res.pred is noisy and res.objects[1]["kept"]
+    assert _mean(res) == pytest.approx(0.7)
 
 
 def test_an_unexplained_lp_is_not_trusted():
@@ -93,8 +107,9 @@ def test_an_unexplained_lp_is_not_trusted():
 
 def test_a_fit_no_better_than_the_network_is_not_applied():
     pred, maps = _scene(0.4, 0.4)  # the network is already right
-    res = rr.refine_roughness(pred, maps, K, Rig(), DIST)
-    assert not res.refined or abs(_mean(res) - 0.4) < 0.03
+    res = rr.refine_roughness(pred, maps, K, Rig(), DIST, params=rr.RoughnessParams(broadening=0.0))
+    assert not res.refined and res.pred is pred, res.objects
+    assert "no lower fit loss" in res.objects[1]["why"]
 
 
 @pytest.mark.parametrize("case", ["dark", "saturated", "grazing", "smooth", "tiny", "empty"])
