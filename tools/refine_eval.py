@@ -4,8 +4,8 @@
         [--png FIG] [--json F]
 
 The refinement (network/refine.py) changes the albedo and, with ``--roughness``, the roughness, so
-only those are scored here (the full evaluation, ``headless/evaluate.py --split test --refine``, scores every map but integrates
-depth for every method, minutes per split). Each scene goes through the capture path of
+only those are scored here (the full evaluation, ``headless/evaluate.py --split test --refine``,
+scores every map but integrates depth for every method, minutes per split). Each scene goes through the capture path of
 :func:`network.evaluation.predict_scene` (raw brackets -> decode -> automatic mask -> model ->
 refinement with the median true depth as the capture's one distance). Per split: albedo PSNR and
 si-PSNR of both, the paired per-scene difference with its 95 % bootstrap interval
