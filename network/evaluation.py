@@ -314,15 +314,16 @@ def _refined(ours, fallback, inp, gt: dict, region: np.ndarray, auto: np.ndarray
     """The ``refined`` row's maps (extended over ``region``) and what the refinement did."""
     from pbrdf.sensor.rig import Rig  # noqa: PLC0415
 
-    from .refine import refine  # noqa: PLC0415
+    from .refine import REFINE_ROUGHNESS, refine  # noqa: PLC0415
 
     if ours is None:
         return fallback, {"refined": False, "seconds": 0.0, "message": "no prediction"}
     depth = gt.get("depth")
     valid = region & (depth > 0) if depth is not None else None
     distance = float(np.median(depth[valid])) if valid is not None and valid.any() else inp.distance_m
-    res = refine(ours, inp.maps, inp.intrinsics, inp.rig or Rig(), inp.radiance, distance)
-    info = {"refined": res.refined, "seconds": res.seconds, "message": res.message}
+    res = refine(ours, inp.maps, inp.intrinsics, inp.rig or Rig(), inp.radiance, distance, roughness=REFINE_ROUGHNESS)
+    info = {"refined": res.refined, "seconds": res.seconds, "message": res.message,
+            "roughness": {str(k): v for k, v in res.roughness.items()}}  # fmt: skip
     return _fill_nearest(res.pred, auto, region), info
 
 

@@ -41,7 +41,8 @@ from pbrdf.data.capture import DEFAULT_DISTANCE_M
 
 from .rerender import display_patches, points_from_depth, rerender
 
-__all__ = ["MAX_PIXELS", "PATCHES", "SCALE_RANGE", "RefineResult", "object_scales", "refine", "refine_input"]
+__all__ = ["MAX_PIXELS", "PATCHES", "REFINE_ROUGHNESS", "SCALE_RANGE", "RefineResult", "object_scales", "refine",
+           "refine_input"]  # fmt: skip
 
 #: Pixels re-rendered per capture (sampled evenly over the objects; the scale needs no more).
 MAX_PIXELS = 2048
@@ -51,6 +52,10 @@ PATCHES = (8, 8)
 SCALE_RANGE = (0.25, 4.0)
 #: Fewest confident pixels an object needs for its scale.
 MIN_PIXELS = 24
+#: Whether ``--refine`` (:func:`refine_input`, ``evaluate.py --refine``) also refines the roughness
+#: (:mod:`network.refine_roughness`): off, the test splits' per-scene means say it helps single plastic
+#: objects and hurts table pBRDFs (docs/measurements/roughness.md).
+REFINE_ROUGHNESS = False
 _COS_MIN = 0.3  # n . v below this: grazing, the re-renderer's geometry is least reliable
 _CAUCHY = 0.15  # relative residual at which the Cauchy loss halves a pixel's weight
 
@@ -67,6 +72,8 @@ class RefineResult:
         scales: per object (component id -> scale, 1.0 where kept).
         seconds: wall time.
         message: one line for the user.
+        roughness: per object, what the roughness refinement did (:class:`network.refine_roughness.RoughnessResult`'s
+            ``objects``; empty when it did not run).
     """
 
     pred: dict[str, np.ndarray]
@@ -76,6 +83,7 @@ class RefineResult:
     scales: dict[int, float] = field(default_factory=dict)
     seconds: float = 0.0
     message: str = ""
+    roughness: dict[int, dict] = field(default_factory=dict)
 
 
 def _cauchy(r: np.ndarray) -> np.ndarray:
@@ -160,8 +168,12 @@ def refine(
     distance_m: float | None = None,
     *,
     seed: int = 0,
+    roughness: bool = False,
 ) -> RefineResult:
-    """Refine the network's albedo scale per object against the decoded unpol (module docs).
+    """Refine the network's albedo scale per object against the decoded unpol (module docs), and its roughness.
+
+    With ``roughness``, each object's roughness is then refined from the decoded LP
+    (:func:`network.refine_roughness.refine_roughness`, which needs no radiance: the LP's level is free).
 
     Args:
         pred: :func:`network.infer.predict`'s maps ``(H, W, C)`` with ``mask``.
@@ -171,10 +183,35 @@ def refine(
         radiance: the display radiance in the maps' units, or None (uncalibrated: nothing refined).
         distance_m: the object's distance in m (default :data:`pbrdf.data.capture.DEFAULT_DISTANCE_M`).
         seed: pixel sampling seed.
+        roughness: also refine the roughness per object.
 
     Returns:
         :class:`RefineResult`; its maps are finite, the albedo in [0, 1].
     """
+    res = _refine_albedo(pred, maps, intrinsics, rig, radiance, distance_m, seed=seed)
+    if not roughness:
+        return res
+    from .refine_roughness import refine_roughness  # noqa: PLC0415
+
+    rough = refine_roughness(res.pred, maps, intrinsics, rig, float(distance_m or DEFAULT_DISTANCE_M), seed=seed)
+    res.pred, res.roughness = rough.pred, rough.objects
+    res.refined = res.refined or rough.refined
+    res.seconds += rough.seconds
+    res.message = f"{res.message}; {rough.message}"
+    return res
+
+
+def _refine_albedo(
+    pred: dict[str, np.ndarray],
+    maps: np.ndarray,
+    intrinsics: np.ndarray,
+    rig,
+    radiance: float | None,
+    distance_m: float | None,
+    *,
+    seed: int,
+) -> RefineResult:
+    """The albedo half of :func:`refine`."""
     from scipy import ndimage  # noqa: PLC0415
 
     start = time.perf_counter()
@@ -243,9 +280,12 @@ def refine_input(pred: dict[str, np.ndarray], inp) -> RefineResult:
     """
     from pbrdf.sensor.rig import Rig  # noqa: PLC0415
 
-    res = refine(pred, inp.maps, inp.intrinsics, inp.rig or Rig(), inp.radiance, inp.distance_m)
+    res = refine(pred, inp.maps, inp.intrinsics, inp.rig or Rig(), inp.radiance, inp.distance_m,
+                 roughness=REFINE_ROUGHNESS)  # fmt: skip
     if not res.refined:
         warnings.warn(f"refinement: {res.message}; the network's maps are kept", stacklevel=2)
+    elif res.message.startswith("not refined"):  # the roughness changed, the albedo did not
+        warnings.warn(f"refinement: {res.message}; the network's albedo is kept", stacklevel=2)
     elif not inp.distance_m:
         warnings.warn(f"refinement at the default distance {DEFAULT_DISTANCE_M} m (no distance_m given): the albedo "
                       "scale is only as good as that guess", stacklevel=2)  # fmt: skip

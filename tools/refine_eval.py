@@ -1,15 +1,20 @@
-"""Network alone against network + refinement on the test splits, albedo only, with paired intervals.
+"""Network alone against network + refinement on the test splits, albedo and roughness, with paired intervals.
 
-    PYTHONPATH=. python tools/refine_eval.py out/splits/test-procedural [...] [--limit N] [--png FIG] [--json F]
+    PYTHONPATH=. python tools/refine_eval.py out/splits/test-procedural [...] [--limit N] [--roughness]
+        [--png FIG] [--json F]
 
-The refinement (network/refine.py) changes only the albedo, so only albedo is scored here (the
-full evaluation, ``headless/evaluate.py --split test --refine``, scores every map but integrates
-depth for every method, minutes per split). Each scene goes through the capture path of
+The refinement (network/refine.py) changes the albedo and, with ``--roughness``, the roughness, so
+only those are scored here (the full evaluation, ``headless/evaluate.py --split test --refine``,
+scores every map but integrates depth for every method, minutes per split). Each scene goes through the capture path of
 :func:`network.evaluation.predict_scene` (raw brackets -> decode -> automatic mask -> model ->
 refinement with the median true depth as the capture's one distance). Per split: albedo PSNR and
 si-PSNR of both, the paired per-scene difference with its 95 % bootstrap interval
 (:func:`network.statistics.summarize`), the refinement's time per capture, and the per-kind split
-(``pplastic``, ``conductor``, ``measured``). ``--png`` draws the per-scene deltas.
+(``pplastic``, ``conductor``, ``measured``). Roughness (network/refine_roughness.py): per-scene RMSE of
+the network, the refinement and the constant, the paired difference, and the per-object correlation
+with the truth over dielectric objects (:func:`network.statistics.correlation`, as ``evaluate.py``'s
+report); ``--roughness`` turns the roughness refinement on (:data:`network.refine.REFINE_ROUGHNESS`, off
+by default). ``--png`` draws the per-scene albedo deltas.
 """
 
 from __future__ import annotations
@@ -25,11 +30,12 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from network import metrics  # noqa: E402
+from network import refine as refine_module  # noqa: E402
 from network.checkpoint import load_checkpoint  # noqa: E402
 from network.constant import STATS_FILE, load_statistics  # noqa: E402
 from network.evaluation import predict_scene  # noqa: E402
 from network.infer import DEFAULT_CHECKPOINT  # noqa: E402
-from network.statistics import summarize, summary_text  # noqa: E402
+from network.statistics import correlation, summarize, summary_text  # noqa: E402
 
 
 def _row(scene) -> dict:
@@ -40,7 +46,35 @@ def _row(scene) -> dict:
         row[f"{m}_psnr"] = metrics.psnr(scene.preds[m]["albedo"], gt["albedo"], region)
         row[f"{m}_si_psnr"] = metrics.si_psnr(scene.preds[m]["albedo"], gt["albedo"], region)
     row["true_over_pred"] = metrics.ls_scale(scene.preds["ours"]["albedo"], gt["albedo"], region)
+    preds = {"ours": scene.preds["ours"], "refined": scene.preds["refined"], "constant": scene.preds["constant"]}
+    g = gt["roughness"].reshape(region.shape)[..., None]
+    for m, p in preds.items():
+        row[f"{m}_rough_rmse"] = metrics.rmse(p["roughness"].reshape(g.shape), g, region)
+    row["objects_rough"] = []
+    if scene.objects is not None:
+        for i in np.unique(scene.objects[region]).tolist():
+            sel = region & (scene.objects == i)
+            if float(np.mean(gt["metallic"].reshape(region.shape)[sel])) < 0.5:  # dielectric objects only
+                row["objects_rough"].append({m: float(np.mean(p["roughness"].reshape(region.shape)[sel]))
+                                             for m, p in {**preds, "truth": gt}.items()})  # fmt: skip
     return row
+
+
+def _rough_table(name: str, rows: list[dict]) -> str:
+    """Roughness: per-scene RMSE (paired delta) and per-object correlation, network vs refinement."""
+    objs = [o for r in rows for o in r["objects_rough"]]
+    corr = {m: correlation([o["truth"] for o in objs], [o[m] for o in objs]) for m in ("ours", "refined")}
+    rm = {m: [r[f"{m}_rough_rmse"] for r in rows] for m in ("ours", "refined", "constant")}
+    d = summarize([b - a for a, b in zip(rm["ours"], rm["refined"], strict=True)])
+    changed = sum(1 for r in rows for o in (r.get("roughness") or {}).values() if not o.get("kept", True))
+    ci = {m: summary_text(c, 2, key="r") for m, c in corr.items()}
+    return "\n".join([
+        f"roughness, {name}: {len(objs)} dielectric objects, {changed} objects refined",
+        "| r network | r refined | RMSE network | RMSE refined | delta [95 % CI] | RMSE constant |",
+        "|---|---|---:|---:|---:|---:|",
+        f"| {ci['ours']} | {ci['refined']} | {np.mean(rm['ours']):.3f} | {np.mean(rm['refined']):.3f} | "
+        f"{summary_text(d, 3, signed=True)} | {np.mean(rm['constant']):.3f} |",
+    ])  # fmt: skip
 
 
 def _table(name: str, rows: list[dict]) -> str:
@@ -94,7 +128,10 @@ def main() -> None:
     p.add_argument("--limit", type=int)
     p.add_argument("--png", type=Path)
     p.add_argument("--json", type=Path)
+    p.add_argument("--roughness", action="store_true", help="also refine the roughness (network/refine_roughness.py)")
     args = p.parse_args()
+    if args.roughness:
+        refine_module.REFINE_ROUGHNESS = True  # read by network.evaluation at each refinement
     torch.set_num_threads(2)
     model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
     stats = load_statistics(DEFAULT_CHECKPOINT.parent / STATS_FILE)
@@ -109,6 +146,7 @@ def main() -> None:
             print(json.dumps({"split": root.name, **rows[-1]}, default=float), flush=True)
         results[root.name] = rows
         print(_table(root.name, rows), flush=True)
+        print(_rough_table(root.name, rows), flush=True)
     if args.json:
         args.json.write_text(json.dumps(results, indent=1, default=float))
     if args.png:
