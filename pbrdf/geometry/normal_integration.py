@@ -403,7 +403,7 @@ def _solve_gradients(gu: NDArray, gv: NDArray, m: NDArray[np.bool_], s: _Setting
         if it + 1 == s.iterations or (it > 0 and np.abs(z - previous).max() <= s.settle):
             break
         trust = grid.trust(z, trust, s.tau)
-    if loose > s.rtol:  # the loose solves only chose the weights: the answer's own system to full accuracy
+    if loose > s.rtol and z.size > _DIRECT:  # loose solves only chose the weights: the answer's system to rtol
         z = solve(a, b, z, s.rtol)
     out[grid.cols] = _centre_parts(z, grid, m)
     return out.reshape(h, w)
