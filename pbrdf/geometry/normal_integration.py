@@ -197,7 +197,7 @@ def integrate_normals(
 
     The solves that only set the next weights stop at ``reweight_rtol``; the last system (the answer's
     weights) is then solved on to ``rtol`` from there. Where the re-weighting settles, the weights end on
-    the sides that all-``rtol`` solves choose, and so does the depth; where it does not (it keeps moving
+    the sides that all-``rtol`` solves choose, and the depth with them; where it does not (it keeps moving
     the side a pixel trusts), the path differs, as it already does between any two tolerances.
 
     Each solve is conjugate gradients, preconditioned by a two-grid cycle on cells of
@@ -219,8 +219,8 @@ def integrate_normals(
         anchor: weight pulling each pixel's log depth toward 0 (keeps the systems definite).
         rtol: relative residual at which the last conjugate-gradient solve stops.
         settle: stop re-weighting when a solve changed no log depth by more than this.
-        reweight_rtol: relative residual at which the solves before it stop (at most ``rtol``: every
-            solve to ``rtol``).
+        reweight_rtol: relative residual at which the solves before the last stop; a value <= ``rtol``
+            solves every system to ``rtol`` (the route before 2026-11-27's last change).
         cell: side in pixels of the two-grid preconditioner's cells; 1: algebraic multigrid; None:
             :func:`auto_cell` of the mask's pixel count.
 
