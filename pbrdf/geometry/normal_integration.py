@@ -106,11 +106,11 @@ class _Solver:
     surface at its jumps leaves the first one a poor preconditioner (dozens of steps, not ten).
     """
 
-    def __init__(self, rtol: float, cell: NDArray | None = None) -> None:
-        self.pre, self.rtol, self.cell = None, rtol, cell
+    def __init__(self, cell: NDArray | None = None) -> None:
+        self.pre, self.cell = None, cell
         self.rebuild = 30 if cell is None else 12  # the two-grid setup is cheap: rebuilt sooner
 
-    def __call__(self, a, b: NDArray[np.float64], x0: NDArray[np.float64]) -> NDArray[np.float64]:
+    def __call__(self, a, b: NDArray[np.float64], x0: NDArray[np.float64], rtol: float) -> NDArray[np.float64]:
         import pyamg  # noqa: PLC0415
         from scipy.sparse.linalg import cg, spsolve  # noqa: PLC0415
 
@@ -127,7 +127,7 @@ class _Solver:
         def count(_x) -> None:
             steps[0] += 1
 
-        x, _ = cg(a, b, x0=x0, rtol=self.rtol, atol=0.0, maxiter=500, M=pre, callback=count)
+        x, _ = cg(a, b, x0=x0, rtol=rtol, atol=0.0, maxiter=500, M=pre, callback=count)
         if steps[0] > self.rebuild:
             self.pre = None
         return x
@@ -185,6 +185,7 @@ def integrate_normals(
     anchor: float = 1e-6,
     rtol: float = 1e-6,
     settle: float = 1e-4,
+    reweight_rtol: float = 1e-4,
     cell: int | None = None,
 ) -> NDArray[np.float32]:
     """Depth (m along the viewing axis) of the surface whose normals are ``normal`` on ``mask``.
@@ -194,7 +195,12 @@ def integrate_normals(
     Each part of the mask that is not connected to the others gets mean log depth 0 before the
     common scale (what the ``anchor`` term alone gives when solved exactly).
 
-    Each solve is conjugate gradients to ``rtol``, preconditioned by a two-grid cycle on cells of
+    The solves that only set the next weights stop at ``reweight_rtol``; the last system (the answer's
+    weights) is then solved on to ``rtol`` from there. Where the re-weighting settles, the weights end on
+    the sides that all-``rtol`` solves choose, and the depth with them; where it does not (it keeps moving
+    the side a pixel trusts), the path differs, as it already does between any two tolerances.
+
+    Each solve is conjugate gradients, preconditioned by a two-grid cycle on cells of
     ``cell`` x ``cell`` pixels (:func:`auto_cell` by default; a setup about 6x cheaper than
     algebraic multigrid's on a capture-sized mask), or by algebraic multigrid with ``cell=1`` (the
     route before 2026-11-27): the same systems to the same tolerance, so the same depth.
@@ -211,8 +217,10 @@ def integrate_normals(
             steps of a few tenths of a percent per pixel already choose a side).
         min_cos: see :func:`log_depth_gradients`.
         anchor: weight pulling each pixel's log depth toward 0 (keeps the systems definite).
-        rtol: relative residual at which each conjugate-gradient solve stops.
+        rtol: relative residual at which the last conjugate-gradient solve stops.
         settle: stop re-weighting when a solve changed no log depth by more than this.
+        reweight_rtol: relative residual at which the solves before the last stop; a value <= ``rtol``
+            solves every system to ``rtol`` (the route before 2026-11-27's last change).
         cell: side in pixels of the two-grid preconditioner's cells; 1: algebraic multigrid; None:
             :func:`auto_cell` of the mask's pixel count.
 
@@ -244,7 +252,7 @@ def integrate_normals(
     k[0, 2] -= x0  # the crop's own pixel grid
     k[1, 2] -= y0
     side = auto_cell(int(m.sum())) if cell is None else int(cell)
-    settings = _Settings(iterations, tau, min_cos, anchor, rtol, settle, side)
+    settings = _Settings(iterations, tau, min_cos, anchor, rtol, settle, reweight_rtol, side)
     z = _solve(n[y0:y1, x0:x1], m[y0:y1, x0:x1], k, settings)
     inside = m[y0:y1, x0:x1]
     z -= np.median(z[inside])
@@ -282,6 +290,7 @@ class _Settings:
     anchor: float
     rtol: float
     settle: float
+    reweight_rtol: float
     cell: int = 1
 
 
@@ -385,13 +394,17 @@ def _solve_gradients(gu: NDArray, gv: NDArray, m: NDArray[np.bool_], s: _Setting
     if s.cell > 1:  # numbered cells of side s.cell, per unknown
         y, x = np.divmod(grid.cols, w)
         cell = np.unique((y // s.cell) * -(-w // s.cell) + x // s.cell, return_inverse=True)[1]
-    solve = _Solver(s.rtol, cell)
+    solve = _Solver(cell)
+    loose = max(s.rtol, s.reweight_rtol)
     for it in range(max(1, s.iterations)):
         weight, target = grid.equations(trust, grad)
-        z, previous = solve(grid.matrix(weight, reg), grid.rhs(weight, target), z), z
+        a, b = grid.matrix(weight, reg), grid.rhs(weight, target)
+        z, previous = solve(a, b, z, loose), z
         if it + 1 == s.iterations or (it > 0 and np.abs(z - previous).max() <= s.settle):
             break
         trust = grid.trust(z, trust, s.tau)
+    if loose > s.rtol and z.size > _DIRECT:  # loose solves only chose the weights: the answer's system to rtol
+        z = solve(a, b, z, s.rtol)
     out[grid.cols] = _centre_parts(z, grid, m)
     return out.reshape(h, w)
 
