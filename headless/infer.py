@@ -29,8 +29,8 @@ resized to the network's input size, and the per-pixel decoder reads every pixel
 --stride auto (the default) decodes every 4th pixel of a capture-sized object (150,000 masked
 pixels or more) and interpolates the rest where it is smooth, decoding edges exactly.
 
-Cost: a full sensor frame (2448 x 2048 raw, object on half of it) takes about 11 s and 1.2 GB on an
-idle 2-core machine (maps and depth; --gltf +3 s; --blend about 14-17 s in all, Blender starting
+Cost: a full sensor frame (2448 x 2048 raw, object on half of it) takes about 10 s and 1.2 GB on an
+idle 2-core machine (maps and depth; --gltf +3 s; --blend about 11-13 s in all, Blender starting
 while the maps are predicted; 2026-11-27, docs/measurements/fullframe.md). Every step prints
 "[elapsed s] stage" on stderr unless --quiet.
 
