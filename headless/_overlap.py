@@ -52,13 +52,10 @@ def decode_while_loading(source: Path, rig_path: Path | None, load: Callable[[],
 
 def _decode(source: Path, rig_path: Path | None):
     """The capture and its decoded maps, refused when nothing is usable (without importing torch)."""
-    from pbrdf.data.capture import load_capture  # noqa: PLC0415
-    from pbrdf.data.capture_decode import check_usable, decode_capture  # noqa: PLC0415
-    from pbrdf.data.capture_rig import read_rig, with_rig  # noqa: PLC0415
+    from pbrdf.data.capture_decode import check_usable, load_and_decode  # noqa: PLC0415
+    from pbrdf.data.capture_rig import read_rig  # noqa: PLC0415
 
-    cap = load_capture(source)
-    cap = cap if rig_path is None else with_rig(cap, read_rig(rig_path))
-    dec = decode_capture(cap)
+    cap, dec = load_and_decode(source, rig=None if rig_path is None else read_rig(rig_path))
     check_usable(dec, cap, need_object=True)
     return cap, dec
 

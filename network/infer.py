@@ -20,7 +20,6 @@ from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import sample as psample
 from pbrdf.data.capture import DEFAULT_DISTANCE_M
-from pbrdf.data.capture_rig import with_rig
 from pbrdf.data.predictions import OUTPUT_CHANNELS
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.io.errors import NothingToReconstruct
@@ -118,9 +117,7 @@ def load_input(path: str | Path, *, require_object: bool = False, rig: Rig | Non
     """
     path = Path(path)
     if path.is_dir() and (path / pcapture.CAPTURE_JSON).is_file():
-        cap = pcapture.load_capture(path)
-        cap = cap if rig is None else with_rig(cap, rig)
-        dec = pdecode_capture.decode_capture(cap)
+        cap, dec = pdecode_capture.load_and_decode(path, rig=rig)
         if require_object:
             pdecode_capture.check_usable(dec, cap, need_object=True)
         return InferenceInput.of_capture(cap, dec)

@@ -25,10 +25,12 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, read_capture_files, validate_capture
+from pbrdf.data.capture_rig import with_rig
 from pbrdf.data.raw_files import open_image
 from pbrdf.io.errors import NothingToReconstruct
 from pbrdf.sensor.decode import Decoded, decode
 from pbrdf.sensor.foreground import capture_foreground
+from pbrdf.sensor.rig import Rig
 
 __all__ = [
     "MASK_FILE",
@@ -38,6 +40,7 @@ __all__ = [
     "object_mask",
     "CaptureWarning",
     "check_usable",
+    "load_and_decode",
     "check_sequence",
 ]
 
@@ -258,6 +261,27 @@ def check_usable(decoded: DecodedCapture, capture: Capture, *, need_object: bool
         if need_object:
             raise NothingToReconstruct(f"{where}: nothing to reconstruct: {reason}")
         warnings.warn(f"{where}: {reason}", CaptureWarning, stacklevel=2)
+
+
+def load_and_decode(folder: str | os.PathLike, *, rig: Rig | None = None) -> tuple[Capture, DecodedCapture]:
+    """Read a capture folder, optionally with a calibrated rig, and decode it (:func:`check_usable` is the caller's).
+
+    The capture route of :func:`network.infer.load_input` without torch (``headless/infer.py`` decodes on the
+    main thread while the model loads on another).
+
+    Args:
+        folder: a capture folder.
+        rig: a calibrated rig file's rig (:func:`pbrdf.data.capture_rig.with_rig`), or None (``capture.json``'s).
+
+    Returns:
+        ``(capture, decoded)``.
+
+    Raises:
+        FileNotFoundError, ValueError: as :func:`pbrdf.data.capture.load_capture`.
+    """
+    cap = load_capture(folder)
+    cap = cap if rig is None else with_rig(cap, rig)
+    return cap, decode_capture(cap)
 
 
 def check_sequence(folders: Sequence[str | os.PathLike]) -> None:
