@@ -101,18 +101,21 @@ ship-engine-model: setup  ## score the engine run's best.pt on the test splits a
 # pbrdf/data/splits.py) and `small` fine-tuned with light_input from the shipped model (its light
 # weights start at zero, so step 0 is exactly models/small/model.pt). Resumable chunks as
 # train-engine-model (LIGHT_STOP=N ends a chunk after step N); tools/gpu_light_run.sh is the same on a GPU lease.
+# The schedule (500 steps, 25 warm-up) fits one CPU session: about 6 s a step on 2 idle cores, so the cosine
+# decay ends inside a session and its best.pt is scored the same day. LIGHT_COUNT scenes of train-light.
 LIGHT_RUN := $(OUT)/runs/light-small
-LIGHT_STEPS := 3000
+LIGHT_STEPS := 500
 LIGHT_STOP ?= $(LIGHT_STEPS)
+LIGHT_COUNT ?= 240
 light-data: setup  ## render train-light and val-light (resumable; SHARD=K/N)
 	$(PY) headless/expand_pbrdf.py --out $(SPLITS_DIR)/pbrdfs-train --count 200 --seed 12000 --quiet
-	$(PY) headless/render.py --split val-light --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/val-light --shard $(SHARD) --resume --quiet
-	$(PY) headless/render.py --split train-light --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/train-light --shard $(SHARD) --resume --quiet
+	$(PY) headless/render.py --split val-light --count 16 --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/val-light --shard $(SHARD) --resume --quiet
+	$(PY) headless/render.py --split train-light --count $(LIGHT_COUNT) --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/train-light --shard $(SHARD) --resume --quiet
 train-light-model: setup  ## fine-tune small with the light input (resumable chunks; needs `make light-data`)
 	$(PY) headless/train.py --input $(SPLITS_DIR)/train-light --val $(SPLITS_DIR)/val-light --config small \
 	    --overrides image_size=192 canonical_size=128 train_pixels=2048 infer_chunk=8192 light_input=true \
 	    --init-from models/small/model.pt --steps $(LIGHT_STEPS) --stop-after $(LIGHT_STOP) --batch-size 4 --lr 1e-4 \
-	    --lr-warmup 100 --min-lr-ratio 0.1 --seed 0 --input-scale calibrated --checkpoint-every 100 --val-samples 16 \
+	    --lr-warmup 25 --min-lr-ratio 0.1 --seed 0 --input-scale calibrated --checkpoint-every 50 --val-samples 16 \
 	    --out $(LIGHT_RUN) --resume --quiet
 	$(PY) tools/plot_training.py $(LIGHT_RUN) --out docs/measurements/curves/light-small
 # The shipped model's scores on the test splits (re-made when the shipped model changes), and the gate:
