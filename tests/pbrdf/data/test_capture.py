@@ -961,25 +961,6 @@ class TestCheckUsable:
 
 
 # ------------------------------------------------------------------------------------------------
-# radiometry
-
-
-def test_display_radiance_reads_radiometry_and_rig(tmp_path):
-    assert cap.display_radiance({}) == 1.0  # calibrated by default, the default rig's display
-    assert cap.display_radiance({"radiometry": "calibrated", "rig": {"display": {"radiance": 0.25}}}) == 0.25
-    assert cap.display_radiance({"radiometry": "relative", "rig": {"display": {"radiance": 0.25}}}) is None
-    with pytest.raises(ValueError, match=r"^x/capture.json: radiometry must be one of \['calibrated', 'relative'\]"):
-        cap.display_radiance({"radiometry": "absolute"}, "x/capture.json")
-    with pytest.raises(ValueError, match=r"^x/capture.json: invalid rig: display.radiance must be > 0"):
-        cap.display_radiance({"rig": {"display": {"radiance": 0}}}, "x/capture.json")
-    # The keys travel through a saved capture folder as metadata.
-    model = CameraModel(exposures=(0.01, 0.1))
-    raws = simulate_capture(np.full((8, 8, 3, 4), 0.0) + [0.1, 0, 0, 0], model, noise=False)
-    folder = cap.save_capture(tmp_path / "c", raws, model, extra={"radiometry": "relative"})
-    assert cap.display_radiance(cap.load_capture(folder).metadata) is None
-
-
-# ------------------------------------------------------------------------------------------------
 # CaptureMeta: radiometry and geometry parsed once, at load time
 
 
