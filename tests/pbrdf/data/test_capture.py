@@ -891,8 +891,8 @@ def _bracket(folder_root: Path, raws: np.ndarray, model: CameraModel, name: str 
 class TestCheckUsable:
     """Captures that decode to nothing usable are refused with the reason; one without an object warns."""
 
-    def test_good_capture_passes_silently(self, tmp_path, synthetic):
-        capture, _ = _bracket(tmp_path, *synthetic)
+    def test_good_capture_passes_silently(self, tmp_path, disc_capture):
+        capture, _ = _bracket(tmp_path, *disc_capture)  # an object on a dark background, no dark frames
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             capdec.check_usable(capdec.decode_capture(capture), capture, need_object=True)
