@@ -273,7 +273,7 @@ def check_usable(decoded: DecodedCapture, capture: Capture, *, need_object: bool
             raise NothingToReconstruct(f"{where}: nothing to reconstruct: {reason}")
         warnings.warn(f"{where}: {reason}", CaptureWarning, stacklevel=2)
     elif decoded.foreground_source == "auto" and capture.dark is None:
-        covered = float(np.mean(decoded.foreground))
+        covered = np.count_nonzero(decoded.foreground) / decoded.foreground.size
         if covered > FULL_FRAME_FRACTION:
             # Without dark frames nothing removes room light (pbrdf.sensor.decode.subtract_dark), and the
             # mask's background level assumes some dark background is left in the frame.
