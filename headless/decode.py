@@ -9,8 +9,9 @@ into a temporary folder and renamed into place; nothing is written unless loadin
 succeed. Bad input prints one line "error: <message>" on stderr and exits with status 2
 (nothing else: warnings raised on the way are dropped); so does a capture that decodes to no
 usable pixel (all dark, all saturated, dark then saturated, black level at or above the data).
-A capture whose maps hold no object above the noise floor is decoded but prints one line
-"warning: <message>" on stderr.
+A capture whose maps hold no object above the noise floor, or whose automatic object mask covers
+nearly the whole frame without dark frames (room light on the background), is decoded but prints
+one line "warning: <message>" on stderr.
 """
 
 from __future__ import annotations
@@ -131,7 +132,8 @@ def run(
         OSError: unreadable capture or unwritable output folder.
 
     Warns:
-        CaptureWarning: no object stands out from the background.
+        CaptureWarning: no object stands out from the background, or the automatic mask covers
+            nearly the whole frame of a capture without dark frames.
     """
     capture = load_capture(capture_dir)
     capture = capture if rig is None else with_rig(capture, read_rig(rig))

@@ -59,7 +59,7 @@ def _export(args: argparse.Namespace, summary: list[str]) -> int:
     import numpy as np  # noqa: PLC0415
 
     from blender_addon.core import map_io, map_names  # noqa: PLC0415
-    from pbrdf.data.capture import DEFAULT_DISTANCE_M  # noqa: PLC0415
+    from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M  # noqa: PLC0415
     from pbrdf.data.gltf_asset import build_asset, write_asset  # noqa: PLC0415
     from pbrdf.data.predictions import CameraRecord  # noqa: PLC0415
 

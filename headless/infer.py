@@ -307,7 +307,7 @@ def _gltf_asset(args: argparse.Namespace, pred: dict, camera: CameraRecord):
     """``--gltf``: the asset (:mod:`pbrdf.data.gltf_asset`), built and checked before any file is written; else None."""
     if not args.gltf:
         return None
-    from pbrdf.data.capture import DEFAULT_DISTANCE_M  # noqa: PLC0415
+    from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M  # noqa: PLC0415
     from pbrdf.data.gltf_asset import build_asset  # noqa: PLC0415
 
     return build_asset(pred, camera.intrinsics, distance=camera.distance_m or DEFAULT_DISTANCE_M)

@@ -37,9 +37,9 @@ import torch
 import torch.nn.functional as F  # noqa: N812
 from torch.utils.data import Dataset
 
-from pbrdf.data import capture as pcapture
 from pbrdf.data import dataset as pdataset
 from pbrdf.data import sample as psample
+from pbrdf.data.capture_meta import display_radiance
 
 from .light_input import sample_light
 
@@ -88,7 +88,7 @@ def input_radiance(input_scale: str, radiance: float | None, where: str = "input
     Args:
         input_scale: the model's input scale (:data:`INPUT_SCALES`).
         radiance: the display radiance in the maps' units
-            (:func:`pbrdf.data.capture.display_radiance`), None for an uncalibrated capture.
+            (:func:`pbrdf.data.capture_meta.display_radiance`), None for an uncalibrated capture.
         where: the capture, named in the warning.
 
     Returns:
@@ -359,7 +359,7 @@ class SampleDataset(Dataset):
             t = resize_batch(t, self.size)
         radiance = None
         if self.input_scale == "calibrated":
-            radiance = pcapture.display_radiance(meta, where)
+            radiance = display_radiance(meta, where)
         t["maps"] = normalize_maps(t["maps"], t["mask"], radiance=radiance)
         if self.light_input:
             light, dist = sample_light(meta, sample["depth"], sample["mask"], tuple(t["mask"].shape[-2:]), where)

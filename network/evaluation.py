@@ -42,7 +42,7 @@ import torch
 
 from pbrdf.data import dataset as pdataset
 from pbrdf.data import sample as psample
-from pbrdf.data.capture import DEFAULT_DISTANCE_M
+from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.data.splits import SPLITS, dataset_split
 from pbrdf.geometry.normal_integration import integrate_normals

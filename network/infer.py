@@ -19,7 +19,7 @@ import torch.nn.functional as F  # noqa: N812
 from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import sample as psample
-from pbrdf.data.capture import DEFAULT_DISTANCE_M
+from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M, display_radiance
 from pbrdf.data.predictions import OUTPUT_CHANNELS
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.io.errors import NothingToReconstruct
@@ -128,7 +128,7 @@ def load_input(path: str | Path, *, require_object: bool = False, rig: Rig | Non
         if require_object and not sample["mask"].any():
             raise NothingToReconstruct(f"{path}: the sample's mask is empty: nothing to reconstruct")
         where = path.with_suffix(".json")
-        radiance = pcapture.display_radiance(meta, str(where))
+        radiance = display_radiance(meta, str(where))
         k = sample_intrinsics(meta, sample["mask"].shape, where)
         return InferenceInput(sample["maps"], sample["mask"], radiance, k, None, sidecar_rig(meta, str(where)))
     raise FileNotFoundError(f"{path}: not a sample (.exr/.json) or a capture folder with {pcapture.CAPTURE_JSON}")
@@ -138,7 +138,7 @@ def relief_depth(pred: dict[str, np.ndarray], intrinsics: np.ndarray, distance: 
     """``(H, W, 1)`` depth in m of the predicted surface: its normals integrated over its mask.
 
     :func:`pbrdf.geometry.normal_integration.integrate_normals` (discontinuity-aware); the median
-    depth is ``distance`` (the capture's ``distance_m``; default :data:`pbrdf.data.capture.DEFAULT_DISTANCE_M`, the
+    depth is ``distance`` (the capture's ``distance_m``; default :data:`pbrdf.data.capture_meta.DEFAULT_DISTANCE_M`, the
     middle of the rig's 0.5-1.0 m working range). The Blender import builds a relief mesh from it.
     """
     from pbrdf.geometry.normal_integration import integrate_normals  # noqa: PLC0415

@@ -22,7 +22,7 @@ so it is computed on a coarse grid of pixel positions and interpolated bilinearl
 Distances: :func:`check_distance` accepts :data:`DISTANCE_RANGE_M`; a rendered sample's distance is
 the median of its ground-truth depth over the mask (:func:`sample_distance`), never per-pixel
 depth; a capture's is ``distance_m`` (:mod:`pbrdf.data.capture`), else
-:data:`pbrdf.data.capture.DEFAULT_DISTANCE_M` with a warning (:func:`resolve_distance`).
+:data:`pbrdf.data.capture_meta.DEFAULT_DISTANCE_M` with a warning (:func:`resolve_distance`).
 """
 
 from __future__ import annotations
@@ -38,7 +38,7 @@ import numpy as np
 import torch
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf.data.capture import DEFAULT_DISTANCE_M
+from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M
 from pbrdf.sensor import projection
 from pbrdf.sensor.irradiance import irradiance_vectors
 from pbrdf.sensor.patches import constant_patches
@@ -216,7 +216,7 @@ class LightGeometry:
         intrinsics: ``K (3, 3)`` of the full maps' grid.
         distance_m: the object distance used, m (checked: :func:`check_distance`).
         measured: whether ``distance_m`` was given (capture.json, ``--distance``, a sample's depth) or
-            the :data:`pbrdf.data.capture.DEFAULT_DISTANCE_M` fallback.
+            the :data:`pbrdf.data.capture_meta.DEFAULT_DISTANCE_M` fallback.
         source: where the distance came from, for the output's sidecar (e.g. ``"capture.json"``).
     """
 

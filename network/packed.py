@@ -47,9 +47,9 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset
 
-from pbrdf.data import capture as pcapture
 from pbrdf.data import dataset as pdataset
 from pbrdf.data import sample as psample
+from pbrdf.data.capture_meta import display_radiance
 from pbrdf.data.splits import dataset_split
 from pbrdf.io.atomic import atomic_open, atomic_write_text, remove_leftovers
 
@@ -388,7 +388,7 @@ class PackedDataset(Dataset):
         radiance = None
         if self.input_scale == "calibrated":  # parsing the rig costs as much as the rest of the item: once per sample
             if meta["index"] not in self._radiance:
-                self._radiance[meta["index"]] = pcapture.display_radiance(meta, where)
+                self._radiance[meta["index"]] = display_radiance(meta, where)
             radiance = self._radiance[meta["index"]]
         t["maps"] = normalize_maps(t["maps"], t["mask"], radiance=radiance)
         if self.light_input:

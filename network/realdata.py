@@ -30,7 +30,7 @@ Geometry per source:
   decoded with the rig its ``capture.json`` names (for a jittered rig, the nominal one the
   decoder assumes), the automatic foreground mask, no depth and no sidecar, so no ground truth
   reaches training;
-* capture folder: optional keys of ``capture.json`` (parsed into :class:`pbrdf.data.capture.CaptureMeta`):
+* capture folder: optional keys of ``capture.json`` (parsed into :class:`pbrdf.data.capture_meta.CaptureMeta`):
   ``rig`` (a partial rig dict, :meth:`pbrdf.sensor.rig.Rig.from_dict`; default the
   default rig), ``intrinsics`` (3x3 pinhole matrix of the raw mosaic's pixel grid; default the
   rig camera's focal length with the principal point at the raw image's centre) and
@@ -59,7 +59,7 @@ from pbrdf.data import capture as pcapture
 from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.data import dataset as pdataset
 from pbrdf.data import sample as psample
-from pbrdf.data.capture import DEFAULT_DISTANCE_M
+from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M
 from pbrdf.data.sample import sample_intrinsics
 from pbrdf.sensor.projection import crop_intrinsics
 from pbrdf.sensor.rig import Rig
@@ -125,7 +125,7 @@ def load_real_input(path: Path, *, use_depth: bool = True) -> tuple[
         ``(maps (H, W, 9), mask (H, W), intrinsics (3, 3) of the maps' grid, rig, depth (H, W) or
         None, distance_m or None, radiance)``: ``radiance`` is the display radiance in the maps'
         units, None for a capture whose radiometry is relative
-        (:func:`pbrdf.data.capture.display_radiance`).
+        (:func:`pbrdf.data.capture_meta.display_radiance`).
 
     Raises:
         FileNotFoundError, ValueError: unreadable input or bad geometry keys (message names the path).

@@ -37,7 +37,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from pbrdf.data.capture import DEFAULT_DISTANCE_M
+from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M
 
 from .rerender import display_patches, points_from_depth, rerender
 
@@ -181,7 +181,7 @@ def refine(
         intrinsics: ``K (3, 3)`` of the maps' grid.
         rig: the capture's :class:`pbrdf.sensor.rig.Rig` (display geometry and radiance).
         radiance: the display radiance in the maps' units, or None (uncalibrated: nothing refined).
-        distance_m: the object's distance in m (default :data:`pbrdf.data.capture.DEFAULT_DISTANCE_M`).
+        distance_m: the object's distance in m (default :data:`pbrdf.data.capture_meta.DEFAULT_DISTANCE_M`).
         seed: pixel sampling seed.
         roughness: also refine the roughness per object.
 

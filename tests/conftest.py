@@ -40,6 +40,20 @@ def rng():
     return np.random.default_rng(1234)
 
 
+@pytest.fixture
+def disc_capture(rng):
+    """``(raws (4, 32, 48) uint16, model)``: a noisy bracket of a lit disc on a black background, no dark frames.
+
+    The capture a user should make (background dark, object framed with room to spare): the automatic
+    mask finds the disc (about 20 % of the frame), so checks of a good capture stay silent.
+    """
+    from pbrdf.sensor.camera import CameraModel, simulate_capture
+    from tests.helpers import disc_stokes
+
+    model = CameraModel()
+    return simulate_capture(disc_stokes(32, 48, 10.0), model, rng=rng), model
+
+
 def _mitsuba_variant(name):
     """Mitsuba 3 in variant ``name``; skips without mitsuba; restores the process-wide variant."""
     mi = pytest.importorskip("mitsuba")

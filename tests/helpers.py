@@ -85,6 +85,25 @@ def random_stokes(rng, n):
     )
 
 
+def disc_stokes(h: int, w: int, radius: float, *, level: float = 0.05, dark_patch: bool = False) -> np.ndarray:
+    """Stokes images ``(h, w, 3, 4)``: a shaded, partly polarized disc on a black background.
+
+    The disc's s0 falls off towards the limb (to 20 % of the centre, like a diffuse sphere), its
+    polarized part is display light (``s1 = -0.3 s0``); ``dark_patch`` puts a patch at 0.2 % of
+    the brightness (below the noise floor: dark metal) in its middle.
+    """
+    y, x = np.mgrid[0:h, 0:w] + 0.0
+    r = np.hypot(y - h / 2, x - w / 2) / radius
+    s0 = np.where(r < 1, level * (0.2 + 0.8 * np.sqrt(np.clip(1 - r**2, 0, 1))), 0.0)
+    if dark_patch:
+        s0 = np.where((np.abs(y - h / 2) < radius / 4) & (np.abs(x - w / 2) < radius / 3), 0.002 * s0, s0)
+    st = np.zeros((h, w, 3, 4))
+    for c, tint in enumerate((1.0, 0.8, 0.6)):
+        st[..., c, 0] = tint * s0
+        st[..., c, 1] = -0.3 * tint * s0
+    return st
+
+
 def assert_angles_close_mod_pi(actual, expected, atol):
     """Angles of linear polarization are defined modulo pi."""
     d = np.mod(np.asarray(actual) - np.asarray(expected) + np.pi / 2, np.pi) - np.pi / 2

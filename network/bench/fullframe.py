@@ -287,7 +287,7 @@ def depth_rows(capture: Path, checkpoint: Path, *, stride: int | None = None, re
     from network.checkpoint import load_checkpoint  # noqa: PLC0415
     from network.infer import load_input, predict  # noqa: PLC0415
     from network.model.dense import auto_stride  # noqa: PLC0415
-    from pbrdf.data.capture import DEFAULT_DISTANCE_M  # noqa: PLC0415
+    from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M  # noqa: PLC0415
     from pbrdf.geometry.normal_integration import auto_cell, integrate_normals  # noqa: PLC0415
 
     model, ckpt = load_checkpoint(checkpoint)

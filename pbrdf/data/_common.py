@@ -1,12 +1,14 @@
-"""Helpers shared by :mod:`pbrdf.data.sample` and :mod:`pbrdf.data.dataset` (private).
+"""Helpers shared by the modules of :mod:`pbrdf.data` (private).
 
-Index checks, JSON text with numpy values and removal of a sample's
-files or folders.
+Index checks, JSON text with numpy values, removal of a sample's files or folders
+(:mod:`~pbrdf.data.sample`, :mod:`~pbrdf.data.dataset`), and the checked JSON numbers with short
+values in their messages of the capture readers (:mod:`~pbrdf.data.capture`, :mod:`~pbrdf.data.capture_meta`).
 """
 
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -14,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["check_index", "dumps_json", "check_metadata", "remove_path"]
+__all__ = ["check_index", "dumps_json", "check_metadata", "remove_path", "short_repr", "json_number"]
 
 
 def check_index(index: Any) -> int:
@@ -70,3 +72,24 @@ def remove_path(path: Path) -> None:
         shutil.rmtree(path)
     else:
         path.unlink(missing_ok=True)
+
+
+def short_repr(value: Any, limit: int = 40) -> str:
+    """``repr(value)`` cut to ``limit`` characters (a JSON integer may have thousands of digits).
+
+    Example:
+        >>> short_repr("x" * 50, 10)
+        "'xxxxxx..."
+    """
+    text = repr(value) if not isinstance(value, int) or value.bit_length() < 128 else f"{str(value)[:20]}..."
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def json_number(value: Any, name: str, where: str | os.PathLike) -> float:
+    """A JSON number as float; ValueError naming ``where`` and ``name`` for a non-number or one too large."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ValueError(f"{where}: {name} must be a number; got {short_repr(value)}")
+    try:
+        return float(value)
+    except OverflowError:
+        raise ValueError(f"{where}: {name} {short_repr(value)} is too large for a floating-point number") from None

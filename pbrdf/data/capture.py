@@ -36,21 +36,12 @@ right before saving. 8-bit data (an 8-bit PNG/TIFF, mode ``"L"``, or a uint8 ``.
 photo) is refused unless ``bits`` is 8. Every other top-level key is returned as
 :attr:`Capture.metadata`.
 
-Radiometry. ``"radiometry"`` says whether absolute brightness can be trusted:
-``"calibrated"`` (the default when absent) means the camera model's radiometric scale
-(``sensor.electrons_per_unit``, gain) and the rig's display radiance (``rig.display.radiance``,
-default 1.0) were measured, so the decoded maps are in the renderer's radiance units and
-:func:`display_radiance` gives the level a fully lit display channel has in them; the network
-then reads absolute albedo. ``"relative"`` (an uncalibrated camera or display) means only ratios
-are meaningful: inference falls back to the exposure-invariant input scale and albedo is relative.
-
-Geometry. The optional ``"rig"`` (a partial rig, :meth:`pbrdf.sensor.rig.Rig.from_dict`; default
-the default rig), ``"intrinsics"`` (the 3x3 pinhole matrix of the raw mosaic's pixel grid;
-default the rig camera's focal length with the principal point at the image centre) and
-``"distance_m"`` (the object's distance along the viewing axis in m) place the pixels in the rig.
+The radiometry and geometry keys (``"radiometry"``, ``"rig"``, ``"intrinsics"``, ``"distance_m"``):
+:mod:`pbrdf.data.capture_meta`.
 
 This module is the one reader of ``capture.json``: :func:`load_capture` parses and checks every
-key once, the radiometry and geometry keys into :class:`CaptureMeta` (:attr:`Capture.meta`);
+key once, the radiometry and geometry keys into
+:class:`~pbrdf.data.capture_meta.CaptureMeta` (:attr:`Capture.meta`);
 :func:`read_capture_meta` reads that part alone, without the raw frames.
 
 Decoding a folder, with its object mask (``mask.png`` or automatic): :mod:`pbrdf.data.capture_decode`.
@@ -62,7 +53,6 @@ Errors: :class:`FileNotFoundError` (missing folder, ``capture.json`` or raw file
 from __future__ import annotations
 
 import json
-import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -71,22 +61,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from pbrdf.data._common import json_number, short_repr
+from pbrdf.data.capture_meta import CaptureMeta, parse_capture_meta
 from pbrdf.data.raw_files import RAW_FORMATS, RAW_SUFFIXES, read_raw, write_raw
 from pbrdf.io.atomic import atomic_folder
 from pbrdf.io.strict_json import read_json_object
 from pbrdf.sensor.camera import CAMERA_RANGES, CameraModel
-from pbrdf.sensor.projection import crop_intrinsics, pinhole_intrinsics
-from pbrdf.sensor.rig import Rig
 
 __all__ = [
-    "DEFAULT_DISTANCE_M",
     "CAPTURE_FORMAT",
     "CAPTURE_JSON",
-    "RADIOMETRY_MODES",
-    "display_radiance",
     "Capture",
-    "CaptureMeta",
-    "parse_intrinsics",
     "read_capture_meta",
     "read_capture_files",
     "save_capture",
@@ -98,10 +83,6 @@ __all__ = [
 CAPTURE_FORMAT = "pdir-capture/1"
 #: Name of the sidecar inside a capture folder.
 CAPTURE_JSON = "capture.json"
-#: Object distance in m when a capture does not give one (``distance_m``): the middle of the rig's 0.5 - 1.0 m.
-DEFAULT_DISTANCE_M = 0.75
-#: Values of the optional ``"radiometry"`` key (the first is the default).
-RADIOMETRY_MODES = ("calibrated", "relative")
 #: Keys of ``capture.json`` written by :func:`save_capture`; ``extra`` may not use them.
 _RESERVED_KEYS = (
     "format",
@@ -114,50 +95,6 @@ _RESERVED_KEYS = (
     "pattern_offset",
     "camera_model",
 )
-
-
-@dataclass(frozen=True)
-class CaptureMeta:
-    """The radiometry and geometry keys of ``capture.json``, parsed and checked.
-
-    Attributes:
-        rig: the ``"rig"`` key over the default rig (the default rig without it).
-        radiometry: one of :data:`RADIOMETRY_MODES`.
-        intrinsics: ``K (3, 3)`` of the raw mosaic's pixel grid as given, or None (the rig
-            camera's default: :meth:`raw_intrinsics`).
-        distance_m: the object's distance along the viewing axis in m, or None.
-    """
-
-    rig: Rig = field(default_factory=Rig)
-    radiometry: str = RADIOMETRY_MODES[0]
-    intrinsics: NDArray[np.float64] | None = None
-    distance_m: float | None = None
-
-    @property
-    def radiance(self) -> float | None:
-        """The display radiance in the decoded maps' units, or None for ``"relative"`` radiometry."""
-        return None if self.radiometry == "relative" else float(self.rig.display.radiance)
-
-    def raw_intrinsics(self, raw_shape: tuple[int, int]) -> NDArray[np.float64]:
-        """``K (3, 3)`` of the raw grid ``(H, W)``: the given intrinsics, else the rig camera's default.
-
-        The default has the rig camera's focal length and the principal point at the image centre.
-        """
-        if self.intrinsics is not None:
-            return self.intrinsics.copy()
-        return pinhole_intrinsics(self.rig.camera.focal_length_px, raw_shape[1], raw_shape[0])
-
-    def grid_intrinsics(self, raw_shape: tuple[int, int], grid_shape: tuple[int, int]) -> NDArray[np.float64]:
-        """``K (3, 3)`` of the decoded maps' grid ``(h, w)`` (the half grid: one pixel per 2 x 2 raw block).
-
-        Example:
-            >>> k = CaptureMeta(intrinsics=np.array([[100.0, 0, 32], [0, 100.0, 24], [0, 0, 1]]))
-            >>> k.grid_intrinsics((48, 64), (24, 32))[:2]
-            array([[50.,  0., 16.],
-                   [ 0., 50., 12.]])
-        """
-        box = (0, 0, int(raw_shape[0]), int(raw_shape[1]))
-        return crop_intrinsics(self.raw_intrinsics(raw_shape), box, (int(grid_shape[0]), int(grid_shape[1])))
 
 
 @dataclass
@@ -359,26 +296,11 @@ def _check_bit_depth(raw: NDArray, path: Path, bits: int) -> None:
         )
 
 
-def _short(value: Any, limit: int = 40) -> str:
-    """``repr(value)`` cut to ``limit`` characters (a JSON integer may have thousands of digits)."""
-    text = repr(value) if not isinstance(value, int) or value.bit_length() < 128 else f"{str(value)[:20]}..."
-    return text if len(text) <= limit else text[: limit - 3] + "..."
-
-
-def _number(value: Any, name: str, where: Path) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise ValueError(f"{where}: {name} must be a number; got {_short(value)}")
-    try:
-        return float(value)
-    except OverflowError:
-        raise ValueError(f"{where}: {name} {_short(value)} is too large for a floating-point number") from None
-
-
 def _integer(value: Any, name: str, where: Path) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         if isinstance(value, float) and value.is_integer():
             return int(value)
-        raise ValueError(f"{where}: {name} must be an integer; got {_short(value)}")
+        raise ValueError(f"{where}: {name} must be an integer; got {short_repr(value)}")
     return value
 
 
@@ -393,18 +315,18 @@ def _model_from_meta(meta: dict[str, Any], exposures: tuple[float, ...], where: 
         raise ValueError(f"{where}: camera_model.sensor must be a JSON object; got {type(sensor).__name__}")
     sensor = dict(sensor)
     if "black_level" in meta:
-        sensor["black_level"] = _number(meta["black_level"], "black_level", where)
+        sensor["black_level"] = json_number(meta["black_level"], "black_level", where)
     bits = _integer(meta["bits"], "bits", where) if "bits" in meta else None
     if "white_level" in meta:
         white = _integer(meta["white_level"], "white_level", where)
         wbits = (white + 1).bit_length() - 1
         if white < 1 or 2**wbits - 1 != white:
             raise ValueError(
-                f"{where}: white_level {_short(white)} is not 2**bits - 1 (MSB-aligned data must be shifted "
+                f"{where}: white_level {short_repr(white)} is not 2**bits - 1 (MSB-aligned data must be shifted "
                 "right to LSB alignment first)"
             )
         if bits is not None and bits != wbits:
-            raise ValueError(f"{where}: white_level {_short(white)} does not match bits {_short(bits)}")
+            raise ValueError(f"{where}: white_level {short_repr(white)} does not match bits {short_repr(bits)}")
         bits = wbits
     if bits is not None:
         sensor["bits"] = bits
@@ -413,7 +335,7 @@ def _model_from_meta(meta: dict[str, Any], exposures: tuple[float, ...], where: 
     if "pattern_offset" in meta:
         po = meta["pattern_offset"]
         if not isinstance(po, list) or len(po) != 2:
-            raise ValueError(f"{where}: pattern_offset must be [row, col]; got {_short(po)}")
+            raise ValueError(f"{where}: pattern_offset must be [row, col]; got {short_repr(po)}")
         cam["pattern_offset"] = [_integer(v, "pattern_offset", where) for v in po]
     cam["exposures"] = list(exposures)
     try:
@@ -522,7 +444,7 @@ def _parse_capture_json(jpath: Path) -> tuple[CameraModel, list[str], dict[str, 
             raise ValueError(f"{jpath}: missing required key {key!r}")
         if not isinstance(meta[key], list):
             raise ValueError(f"{jpath}: {key} must be a list; got {type(meta[key]).__name__}")
-    exposures = [_number(t, "exposures_s entry", jpath) for t in meta["exposures_s"]]
+    exposures = [json_number(t, "exposures_s entry", jpath) for t in meta["exposures_s"]]
     names = meta["raw_files"]
     if len(exposures) != len(names):
         raise ValueError(f"{jpath}: {len(exposures)} exposures_s but {len(names)} raw_files")
@@ -538,7 +460,9 @@ def _parse_capture_json(jpath: Path) -> tuple[CameraModel, list[str], dict[str, 
     for key, files in (("raw_files", names), ("dark_files", dark or [])):
         for n in files:
             if not isinstance(n, str) or not n or n in (".", "..") or Path(n).name != n or "\\" in n or len(n) > 255:
-                raise ValueError(f"{jpath}: {key} entries must be plain file names in the folder; got {_short(n, 60)}")
+                raise ValueError(
+                    f"{jpath}: {key} entries must be plain file names in the folder; got {short_repr(n, 60)}"
+                )
         if len(set(files)) != len(files):
             raise ValueError(f"{jpath}: {key} lists a file more than once: {files}")
 
@@ -548,82 +472,4 @@ def _parse_capture_json(jpath: Path) -> tuple[CameraModel, list[str], dict[str, 
     dark = None if dark is None else [dark[k] for k in order]
     model = _model_from_meta(meta, tuple(exposures), jpath)
     metadata = {k: v for k, v in meta.items() if k not in _RESERVED_KEYS}
-    return model, names, metadata, _capture_meta(metadata, jpath), dark
-
-
-def _capture_meta(metadata: dict[str, Any], where: Path) -> CaptureMeta:
-    """The radiometry and geometry keys of ``capture.json`` (one-line ValueError naming ``where``)."""
-    intrinsics = parse_intrinsics(metadata["intrinsics"], where) if "intrinsics" in metadata else None
-    distance = None
-    if "distance_m" in metadata:
-        distance = _number(metadata["distance_m"], "distance_m", where)
-        if not (math.isfinite(distance) and distance > 0):
-            raise ValueError(f"{where}: distance_m must be > 0, got {distance}")
-    return CaptureMeta(_rig(metadata, where), _radiometry(metadata, where), intrinsics, distance)
-
-
-def parse_intrinsics(value: Any, where: str | os.PathLike) -> NDArray[np.float64]:
-    """A pinhole matrix ``K (3, 3)`` from a JSON value (``capture.json``, a sample sidecar).
-
-    Args:
-        value: the JSON value (nested lists).
-        where: the file, first in the error message.
-
-    Returns:
-        ``(3, 3)`` float64, finite.
-
-    Raises:
-        ValueError: not a finite 3x3 matrix of numbers.
-
-    Example:
-        >>> parse_intrinsics([[100, 0, 32], [0, 100, 24], [0, 0, 1]], "capture.json")[0]
-        array([100.,   0.,  32.])
-    """
-    try:
-        k = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: intrinsics must be a finite 3x3 matrix, got {_short(value, 60)}") from None
-    if k.shape != (3, 3) or not np.all(np.isfinite(k)):
-        raise ValueError(f"{where}: intrinsics must be a finite 3x3 matrix, got shape {k.shape}")
-    return k
-
-
-def _radiometry(metadata: dict[str, Any], where: str | os.PathLike) -> str:
-    mode = metadata.get("radiometry", RADIOMETRY_MODES[0])
-    if mode not in RADIOMETRY_MODES:
-        raise ValueError(f"{where}: radiometry must be one of {list(RADIOMETRY_MODES)}; got {_short(mode)}")
-    return mode
-
-
-def _rig(metadata: dict[str, Any], where: str | os.PathLike) -> Rig:
-    try:
-        return Rig.from_dict(metadata["rig"]) if "rig" in metadata else Rig()
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{where}: invalid rig: {exc}") from None
-
-
-def display_radiance(metadata: dict[str, Any], where: str = "capture") -> float | None:
-    """The display's radiance in the decoded maps' units, or None for a ``"relative"`` capture.
-
-    Reads the optional ``"radiometry"`` and ``"rig"`` keys of a capture's metadata (or of a
-    rendered sample's sidecar, which is always calibrated).
-
-    Args:
-        metadata: :attr:`Capture.metadata` or a sample sidecar.
-        where: the file, first in error messages.
-
-    Returns:
-        ``rig.display.radiance`` (1.0 without a rig) for a calibrated capture, None for a relative one.
-
-    Raises:
-        ValueError: an unknown ``"radiometry"`` value or an invalid ``"rig"``.
-
-    Example:
-        >>> display_radiance({}), display_radiance({"rig": {"display": {"radiance": 2.5}}})
-        (1.0, 2.5)
-        >>> display_radiance({"radiometry": "relative"}) is None
-        True
-    """
-    if _radiometry(metadata, where) == "relative":
-        return None
-    return float(_rig(metadata, where).display.radiance)
+    return model, names, metadata, parse_capture_meta(metadata, jpath), dark

@@ -11,6 +11,11 @@ greyscale PNG (a bilevel one also works), nonzero on the object, the size of the
 least two of its four pixels are). It replaces the automatic object mask of
 :mod:`pbrdf.sensor.foreground` (:attr:`DecodedCapture.foreground`); without it the object mask
 is found from the capture alone.
+
+:func:`check_usable` refuses a capture that decodes to nothing usable and warns
+(:class:`CaptureWarning`) when no object stands out, or when the automatic mask covers more than
+:data:`FULL_FRAME_FRACTION` of the frame in a capture without dark frames: room light on the
+background then passes as object and the maps would show the wall.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ __all__ = [
     "load_mask",
     "object_mask",
     "CaptureWarning",
+    "FULL_FRAME_FRACTION",
     "check_usable",
     "load_and_decode",
     "check_sequence",
@@ -46,6 +52,10 @@ __all__ = [
 
 #: Optional object mask inside a capture folder (overrides the automatic foreground mask).
 MASK_FILE = "mask.png"
+#: An automatic object mask covering more than this fraction of the frame, in a capture without dark frames,
+#: warns (:func:`check_usable`): 1/1000 of the display's radiance as room light already fills the frame
+#: (tests/pbrdf/data/test_capture_decode.py), while an object framed with any background left stays well below.
+FULL_FRAME_FRACTION = 0.95
 # Pillow modes accepted for mask.png: bilevel, 8-bit and 16-bit greyscale.
 _MASK_MODES = ("1", "L", "I;16", "I;16L", "I;16B", "I;16N", "I")
 
@@ -230,7 +240,8 @@ def check_usable(decoded: DecodedCapture, capture: Capture, *, need_object: bool
 
     Warns:
         CaptureWarning: (``need_object`` False) the mask is not empty but the object mask is:
-            the maps hold background only.
+            the maps hold background only. Also (either way) the automatic object mask covers
+            more than :data:`FULL_FRAME_FRACTION` of the frame and the capture has no dark frames.
     """
     where = capture.folder if capture.folder is not None else "capture"
     sensor = capture.model.sensor
@@ -261,6 +272,19 @@ def check_usable(decoded: DecodedCapture, capture: Capture, *, need_object: bool
         if need_object:
             raise NothingToReconstruct(f"{where}: nothing to reconstruct: {reason}")
         warnings.warn(f"{where}: {reason}", CaptureWarning, stacklevel=2)
+    elif decoded.foreground_source == "auto" and capture.dark is None:
+        covered = np.count_nonzero(decoded.foreground) / decoded.foreground.size
+        if covered > FULL_FRAME_FRACTION:
+            # Without dark frames nothing removes room light (pbrdf.sensor.decode.subtract_dark), and the
+            # mask's background level assumes some dark background is left in the frame.
+            warnings.warn(
+                f"{where}: the automatic object mask covers {covered:.0%} of the frame and the capture has no dark "
+                "frames, so light on the background probably passes as object (the maps would show the wall); "
+                "record one dark frame per exposure with the display off and list them as dark_files in "
+                f"{CAPTURE_JSON} (rendered captures: headless/dark_frames.py), or mark the object with {MASK_FILE}",
+                CaptureWarning,
+                stacklevel=2,
+            )
 
 
 def load_and_decode(folder: str | os.PathLike, *, rig: Rig | None = None) -> tuple[Capture, DecodedCapture]:

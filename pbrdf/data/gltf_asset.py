@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from pbrdf.data.capture import DEFAULT_DISTANCE_M
+from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M
 from pbrdf.geometry.relief import dilate, extend_maps, relief_mesh
 from pbrdf.io.gltf import GlbCamera, GlbMaterial, GlbMesh, encode_png, write_glb
 

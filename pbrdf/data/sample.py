@@ -64,7 +64,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from pbrdf.data._common import check_index, check_metadata, dumps_json, remove_path
-from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, parse_intrinsics, save_capture, validate_capture
+from pbrdf.data.capture import CAPTURE_JSON, Capture, load_capture, save_capture, validate_capture
+from pbrdf.data.capture_meta import parse_intrinsics
 from pbrdf.io.atomic import atomic_write_text
 from pbrdf.io.exr import MissingChannelError, read_exr, stack_channels, write_exr
 from pbrdf.io.strict_json import read_json_object

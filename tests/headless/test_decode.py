@@ -39,8 +39,8 @@ def _run(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, *args], cwd=ROOT, capture_output=True, text=True, timeout=120)
 
 
-def test_script_with_preview(tmp_path, synthetic):
-    raws, model = synthetic
+def test_script_with_preview(tmp_path, disc_capture):
+    raws, model = disc_capture  # an object on a dark background: nothing to warn about
     folder = cap.save_capture(tmp_path / "c", raws, model, file_format="png")
     out = tmp_path / "out" / "nested"
     res = _run("headless/decode.py", "--input", str(folder), "--out", str(out), "--preview", "--quiet")
@@ -264,4 +264,20 @@ def test_capture_without_object_warns_once(tmp_path, rng):
         f"warning: {folder}: no object stands out from the background above the noise floor (the automatic "
         "foreground mask is empty); mark the object with mask.png"
     ]
+    assert sorted(p.name for p in out.iterdir()) == ["maps.npy", "mask.npy"]
+
+
+def test_room_lit_capture_without_dark_frames_warns_once(tmp_path, rng):
+    # Room light at 1/1000 of the display's radiance on the background, no dark frames: the automatic mask takes
+    # the whole frame; the maps are written, with one warning line saying what to do.
+    from tests.helpers import disc_stokes
+
+    model = CameraModel(ambient=(0.001,) * 3)
+    folder = cap.save_capture(tmp_path / "c", simulate_capture(disc_stokes(H, W, 10.0), model, rng=rng), model)
+    out = tmp_path / "out"
+    res = _run("headless/decode.py", "--input", str(folder), "--out", str(out))
+    assert res.returncode == 0, res.stderr
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"warning: {folder}: the automatic object mask covers 100% "), lines
+    assert "dark_files" in lines[0] and "headless/dark_frames.py" in lines[0]
     assert sorted(p.name for p in out.iterdir()) == ["maps.npy", "mask.npy"]

@@ -119,6 +119,20 @@ def test_good_sample_writes_every_map(tmp_path, toy):
     assert proc.returncode == 0 and not list((tmp_path / "card").glob("*_depth.*"))
 
 
+def test_room_lit_capture_without_dark_frames_is_one_warning_line(tmp_path, toy):
+    """The automatic mask swallows a frame whose background is lit (no dark frames): reconstructed, warned once."""
+    from tests.helpers import disc_stokes
+
+    model = camera.CameraModel(ambient=(0.001,) * 3)
+    raws = camera.simulate_capture(disc_stokes(48, 64, 14.0), model, rng=np.random.default_rng(0))
+    folder = capture.save_capture(tmp_path / "lit", raws, model, extra={"distance_m": 0.7})
+    proc = _infer("--checkpoint", str(toy[0]), "--input", str(folder), "--out", str(tmp_path / "o"), "--card")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr.splitlines() == [proc.stderr.rstrip("\n")], proc.stderr  # exactly one line
+    assert proc.stderr.startswith(f"warning: {folder}: the automatic object mask covers 100% of the frame"), proc.stderr
+    assert len(list((tmp_path / "o").glob("lit_*.exr"))) == 5
+
+
 def test_shipped_model_relief_depth_matches_the_example_truth(tmp_path):
     """The relief of examples/capture: its predicted normals integrated, anchored at capture.json's distance_m."""
     from pbrdf.io.exr import read_exr

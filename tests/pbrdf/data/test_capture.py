@@ -891,8 +891,8 @@ def _bracket(folder_root: Path, raws: np.ndarray, model: CameraModel, name: str 
 class TestCheckUsable:
     """Captures that decode to nothing usable are refused with the reason; one without an object warns."""
 
-    def test_good_capture_passes_silently(self, tmp_path, synthetic):
-        capture, _ = _bracket(tmp_path, *synthetic)
+    def test_good_capture_passes_silently(self, tmp_path, disc_capture):
+        capture, _ = _bracket(tmp_path, *disc_capture)  # an object on a dark background, no dark frames
         with warnings.catch_warnings():
             warnings.simplefilter("error")
             capdec.check_usable(capdec.decode_capture(capture), capture, need_object=True)
@@ -958,25 +958,6 @@ class TestCheckUsable:
         decoded = capdec.decode_capture(capture)
         with pytest.raises(ValueError, match=r"mask\.png covers no measured pixel"):
             capdec.check_usable(decoded, capture, need_object=True)
-
-
-# ------------------------------------------------------------------------------------------------
-# radiometry
-
-
-def test_display_radiance_reads_radiometry_and_rig(tmp_path):
-    assert cap.display_radiance({}) == 1.0  # calibrated by default, the default rig's display
-    assert cap.display_radiance({"radiometry": "calibrated", "rig": {"display": {"radiance": 0.25}}}) == 0.25
-    assert cap.display_radiance({"radiometry": "relative", "rig": {"display": {"radiance": 0.25}}}) is None
-    with pytest.raises(ValueError, match=r"^x/capture.json: radiometry must be one of \['calibrated', 'relative'\]"):
-        cap.display_radiance({"radiometry": "absolute"}, "x/capture.json")
-    with pytest.raises(ValueError, match=r"^x/capture.json: invalid rig: display.radiance must be > 0"):
-        cap.display_radiance({"rig": {"display": {"radiance": 0}}}, "x/capture.json")
-    # The keys travel through a saved capture folder as metadata.
-    model = CameraModel(exposures=(0.01, 0.1))
-    raws = simulate_capture(np.full((8, 8, 3, 4), 0.0) + [0.1, 0, 0, 0], model, noise=False)
-    folder = cap.save_capture(tmp_path / "c", raws, model, extra={"radiometry": "relative"})
-    assert cap.display_radiance(cap.load_capture(folder).metadata) is None
 
 
 # ------------------------------------------------------------------------------------------------

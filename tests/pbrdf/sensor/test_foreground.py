@@ -18,6 +18,7 @@ from pbrdf.data import capture_decode as pdecode_capture
 from pbrdf.sensor import foreground as fg
 from pbrdf.sensor.camera import CameraModel, simulate_capture
 from pbrdf.sensor.decode import decode
+from tests.helpers import disc_stokes
 
 REPO = Path(__file__).resolve().parents[3]
 EXAMPLE = REPO / "examples" / "capture"
@@ -26,25 +27,6 @@ EXAMPLE_TRUTH = REPO / "examples" / "capture_truth.npz"
 
 def _iou(a: np.ndarray, b: np.ndarray) -> float:
     return float((a & b).sum() / (a | b).sum())
-
-
-def _disc_scene(h: int, w: int, radius: float, *, level: float = 0.05, dark_patch: bool = False) -> np.ndarray:
-    """Stokes images ``(h, w, 3, 4)``: a shaded, partly polarized disc on a black background.
-
-    The disc's s0 falls off towards the limb (to 20 % of the centre, like a diffuse sphere), its
-    polarized part is display light (``s1 = -0.3 s0``); ``dark_patch`` puts a patch at 0.2 % of
-    the brightness (below the noise floor: dark metal) in its middle.
-    """
-    y, x = np.mgrid[0:h, 0:w] + 0.0
-    r = np.hypot(y - h / 2, x - w / 2) / radius
-    s0 = np.where(r < 1, level * (0.2 + 0.8 * np.sqrt(np.clip(1 - r**2, 0, 1))), 0.0)
-    if dark_patch:
-        s0 = np.where((np.abs(y - h / 2) < radius / 4) & (np.abs(x - w / 2) < radius / 3), 0.002 * s0, s0)
-    st = np.zeros((h, w, 3, 4))
-    for c, tint in enumerate((1.0, 0.8, 0.6)):
-        st[..., c, 0] = tint * s0
-        st[..., c, 1] = -0.3 * tint * s0
-    return st
 
 
 def _disc_truth(h: int, w: int, radius: float) -> np.ndarray:
@@ -231,7 +213,7 @@ class TestCaptureForeground:
     def test_synthetic_disc(self, rng, dark_patch):
         h, w, radius = 256, 320, 90.0
         model = CameraModel()
-        raws = simulate_capture(_disc_scene(h, w, radius, dark_patch=dark_patch), model, rng=rng)
+        raws = simulate_capture(disc_stokes(h, w, radius, dark_patch=dark_patch), model, rng=rng)
         dec = decode(raws, model)
         mask = fg.capture_foreground(dec, model)
         truth = _disc_truth(h, w, radius)
@@ -242,7 +224,7 @@ class TestCaptureForeground:
     def test_dim_object_and_hot_pixels(self, rng):
         h, w, radius = 256, 320, 90.0
         model = CameraModel()
-        raws = simulate_capture(_disc_scene(h, w, radius, level=0.002), model, rng=rng)
+        raws = simulate_capture(disc_stokes(h, w, radius, level=0.002), model, rng=rng)
         raws[:, [10, 200, 250], [300, 20, 300]] = 4000  # hot pixels in the background
         mask = fg.capture_foreground(decode(raws, model), model)
         assert _iou(mask, _disc_truth(h, w, radius)) >= 0.9
