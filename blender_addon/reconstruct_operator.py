@@ -116,6 +116,8 @@ def _finish(op: PDIR_OT_reconstruct_capture, context: bpy.types.Context, job) ->
     if job.state != "done":
         op.report({"ERROR"}, one_line(f"Reconstruction of {job.name} failed: {job.error}"))
         return {"CANCELLED"}
+    for line in reconstruct_job.warning_lines(job.stderr):  # the capture's warnings, as a terminal shows them
+        op.report({"WARNING"}, one_line(line))
     relief = not job.card
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", PBRImportWarning)

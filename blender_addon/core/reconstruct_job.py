@@ -51,6 +51,7 @@ __all__ = [
     "expected_outputs",
     "find_outputs",
     "parse_progress",
+    "warning_lines",
     "repository_root",
 ]
 
@@ -188,6 +189,20 @@ def estimate_fraction(elapsed: float, expected: float = EXPECTED_SECONDS) -> flo
         (0.0, 0.82, True)
     """
     return MAX_ESTIMATE * (1.0 - math.exp(-2.0 * max(elapsed, 0.0) / expected))
+
+
+def warning_lines(stderr: Sequence[str]) -> list[str]:
+    """The script's ``warning: ...`` lines, prefix removed, each once in order: what a finished job reports.
+
+    The capture's own warnings (no distance, no dark frames, a mask that fills the frame) reach a
+    terminal user on stderr; in Blender they become the operator's WARNING reports.
+
+    Example:
+        >>> warning_lines(["progress: 0.5 x", "warning: cap: no distance_m", "warning: cap: no distance_m", "w"])
+        ['cap: no distance_m']
+    """
+    lines = (ln.strip() for ln in stderr)
+    return list(dict.fromkeys(ln.removeprefix("warning:").strip() for ln in lines if ln.startswith("warning:")))
 
 
 def error_line(stderr: Sequence[str], returncode: int | None) -> str:

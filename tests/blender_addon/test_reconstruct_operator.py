@@ -101,6 +101,9 @@ STAND_IN = textwrap.dedent(
     mode = (cap / "mode.txt").read_text().strip()
     if not mode.startswith("silent"):
         print("progress: 0.40 predicting the maps", flush=True)
+    if mode == "warn":
+        print("warning: " + str(cap) + ": no distance_m; 0.75 m assumed", file=sys.stderr)
+        print("warning: " + str(cap) + ": no distance_m; 0.75 m assumed", file=sys.stderr)
     if mode == "fail":
         print("warning: something", file=sys.stderr)
         print("error: " + str(cap) + ": nothing usable", file=sys.stderr)
@@ -373,6 +376,21 @@ def test_modal_run_to_the_end_imports_or_reports_one_line(bpy, reconstruct, monk
     ((kind, text),) = reports
     assert kind == {"ERROR"} and text.startswith("Reconstructed cap, but the import failed: ") and "\n" not in text
     assert (job.out / "cap_normal.exr").is_file() and reconstruct.running_job() is None and status[-1] is None
+
+
+@pytest.mark.bpy
+def test_the_scripts_warnings_become_warning_reports(bpy, reconstruct, monkeypatch, tmp_path):
+    op, reports, context, wm, status, job = _modal_op(reconstruct, monkeypatch, tmp_path, "warn")
+    cls = reconstruct.PDIR_OT_reconstruct_capture
+    assert cls.invoke(op, context, _event("LEFTMOUSE")) == {"RUNNING_MODAL"}
+    result = {"RUNNING_MODAL"}
+    while result == {"RUNNING_MODAL"}:
+        assert job.elapsed < 30
+        time.sleep(0.05)
+        result = cls.modal(op, context, _event("TIMER"))
+    # one WARNING per distinct warning line (a terminal user sees them on stderr), then the import's one ERROR
+    assert job.state == "done" and [k for k, _ in reports] == [{"WARNING"}, {"ERROR"}]
+    assert reports[0][1] == f"{job.capture}: no distance_m; 0.75 m assumed"
 
 
 class _Layout:
