@@ -17,7 +17,11 @@ keeps out what the re-renderer cannot explain: grazing normals (``n . v`` small)
 saturated pixels, pixels brighter in LP than in unpol (metal-like), and, through the robust loss,
 cast shadows and interreflections. The scale is searched within :data:`SCALE_RANGE` only; an
 object with too few confident pixels keeps the network's albedo, and so does every object when
-the fit does not lower the re-rendering loss, and the result says so.
+the fit does not lower the re-rendering loss, and the result says so. Per object, the guard
+(:mod:`network.refine_guard`) keeps the network's albedo where the decoded LP is not the lobe the
+re-renderer predicts (a measured material, a metal, a shadow) or the fitted scale darkens it below
+the guard's floor, and applies ``s ** shrink`` (the MAP with the network's albedo as a log-normal
+prior) elsewhere; it also says which objects' roughness may be refined.
 
 The scale needs calibrated radiometry (the display radiance in the maps' units) and the object's
 distance; without the radiance nothing is refined, without the distance the rig's default is used
@@ -179,6 +183,7 @@ def refine(
     *,
     seed: int = 0,
     roughness: bool = False,
+    guard: GuardParams | None = None,
 ) -> RefineResult:
     """Refine the network's albedo scale per object against the decoded unpol (module docs), and its roughness.
 
@@ -194,11 +199,12 @@ def refine(
         distance_m: the object's distance in m (default :data:`pbrdf.data.capture.DEFAULT_DISTANCE_M`).
         seed: pixel sampling seed.
         roughness: also refine the roughness per object.
+        guard: when the re-renderer is not trusted (default :data:`network.refine_guard.GUARD`).
 
     Returns:
         :class:`RefineResult`; its maps are finite, the albedo in [0, 1].
     """
-    res = _refine_albedo(pred, maps, intrinsics, rig, radiance, distance_m, seed=seed)
+    res = _refine_albedo(pred, maps, intrinsics, rig, radiance, distance_m, seed=seed, guard=guard)
     if not roughness:
         return res
     from .refine_roughness import refine_roughness  # noqa: PLC0415
@@ -315,6 +321,7 @@ def _refine_albedo(
     distance_m: float | None,
     *,
     seed: int,
+    guard: GuardParams | None = None,
 ) -> RefineResult:
     """The albedo half of :func:`refine`."""
     start = time.perf_counter()
@@ -328,7 +335,7 @@ def _refine_albedo(
     if not mask.any():
         return keep("not refined: the mask is empty")
     t = albedo_terms(pred, maps, intrinsics, rig, radiance, distance_m, seed=seed)
-    res = albedo_from_terms(pred, t, refine_guard.GUARD)
+    res = albedo_from_terms(pred, t, guard or refine_guard.GUARD)
     res.seconds = time.perf_counter() - start
     return res
 

@@ -48,9 +48,9 @@ class GuardParams:
     """
 
     scale: tuple[float, float] = (0.6, 4.0)
-    albedo_lp_gain: tuple[float, float] = (0.2, float("inf"))
+    albedo_lp_gain: tuple[float, float] = (0.2, 1.5)
     lp_gain: tuple[float, float] = (0.45, float("inf"))
-    shrink: float = 1.0
+    shrink: float = 0.5
     min_lp: float = 0.0
 
 

@@ -4,7 +4,8 @@ re-renderer's material, and lets the refinement correct a plastic the renderer m
 Fires: a capture whose LP is far below (or opposite to) the lobe the re-renderer predicts, as a measured
 table's is (docs/measurements/refine.md: ~40 % lower, often of the other sign), and a capture darker than any
 albedo scale the guard accepts (a cast shadow over the object). Does not fire: Mitsuba's polarized ``pplastic``
-sphere through the renderer's whole pipeline (render, camera, decode), whose albedo is still corrected.
+sphere through the renderer's whole pipeline (render, camera, decode), whose albedo is still corrected (by
+the guard's shrink, half the fitted log scale).
 """
 
 import numpy as np
@@ -51,7 +52,10 @@ def test_fires_on_a_scale_darker_than_it_accepts():
     dimmer = maps.copy()
     dimmer[..., :3] *= 0.8  # a darker albedo than the network's, within the window: corrected
     fixed = rf.refine(truth, dimmer, K, Rig(), 1.0, DIST)
-    assert fixed.refined and fixed.scales[1] == pytest.approx(0.8, rel=0.05)
+    assert fixed.refined and fixed.guard[1]["fitted"] == pytest.approx(0.8, rel=0.05)
+    # Applied: the MAP with the network's albedo as the prior, s ** shrink (0.5: half the fit's log step).
+    assert fixed.scales[1] == pytest.approx(fixed.guard[1]["fitted"] ** rg.GUARD.shrink, rel=1e-6)
+    assert 0.8 < fixed.scales[1] < 1.0
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +94,8 @@ def test_does_not_fire_on_a_mitsuba_plastic(mitsuba_plastic, factor):
     (g,) = res.guard.values()
     assert g["albedo"] is None and g["roughness"] is None, g
     assert 0.7 < g["lp_gain"] < 1.4  # the renderer's plastic LP is the re-renderer's lobe (4 % lower, measured)
-    assert res.refined
+    assert res.refined and g["fitted"] * factor == pytest.approx(1.0, abs=0.1)  # the fit finds the truth
     mask = truth["mask"][..., 0] > 0
     ratio = res.pred["albedo"][mask].sum() / truth["albedo"][mask].sum()
-    assert abs(ratio - 1.0) < 0.1  # started 50 % / 60 % off
+    # The applied step is half the log error (shrink 0.5): 0.5 -> 0.71, 1.6 -> 1.26.
+    assert abs(np.log(ratio)) == pytest.approx(abs(np.log(factor)) * (1 - rg.GUARD.shrink), abs=0.06)
