@@ -57,7 +57,7 @@ class GuardParams:
 #: The guard the refinement applies.
 GUARD = GuardParams()
 #: No guard (for measuring what it does; the scale search's own range still applies).
-OFF = GuardParams((0.0, float("inf")), (-float("inf"), float("inf")), (-float("inf"), float("inf")))
+OFF = GuardParams((0.0, float("inf")), (-float("inf"), float("inf")), (-float("inf"), float("inf")), shrink=1.0)
 
 
 def lp_gain(obs_lp: np.ndarray, model_lp: np.ndarray, weight: np.ndarray) -> float:
