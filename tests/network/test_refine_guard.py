@@ -99,3 +99,26 @@ def test_does_not_fire_on_a_mitsuba_plastic(mitsuba_plastic, factor):
     ratio = res.pred["albedo"][mask].sum() / truth["albedo"][mask].sum()
     # The applied step is half the log error (shrink 0.5): 0.5 -> 0.71, 1.6 -> 1.26.
     assert abs(np.log(ratio)) == pytest.approx(abs(np.log(factor)) * (1 - rg.GUARD.shrink), abs=0.06)
+
+
+@pytest.mark.parametrize("case", ["dark", "empty", "tiny", "uncalibrated"])
+def test_guarded_refinement_is_finite_and_keeps_the_network_on_bad_input(case):
+    truth, maps = _scene(roughness=0.3)
+    start = _with_albedo(truth, 0.5)
+    start["roughness"] = np.where(truth["mask"] > 0, 0.6, 0.0).astype(np.float32)  # what a fit would move
+    radiance = None if case == "uncalibrated" else 1.0
+    if case == "dark":
+        maps = np.zeros_like(maps)
+    elif case == "empty":
+        start = {**start, "mask": np.zeros_like(start["mask"])}
+    elif case == "tiny":
+        one = np.zeros_like(start["mask"])
+        one[20, 20] = 1.0
+        start = {**start, "mask": one}
+    res = rf.refine(start, maps, K, Rig(), radiance, DIST, roughness=True)
+    assert not res.refined
+    for k, v in res.pred.items():
+        assert np.isfinite(v).all(), k
+    np.testing.assert_array_equal(res.pred["roughness"], start["roughness"])
+    for g in res.guard.values():
+        assert np.isfinite(g.get("lp_gain", 0.0)) or g.get("roughness")  # no gain: no roughness refined
