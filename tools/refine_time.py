@@ -3,8 +3,9 @@
 PYTHONPATH=. python tools/refine_time.py [ROOT [INDEX]] [--roughness] [--runs N]
 
 The default scene is test-procedural scene 0; ``--roughness`` times the whole refinement (albedo and
-roughness, :func:`network.refine.refine` with ``roughness=True``). One torch thread per process
-when ``OMP_NUM_THREADS=1`` is set (the shared machine), else two.
+roughness, :func:`network.refine.refine` with ``roughness=True``). Wall and CPU seconds: on a shared,
+loaded machine the wall time of a ``nice`` process says more about the neighbours than the refinement.
+One torch thread per process when ``OMP_NUM_THREADS=1`` is set (the shared machine), else two.
 """
 
 import argparse
@@ -41,9 +42,11 @@ k = inp.intrinsics.copy()
 k[:2] *= f
 print("mask bbox", np.ptp(np.nonzero(mask)[0]) + 1, "pixels", mask.sum())
 pred = predict(model, maps, mask, inputs=ck["inputs"], input_scale=ck["input_scale"], radiance=inp.radiance)
-ts = []
+ts, cpu = [], []
 for _ in range(args.runs):
-    t = time.perf_counter()
+    t, c = time.perf_counter(), time.process_time()
     r = refine(pred, maps, k, Rig.from_dict(meta["rig"]), inp.radiance, 0.7, roughness=args.roughness)
     ts.append(time.perf_counter() - t)
-print("refine s", [round(x, 2) for x in ts], "median", round(float(np.median(ts)), 2), r.message)
+    cpu.append(time.process_time() - c)
+print("refine wall s", [round(x, 2) for x in ts], "median", round(float(np.median(ts)), 2))
+print("refine CPU s (all threads)", [round(x, 2) for x in cpu], "median", round(float(np.median(cpu)), 2), r.message)
