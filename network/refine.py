@@ -302,7 +302,7 @@ def guard_objects(terms: dict[str, np.ndarray], params: GuardParams | None = Non
         model_unpol = float(np.sum(w[:, None] * (terms["diffuse"][sel] + terms["leak"][sel])))
         share = float(np.sum(w[:, None] * terms["lp"][sel])) / max(model_unpol, 1e-30)
         out[int(lab)] = {
-            "lp_gain": gain,
+            "lp_gain": gain if np.isfinite(gain) else None,  # None: strict JSON in the evaluation rows
             "lp_share": share,
             "albedo": refine_guard.lp_untrusted(gain, share, params, params.albedo_lp_gain),
             "roughness": refine_guard.lp_untrusted(gain, share, params),
