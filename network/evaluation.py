@@ -323,7 +323,8 @@ def _refined(ours, fallback, inp, gt: dict, region: np.ndarray, auto: np.ndarray
     distance = float(np.median(depth[valid])) if valid is not None and valid.any() else inp.distance_m
     res = refine(ours, inp.maps, inp.intrinsics, inp.rig or Rig(), inp.radiance, distance, roughness=REFINE_ROUGHNESS)
     info = {"refined": res.refined, "seconds": res.seconds, "message": res.message,
-            "roughness": {str(k): v for k, v in res.roughness.items()}}  # fmt: skip
+            "roughness": {str(k): v for k, v in res.roughness.items()},
+            "guard": {str(k): v for k, v in res.guard.items()}}  # fmt: skip
     return _fill_nearest(res.pred, auto, region), info
 
 

@@ -17,7 +17,11 @@ keeps out what the re-renderer cannot explain: grazing normals (``n . v`` small)
 saturated pixels, pixels brighter in LP than in unpol (metal-like), and, through the robust loss,
 cast shadows and interreflections. The scale is searched within :data:`SCALE_RANGE` only; an
 object with too few confident pixels keeps the network's albedo, and so does every object when
-the fit does not lower the re-rendering loss, and the result says so.
+the fit does not lower the re-rendering loss, and the result says so. Per object, the guard
+(:mod:`network.refine_guard`) keeps the network's albedo where the decoded LP is not the lobe the
+re-renderer predicts (a measured material, a metal, a shadow) or the fitted scale darkens it below
+the guard's floor, and applies ``s ** shrink`` (the MAP with the network's albedo as a log-normal
+prior) elsewhere; it also says which objects' roughness may be refined.
 
 The scale needs calibrated radiometry (the display radiance in the maps' units) and the object's
 distance; without the radiance nothing is refined, without the distance the rig's default is used
@@ -39,10 +43,12 @@ import torch
 
 from pbrdf.data.capture_meta import DEFAULT_DISTANCE_M
 
+from . import refine_guard
+from .refine_guard import GuardParams
 from .rerender import display_patches, points_from_depth, rerender
 
-__all__ = ["MAX_PIXELS", "PATCHES", "REFINE_ROUGHNESS", "SCALE_RANGE", "RefineResult", "object_scales", "refine",
-           "refine_input"]  # fmt: skip
+__all__ = ["MAX_PIXELS", "PATCHES", "REFINE_ROUGHNESS", "SCALE_RANGE", "RefineResult", "albedo_from_terms",
+           "albedo_terms", "guard_objects", "object_scales", "refine", "refine_input", "scaled_loss"]  # fmt: skip
 
 #: Pixels re-rendered per capture (sampled evenly over the objects; the scale needs no more).
 MAX_PIXELS = 2048
@@ -74,6 +80,7 @@ class RefineResult:
         message: one line for the user.
         roughness: per object, what the roughness refinement did (:class:`network.refine_roughness.RoughnessResult`'s
             ``objects``; empty when it did not run).
+        guard: per object, the guard's cue and verdict (:func:`guard_objects`).
     """
 
     pred: dict[str, np.ndarray]
@@ -84,6 +91,7 @@ class RefineResult:
     seconds: float = 0.0
     message: str = ""
     roughness: dict[int, dict] = field(default_factory=dict)
+    guard: dict[int, dict] = field(default_factory=dict)
 
 
 def _cauchy(r: np.ndarray) -> np.ndarray:
@@ -133,12 +141,18 @@ def object_scales(
             out[int(lab)] = s
             scale[labels == lab] = s
 
-    def loss(sc: np.ndarray) -> float:
-        fit = sc[:, None] * diffuse + leak
-        r = (obs - fit) / (np.abs(obs) + np.abs(fit) + 1e-6)
-        return float(np.sum(weight[:, None] * _cauchy(r)) / max(3 * float(weight.sum()), 1e-12))
+    return (
+        out,
+        scaled_loss(obs, diffuse, leak, weight, np.ones_like(scale)),
+        scaled_loss(obs, diffuse, leak, weight, scale),
+    )
 
-    return out, loss(np.ones_like(scale)), loss(scale)
+
+def scaled_loss(obs: np.ndarray, diffuse: np.ndarray, leak: np.ndarray, weight: np.ndarray, scale: np.ndarray) -> float:
+    """Weighted mean Cauchy loss of the relative unpol residual with per-pixel scales ``scale`` ``(P,)``."""
+    fit = scale[:, None] * diffuse + leak
+    r = (obs - fit) / (np.abs(obs) + np.abs(fit) + 1e-6)
+    return float(np.sum(weight[:, None] * _cauchy(r)) / max(3 * float(weight.sum()), 1e-12))
 
 
 def _confidence(maps: np.ndarray, pred: dict[str, np.ndarray], view_cos: np.ndarray) -> np.ndarray:
@@ -169,6 +183,7 @@ def refine(
     *,
     seed: int = 0,
     roughness: bool = False,
+    guard: GuardParams | None = None,
 ) -> RefineResult:
     """Refine the network's albedo scale per object against the decoded unpol (module docs), and its roughness.
 
@@ -184,16 +199,22 @@ def refine(
         distance_m: the object's distance in m (default :data:`pbrdf.data.capture_meta.DEFAULT_DISTANCE_M`).
         seed: pixel sampling seed.
         roughness: also refine the roughness per object.
+        guard: when the re-renderer is not trusted (default :data:`network.refine_guard.GUARD`).
 
     Returns:
         :class:`RefineResult`; its maps are finite, the albedo in [0, 1].
     """
-    res = _refine_albedo(pred, maps, intrinsics, rig, radiance, distance_m, seed=seed)
+    res = _refine_albedo(pred, maps, intrinsics, rig, radiance, distance_m, seed=seed, guard=guard)
     if not roughness:
         return res
     from .refine_roughness import refine_roughness  # noqa: PLC0415
 
-    rough = refine_roughness(res.pred, maps, intrinsics, rig, float(distance_m or DEFAULT_DISTANCE_M), seed=seed)
+    if not res.guard:  # uncalibrated or empty: the LP's level, the guard's cue, is unknown
+        res.message += "; roughness kept: the guard needs the display radiance"
+        return res
+    skip = {k: g["roughness"] for k, g in res.guard.items() if g.get("roughness")}
+    rough = refine_roughness(res.pred, maps, intrinsics, rig, float(distance_m or DEFAULT_DISTANCE_M), seed=seed,
+                             skip=skip)  # fmt: skip
     res.pred, res.roughness = rough.pred, rough.objects
     res.refined = res.refined or rough.refined
     res.seconds += rough.seconds
@@ -201,29 +222,36 @@ def refine(
     return res
 
 
-def _refine_albedo(
+def albedo_terms(
     pred: dict[str, np.ndarray],
     maps: np.ndarray,
     intrinsics: np.ndarray,
     rig,
-    radiance: float | None,
+    radiance: float,
     distance_m: float | None,
     *,
-    seed: int,
-) -> RefineResult:
-    """The albedo half of :func:`refine`."""
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
+    """What the albedo fit and its guard see at the sampled pixels (one re-rendering of the network's maps).
+
+    Args:
+        pred: :func:`network.infer.predict`'s maps ``(H, W, C)`` with ``mask``.
+        maps: ``(H, W, 9)`` the decoded maps.
+        intrinsics: ``K (3, 3)``.
+        rig: the capture's rig.
+        radiance: the display radiance in the maps' units (> 0).
+        distance_m: the object's distance in m (None: the default).
+        seed: pixel sampling seed.
+
+    Returns:
+        ``idx`` ``(P,)`` flat pixel indices, ``labels`` ``(H, W)`` components of the mask, ``lab`` ``(P,)``,
+        ``obs`` ``(P, 9)`` decoded maps in the display's radiance units, ``diffuse`` and ``leak`` ``(P, 3)``
+        (the unpol is ``s diffuse + leak`` for an albedo scale ``s``), ``lp`` ``(P, 3)`` the re-rendered LP,
+        ``weight`` ``(P,)`` the confidence.
+    """
     from scipy import ndimage  # noqa: PLC0415
 
-    start = time.perf_counter()
     mask = pred["mask"][..., 0] > 0
-
-    def keep(message: str, before=None, after=None) -> RefineResult:
-        return RefineResult(pred, False, before, after, {}, time.perf_counter() - start, message)
-
-    if radiance is None or not radiance > 0:
-        return keep("not refined: the capture's radiometry is relative (no display radiance)")
-    if not mask.any():
-        return keep("not refined: the mask is empty")
     labels, _ = ndimage.label(mask)
     idx = _sample(mask, np.random.default_rng(seed))
     h, w = mask.shape
@@ -244,18 +272,107 @@ def _refine_albedo(
     # The specular lobe's share in unpol, (1 - g) / g of its LP for the display's mean LP gain g
     # (1 for the default, fully polarized display: no leak); one re-rendering instead of two.
     g = float(patches.lp_gain.mean())
-    leak = unit["lp"][0].T.double().numpy() * ((1.0 - g) / g if g > 0.05 else 0.0)
+    lp = unit["lp"][0].T.double().numpy()
+    leak = lp * ((1.0 - g) / g if g > 0.05 else 0.0)
     diffuse = (unit["unpol"][0].T.double().numpy() - leak).clip(min=0.0) * p["albedo"]
-    obs = maps.reshape(h * w, -1)[idx].astype(np.float64) * (float(rig.display.radiance) / radiance)
+    obs = np.nan_to_num(maps.reshape(h * w, -1)[idx].astype(np.float64) * (float(rig.display.radiance) / radiance))
     view = -pts[0].T.numpy().astype(np.float64)
     view_cos = np.sum(p["normal"] * view, 1) / np.maximum(np.linalg.norm(view, axis=1), 1e-12)
-    weight = _confidence(obs, p, view_cos)
-    scales, before, after = object_scales(obs[:, :3], diffuse, leak, weight, labels.reshape(-1)[idx])
+    return {"idx": idx, "labels": labels, "lab": labels.reshape(-1)[idx], "obs": obs, "diffuse": diffuse,
+            "leak": leak, "lp": lp, "weight": _confidence(obs, p, view_cos)}  # fmt: skip
+
+
+def guard_objects(terms: dict[str, np.ndarray], params: GuardParams | None = None) -> dict[int, dict]:
+    """Per component: its LP gain and share (:mod:`network.refine_guard`) and why its roughness is not refined.
+
+    Args:
+        terms: :func:`albedo_terms`.
+        params: the guard (default :data:`network.refine_guard.GUARD`).
+
+    Returns:
+        component id -> ``{"lp_gain", "lp_share", "roughness"}`` (``roughness``: the reason, or None) for
+        components with confident pixels; every other component gets ``{"roughness": reason}``.
+    """
+    params = params or refine_guard.GUARD
+    out = {}
+    for lab in np.unique(terms["lab"][terms["weight"] > 0]).tolist():
+        sel = (terms["lab"] == lab) & (terms["weight"] > 0)
+        w = terms["weight"][sel]
+        gain = refine_guard.lp_gain(terms["obs"][sel, 3:6], terms["lp"][sel], w)
+        model_unpol = float(np.sum(w[:, None] * (terms["diffuse"][sel] + terms["leak"][sel])))
+        share = float(np.sum(w[:, None] * terms["lp"][sel])) / max(model_unpol, 1e-30)
+        out[int(lab)] = {
+            "lp_gain": gain if np.isfinite(gain) else None,  # None: strict JSON in the evaluation rows
+            "lp_share": share,
+            "albedo": refine_guard.lp_untrusted(gain, share, params, params.albedo_lp_gain),
+            "roughness": refine_guard.lp_untrusted(gain, share, params),
+        }
+    for lab in range(1, int(terms["labels"].max()) + 1):
+        out.setdefault(lab, {"roughness": "no confident pixels to check its LP against the re-renderer"})
+    return out
+
+
+def _refine_albedo(
+    pred: dict[str, np.ndarray],
+    maps: np.ndarray,
+    intrinsics: np.ndarray,
+    rig,
+    radiance: float | None,
+    distance_m: float | None,
+    *,
+    seed: int,
+    guard: GuardParams | None = None,
+) -> RefineResult:
+    """The albedo half of :func:`refine`."""
+    start = time.perf_counter()
+    mask = pred["mask"][..., 0] > 0
+
+    def keep(message: str) -> RefineResult:
+        return RefineResult(pred, False, None, None, {}, time.perf_counter() - start, message)
+
+    if radiance is None or not radiance > 0:
+        return keep("not refined: the capture's radiometry is relative (no display radiance)")
+    if not mask.any():
+        return keep("not refined: the mask is empty")
+    t = albedo_terms(pred, maps, intrinsics, rig, radiance, distance_m, seed=seed)
+    res = albedo_from_terms(pred, t, guard or refine_guard.GUARD)
+    res.seconds = time.perf_counter() - start
+    return res
+
+
+def albedo_from_terms(
+    pred: dict[str, np.ndarray], t: dict[str, np.ndarray], params: GuardParams | None = None
+) -> RefineResult:
+    """The guarded per-object albedo scales from :func:`albedo_terms` and the refined maps.
+
+    Args:
+        pred: the network's maps.
+        t: :func:`albedo_terms` of ``pred``.
+        params: the guard (default :data:`network.refine_guard.GUARD`).
+
+    Returns:
+        :class:`RefineResult` (``seconds`` 0).
+    """
+    mask = pred["mask"][..., 0] > 0
+    params = params or refine_guard.GUARD
+    guard = guard_objects(t, params)
+    labels = t["labels"]
+    fitted, before, _ = object_scales(t["obs"][:, :3], t["diffuse"], t["leak"], t["weight"], t["lab"])
+    scales = {}
+    for lab, s in fitted.items():
+        g = guard.setdefault(lab, {})
+        g["fitted"] = s
+        g["albedo"] = g.get("albedo") or refine_guard.scale_untrusted(s, params)
+        if g["albedo"] is None:
+            scales[lab] = float(s**params.shrink)
+    per_pixel = np.array([scales.get(int(k), 1.0) for k in t["lab"]])
+    after = scaled_loss(t["obs"][:, :3], t["diffuse"], t["leak"], t["weight"], per_pixel)
     if not scales:
-        return keep("not refined: no object with enough confident dielectric pixels", before, before)
+        return RefineResult(pred, False, before, before, {}, 0.0, "not refined: no object with enough confident "
+                            "dielectric pixels the re-renderer explains", guard=guard)  # fmt: skip
     if not after < before:
-        return keep(f"not refined: the fit did not lower the re-rendering loss ({before:.4f} -> {after:.4f})",
-                    before, before)  # fmt: skip
+        return RefineResult(pred, False, before, before, {}, 0.0, f"not refined: the fit did not lower the "
+                            f"re-rendering loss ({before:.4f} -> {after:.4f})", guard=guard)  # fmt: skip
     gain = np.ones(mask.shape, np.float32)
     for lab, s in scales.items():
         gain[labels == lab] = s
@@ -263,9 +380,9 @@ def _refine_albedo(
     albedo = np.where(dielectric[..., None], np.clip(pred["albedo"] * gain[..., None], 0.0, 1.0), pred["albedo"])
     out = {**pred, "albedo": np.where(mask[..., None], albedo, 0.0).astype(np.float32)}
     shown = ", ".join(f"{s:.2f}" for s in scales.values())
-    return RefineResult(out, True, before, after, scales, time.perf_counter() - start,
+    return RefineResult(out, True, before, after, scales, 0.0,
                         f"refined the albedo scale of {len(scales)} object(s) ({shown}); re-rendering loss "
-                        f"{before:.4f} -> {after:.4f}")  # fmt: skip
+                        f"{before:.4f} -> {after:.4f}", guard=guard)  # fmt: skip
 
 
 def refine_input(pred: dict[str, np.ndarray], inp) -> RefineResult:

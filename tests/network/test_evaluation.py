@@ -55,7 +55,9 @@ def test_refinement_row_is_paired_with_the_network(test_split):
     model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
     result = evaluation.evaluate_dataset(model, ckpt, test_split, STATS, lpips=False, refine=True, limit=2)
     for row in result["per_scene"]:
-        assert set(row["refine"]) == {"refined", "seconds", "message", "roughness"}
+        assert set(row["refine"]) == {"refined", "seconds", "message", "roughness", "guard"}
+        for g in row["refine"]["guard"].values():  # per object, the guard's verdicts (None: refined)
+            assert set(g) >= {"roughness"} and (g.get("lp_gain") is None or np.isfinite(g["lp_gain"]))
         # The refinement changes the albedo scale and the roughness per object: the normals are the network's,
         # and so is the roughness wherever every object kept it.
         assert row["refined"]["normal_mae"] == row["ours"]["normal_mae"]

@@ -6,16 +6,21 @@ wrong one and must find the true scale, or keep the network's maps where it cann
 """
 
 import functools
+from dataclasses import replace
 
 import numpy as np
 import pytest
 import torch
 
 from network import refine as rf
+from network import refine_guard as rg
 from network.rerender import display_patches, points_from_depth, rerender
 from pbrdf.sensor.rig import Rig
 
 SIZE, DIST = 40, 0.6
+#: The default guard with the fitted scale applied in full (these tests check the fit; the shrink towards the
+#: network's albedo is tests/network/test_refine_guard.py's).
+FULL_STEP = replace(rg.GUARD, shrink=1.0)
 K = np.array([[300.0, 0.0, SIZE / 2], [0.0, 300.0, SIZE / 2], [0.0, 0.0, 1.0]])
 
 
@@ -66,7 +71,7 @@ def _with_albedo(pred, factor):
 @pytest.mark.parametrize("factor", [0.5, 1.6])
 def test_recovers_the_true_albedo_scale(factor):
     truth, maps = _scene()
-    res = rf.refine(_with_albedo(truth, factor), maps, K, Rig(), 1.0, DIST)
+    res = rf.refine(_with_albedo(truth, factor), maps, K, Rig(), 1.0, DIST, guard=FULL_STEP)
     assert res.refined and res.loss_after < res.loss_before
     mask = truth["mask"][..., 0] > 0
     ratio = res.pred["albedo"][mask].sum() / truth["albedo"][mask].sum()
@@ -79,7 +84,7 @@ def test_one_scale_per_object():
         **truth,
         "albedo": np.where(truth["mask"] > 0, 0.3, 0.0).repeat(3, -1).astype(np.float32),
     }  # grey everywhere
-    res = rf.refine(start, maps, K, Rig(), 1.0, DIST)
+    res = rf.refine(start, maps, K, Rig(), 1.0, DIST, guard=FULL_STEP)
     assert len(res.scales) == 2
     left, right = sorted(res.scales.items())
     # The right object is half as bright; each gets its own scale (albedo 0.433 mean -> 0.3 start).
@@ -90,7 +95,7 @@ def test_robust_to_a_cast_shadow():
     truth, maps = _scene()
     shadowed = maps.copy()
     shadowed[: SIZE // 2 - 6, :, :6] *= 0.1  # another object shadows the top of this one
-    res = rf.refine(_with_albedo(truth, 0.5), shadowed, K, Rig(), 1.0, DIST)
+    res = rf.refine(_with_albedo(truth, 0.5), shadowed, K, Rig(), 1.0, DIST, guard=FULL_STEP)
     mask = truth["mask"][..., 0] > 0
     ratio = res.pred["albedo"][mask].sum() / truth["albedo"][mask].sum()
     assert abs(ratio - 1.0) < 0.1  # least squares would land near 0.6
@@ -98,7 +103,7 @@ def test_robust_to_a_cast_shadow():
 
 def test_maps_scale_follows_the_display_radiance():
     truth, maps = _scene()
-    res = rf.refine(_with_albedo(truth, 0.5), maps * 4.0, K, Rig(), 4.0, DIST)  # maps in other units
+    res = rf.refine(_with_albedo(truth, 0.5), maps * 4.0, K, Rig(), 4.0, DIST, guard=FULL_STEP)  # maps in other units
     mask = truth["mask"][..., 0] > 0
     assert res.pred["albedo"][mask].sum() / truth["albedo"][mask].sum() == pytest.approx(1.0, abs=0.05)
 
