@@ -281,6 +281,8 @@ def predict_scene(
     constant = constant_predict(stats, region)
     preds: dict[str, Mapping[str, np.ndarray]] = {"constant": constant}
     ours = None
+    # Colour photometric stereo needs the colour regions: n/a under a white display, or when not asked for.
+    with_ps = baseline and (meta.get("rig") or {}).get("display", {}).get("pattern", "rgb_halves") != "white"
     if auto.any():
         try:
             light = scene_light(model, inp, sample.get("depth"), region, distance_scale)
@@ -289,13 +291,14 @@ def predict_scene(
         except NothingToReconstruct:  # a mask that vanishes at the network's grid: nothing was reconstructed
             ours = None
         preds["ours"] = _fill_nearest(ours, auto, region) if ours is not None else constant
-        if not baseline or (meta.get("rig") or {}).get("display", {}).get("pattern", "rgb_halves") == "white":
-            preds["baseline"] = {}  # not asked for, or n/a: colour photometric stereo needs the colour regions
+        if not with_ps:
+            preds["baseline"] = {}
         else:
             found = ps.predict_sample(maps, auto, meta)
             preds["baseline"] = _fill_nearest({k: found[k] for k in ("normal", "albedo")}, auto, region)
-    else:
-        preds["ours"] = preds["baseline"] = constant
+    else:  # nothing detected: every method falls back to the constant, photometric stereo on its own maps only
+        preds["ours"] = constant
+        preds["baseline"] = {k: constant[k] for k in ("normal", "albedo")} if with_ps else {}
     gt = {k: sample[k] for k in ("normal", "albedo", "roughness", "metallic")}
     k = None
     if "depth" in sample:

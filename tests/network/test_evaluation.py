@@ -1,5 +1,6 @@
 """network/evaluation.py and headless/evaluate.py: the one evaluation, through the capture path or stored maps."""
 
+import dataclasses
 import subprocess
 import sys
 from pathlib import Path
@@ -49,6 +50,20 @@ def test_every_row_is_scored_on_the_object_coverage(test_split):
         assert row["baseline"]["roughness_rmse"] is None  # photometric stereo predicts no roughness
     ours = result["methods"]["ours"]["normal_mae"]
     assert ours["ci"][0] <= ours["mean"] <= ours["ci"][1]
+
+
+def test_nothing_detected_scores_the_constant_and_no_baseline_brdf(test_split, monkeypatch):
+    """A scene whose automatic mask is empty (a dark metal): the constant stands in, photometric stereo
+    still predicts no roughness or metallic (it once borrowed the constant's, test-meshes scene 0)."""
+    decode = evaluation.load_input
+    monkeypatch.setattr(
+        evaluation, "load_input", lambda *a, **k: dataclasses.replace(inp := decode(*a, **k), mask=0 * inp.mask)
+    )
+    model, ckpt = load_checkpoint(DEFAULT_CHECKPOINT)
+    row = evaluation.evaluate_dataset(model, ckpt, test_split, STATS, lpips=False, limit=1)["per_scene"][0]
+    assert row["ours"] == row["constant"] and row["mask_iou"] == 0.0
+    assert row["baseline"]["normal_mae"] == row["constant"]["normal_mae"]
+    assert row["baseline"]["roughness_rmse"] is None and row["baseline"]["metallic_rmse"] is None
 
 
 def test_refinement_row_is_paired_with_the_network(test_split):
