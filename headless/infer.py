@@ -38,8 +38,10 @@ while the maps are predicted; 2026-11-27, docs/measurements/fullframe.md). Every
 under the display at capture.json's distance_m and each object's albedo scale is fitted so that
 the re-rendered unpol matches the decoded one (about 1 s per capture on 2 CPU cores). It needs a
 calibrated capture (radiometry); without distance_m it assumes 0.75 m and says so; where the fit
-cannot be trusted (metal, too few lit pixels, no lower re-rendering error) it keeps the network's
-maps and says why. Measured gains and losses: docs/measurements/refine.md.
+cannot be trusted (metal, too few lit pixels, no lower re-rendering error, an LP the re-renderer's
+material cannot explain, as on measured pBRDFs) it keeps the network's maps and says why; a trusted
+scale is applied half-way in log (a prior on the network's albedo). Measured gains and losses
+(never worse on any test split's mean since the guard): docs/measurements/refine.md.
 
 Sequences: a folder whose sub-folders are capture folders (frames, in name order) gives
 DIR/<name>_NNNN_<map>.exr per frame (NNNN from 0001; Blender reads each map as an image
