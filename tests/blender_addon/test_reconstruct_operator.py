@@ -339,6 +339,18 @@ def _event(kind):
     return types.SimpleNamespace(type=kind)
 
 
+def _run_to_the_end(reconstruct, op, context, job) -> set[str]:
+    """``invoke``, then timer events until the modal operator ends; its last return value."""
+    cls = reconstruct.PDIR_OT_reconstruct_capture
+    assert cls.invoke(op, context, _event("LEFTMOUSE")) == {"RUNNING_MODAL"}
+    result = {"RUNNING_MODAL"}
+    while result == {"RUNNING_MODAL"}:
+        assert job.elapsed < 30
+        time.sleep(0.05)
+        result = cls.modal(op, context, _event("TIMER"))
+    return result
+
+
 @pytest.mark.bpy
 def test_modal_run_shows_progress_and_the_cancel_button_stops_it(bpy, reconstruct, monkeypatch, tmp_path):
     op, reports, context, wm, status, job = _modal_op(reconstruct, monkeypatch, tmp_path, "slow")
@@ -364,13 +376,7 @@ def test_modal_run_shows_progress_and_the_cancel_button_stops_it(bpy, reconstruc
 @pytest.mark.bpy
 def test_modal_run_to_the_end_imports_or_reports_one_line(bpy, reconstruct, monkeypatch, tmp_path):
     op, reports, context, wm, status, job = _modal_op(reconstruct, monkeypatch, tmp_path, "ok")
-    cls = reconstruct.PDIR_OT_reconstruct_capture
-    assert cls.invoke(op, context, _event("LEFTMOUSE")) == {"RUNNING_MODAL"}
-    result = {"RUNNING_MODAL"}
-    while result == {"RUNNING_MODAL"}:
-        assert job.elapsed < 30
-        time.sleep(0.05)
-        result = cls.modal(op, context, _event("TIMER"))
+    result = _run_to_the_end(reconstruct, op, context, job)
     # The stand-in's "maps" are not images: the import's error is the one report line; the maps stay.
     assert result == {"CANCELLED"} and job.state == "done" and len(reports) == 1
     ((kind, text),) = reports
@@ -381,13 +387,7 @@ def test_modal_run_to_the_end_imports_or_reports_one_line(bpy, reconstruct, monk
 @pytest.mark.bpy
 def test_the_scripts_warnings_become_warning_reports(bpy, reconstruct, monkeypatch, tmp_path):
     op, reports, context, wm, status, job = _modal_op(reconstruct, monkeypatch, tmp_path, "warn")
-    cls = reconstruct.PDIR_OT_reconstruct_capture
-    assert cls.invoke(op, context, _event("LEFTMOUSE")) == {"RUNNING_MODAL"}
-    result = {"RUNNING_MODAL"}
-    while result == {"RUNNING_MODAL"}:
-        assert job.elapsed < 30
-        time.sleep(0.05)
-        result = cls.modal(op, context, _event("TIMER"))
+    _run_to_the_end(reconstruct, op, context, job)
     # one WARNING per distinct warning line (a terminal user sees them on stderr), then the import's one ERROR
     assert job.state == "done" and [k for k, _ in reports] == [{"WARNING"}, {"ERROR"}]
     assert reports[0][1] == f"{job.capture}: no distance_m; 0.75 m assumed"
