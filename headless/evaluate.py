@@ -25,7 +25,8 @@ so that the re-rendered unpol matches the capture) and the paired per-scene diff
 --distance-error E [E ...] instead scores the model alone with each scene's distance (its median
 true depth) scaled by 1 + e and 1 - e (network/distance_sensitivity.py), into
 distance_sensitivity.md/.json: how a lighting-aware model's albedo degrades with a tape measure
-off by e (a light-blind model's rows are equal by construction).
+off by e (a light-blind model's rows are equal by construction); with --refine the refined maps
+are scored instead, the refinement fitting each albedo scale at the same wrong distance.
 The input ablation (one model per input variant) is headless/ablation.py.
 """
 
@@ -169,7 +170,8 @@ def _sensitivity(model, ckpt: dict, stats, folders: list[Path], args: argparse.N
     from pbrdf.io.strict_json import dumps_strict  # noqa: PLC0415
 
     errors = sorted({s * e for e in args.distance_error for s in (1, -1)})
-    results = [distance_sensitivity(model, ckpt, f, stats, errors, limit=args.limit) for f in folders]
+    results = [distance_sensitivity(model, ckpt, f, stats, errors, limit=args.limit, refine=args.refine)
+               for f in folders]  # fmt: skip
     out = args.out or root / "eval"
     out.mkdir(parents=True, exist_ok=True)
     md = "\n".join(sensitivity_markdown(r) for r in results)

@@ -6,7 +6,10 @@ baseline left out) with the scene's distance (the median of its true depth) scal
 for each error ``e`` (e.g. -0.2, -0.05, 0, 0.05, 0.2), and reports per error the per-scene mean of
 each metric and its paired difference to ``e = 0`` with a 95 % bootstrap interval
 (:func:`network.statistics.summarize`). A light-blind model never sees the distance, so its rows
-are equal by construction: a check of the plumbing.
+are equal by construction: a check of the plumbing. With ``refine=True`` the scored maps are the
+network's after the test-time refinement (:func:`network.refine.refine`), which fits each object's
+albedo scale under the display's light at the told distance: then even a light-blind model's rows
+move, by what a tape measure's error costs the refined albedo.
 """
 
 from __future__ import annotations
@@ -45,6 +48,7 @@ def distance_sensitivity(
     errors: Sequence[float],
     *,
     limit: int | None = None,
+    refine: bool = False,
 ) -> dict[str, Any]:
     """Scores of ``model`` on the scenes of ``root`` with the object distance scaled by ``1 + e`` per error.
 
@@ -55,10 +59,11 @@ def distance_sensitivity(
         stats: training statistics (:func:`network.constant.load_statistics`; the constant row of the scenes).
         errors: relative distance errors ``e`` (each > -1); 0 is always added.
         limit: only the first ``limit`` scenes.
+        refine: score the refined maps (the ``refined`` row of :func:`network.evaluation.predict_scene`).
 
     Returns:
         JSON-ready dict: ``data``, ``split``, ``scenes``, ``light_input`` (whether the model sees the
-        distance), ``errors`` (sorted), ``rows`` -> ``str(e)`` -> metric -> summary of the values
+        distance), ``refine``, ``errors`` (sorted), ``rows`` -> ``str(e)`` -> metric -> summary of the values
         and ``"delta_<metric>"`` -> summary of the paired difference to ``e = 0``, ``seconds``.
 
     Raises:
@@ -78,8 +83,8 @@ def distance_sensitivity(
     for i in indices:
         for e in errs:
             scene = predict_scene(model, variant, root, i, stats, input_scale=scale, baseline=False,
-                                  distance_scale=1.0 + e)  # fmt: skip
-            row = score(scene.preds["ours"], scene.gt, scene.region, lpips=False)
+                                  distance_scale=1.0 + e, refine=refine)  # fmt: skip
+            row = score(scene.preds["refined" if refine else "ours"], scene.gt, scene.region, lpips=False)
             for k in SENSITIVITY_METRICS:
                 values[e][k].append(row[k])
     rows = {}
@@ -91,7 +96,7 @@ def distance_sensitivity(
             rows[str(e)][f"delta_{k}"] = summarize(diff)
     return {
         "data": str(root), "split": dataset_split(root), "scenes": len(indices),
-        "light_input": bool(model.config.light_input), "errors": errs, "rows": rows,
+        "light_input": bool(model.config.light_input), "refine": bool(refine), "errors": errs, "rows": rows,
         "seconds": time.perf_counter() - t0,
     }  # fmt: skip
 
@@ -99,7 +104,10 @@ def distance_sensitivity(
 def sensitivity_markdown(result: Mapping[str, Any]) -> str:
     """A markdown table of :func:`distance_sensitivity`: per error, each metric's mean and paired change."""
     digits = {"albedo_psnr": 2, "albedo_si_psnr": 2, "normal_mae": 2, "roughness_rmse": 4}
-    seen = "sees the distance" if result["light_input"] else "is light-blind: rows equal by construction"
+    if result.get("refine"):
+        seen = ("sees the distance" if result["light_input"] else "is light-blind") + ", + refinement at that distance"
+    else:
+        seen = "sees the distance" if result["light_input"] else "is light-blind: rows equal by construction"
     lines = [f"### Distance error: {result['split'] or result['data']} ({result['scenes']} scenes; the model {seen})",
              "", "| distance error | " + " | ".join(SENSITIVITY_METRICS.values()) + " |",
              "|---:|" + "---:|" * len(SENSITIVITY_METRICS)]  # fmt: skip

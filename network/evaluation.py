@@ -256,9 +256,10 @@ def predict_scene(
     diagnostics of the model alone. A ``light_input`` model is given the scene's one distance
     (:func:`network.light_input.scene_light`) times ``distance_scale``. ``refine=True`` adds the
     ``refined`` row: the model's maps through :func:`network.refine.refine` with the sample's rig
-    and one distance, the median true depth of the object (what a capture's ``distance_m`` gives;
-    never the per-pixel depth). ``capture``: a capture folder of this scene to decode instead of its
-    own raw brackets (:mod:`network.robustness`: the same scene through another rig), decoded with
+    and one distance, the median true depth of the object times ``distance_scale`` (what a
+    capture's ``distance_m`` gives, a tape measure's error included; never the per-pixel depth).
+    ``capture``: a capture folder of this scene to decode instead of its own raw brackets
+    (:mod:`network.robustness`: the same scene through another rig), decoded with
     ``rig`` when given (a calibrated rig file's, as ``headless/infer.py --rig``).
 
     Raises:
@@ -309,11 +310,12 @@ def predict_scene(
     preds["object_mean"] = object_mean_predict(gt, region, objects)
     preds["refined"], info = {}, None
     if refine:
-        preds["refined"], info = _refined(ours, preds["ours"], inp, gt, region, auto)
+        preds["refined"], info = _refined(ours, preds["ours"], inp, gt, region, auto, distance_scale)
     return ScenePredictions(index, meta, maps, auto, region, gt, preds, ours, objects, k, info)
 
 
-def _refined(ours, fallback, inp, gt: dict, region: np.ndarray, auto: np.ndarray) -> tuple[dict, dict]:
+def _refined(ours, fallback, inp, gt: dict, region: np.ndarray, auto: np.ndarray,
+             distance_scale: float = 1.0) -> tuple[dict, dict]:  # fmt: skip
     """The ``refined`` row's maps (extended over ``region``) and what the refinement did."""
     from pbrdf.sensor.rig import Rig  # noqa: PLC0415
 
@@ -324,6 +326,7 @@ def _refined(ours, fallback, inp, gt: dict, region: np.ndarray, auto: np.ndarray
     depth = gt.get("depth")
     valid = region & (depth > 0) if depth is not None else None
     distance = float(np.median(depth[valid])) if valid is not None and valid.any() else inp.distance_m
+    distance = None if distance is None else distance * distance_scale
     res = refine(ours, inp.maps, inp.intrinsics, inp.rig or Rig(), inp.radiance, distance, roughness=REFINE_ROUGHNESS)
     info = {"refined": res.refined, "seconds": res.seconds, "message": res.message,
             "roughness": {str(k): v for k, v in res.roughness.items()},

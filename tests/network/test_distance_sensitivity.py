@@ -32,3 +32,29 @@ def test_blind_rows_are_equal_and_light_rows_move(tiny_dataset):
     assert abs(moved["rows"]["-0.2"]["delta_albedo_psnr"]["mean"]) > 1e-4
     with pytest.raises(ValueError, match="errors must be > -1"):
         distance_sensitivity(blind, CKPT, tiny_dataset, STATS, [-1.0])
+
+
+@pytest.mark.mitsuba
+def test_refinement_is_told_the_scaled_distance(tiny_dataset, monkeypatch):
+    """With refine, the refinement fits at the median true depth times 1 + e (a tape measure's error)."""
+    import numpy as np
+
+    from network import refine as refine_mod
+    from pbrdf.data import sample as psample
+
+    told = []
+    real = refine_mod.refine
+
+    def spy(pred, maps, intrinsics, rig, radiance, distance, **kw):
+        told.append(distance)
+        return real(pred, maps, intrinsics, rig, radiance, distance, **kw)
+
+    monkeypatch.setattr(refine_mod, "refine", spy)
+    torch.manual_seed(0)
+    blind = PolarInverseModel(get_config("toy")).eval()
+    result = distance_sensitivity(blind, CKPT, tiny_dataset, STATS, [0.2], limit=1, refine=True)
+    assert result["refine"] is True and "+ refinement" in sensitivity_markdown(result)
+    sample, _ = psample.read_sample(tiny_dataset, 0, keys=("depth", "object"))
+    region = (sample["object"] >= 0) & (sample["depth"] > 0)
+    truth = float(np.median(sample["depth"][region]))
+    assert sorted(told) == pytest.approx([truth, truth * 1.2], rel=1e-6)
