@@ -59,6 +59,9 @@ def build_parser() -> argparse.ArgumentParser:
         metavar="DIR",
         help="dataset folder (headless/render.py) or its pack (headless/pack.py); required",
     )
+    parser.add_argument("--also", type=Path, action="append", default=[], metavar="DIR",
+                        help="another training dataset (or pack) whose samples join --input's (repeatable; e.g. the "
+                        "data a fine-tuned model was trained on, replayed beside the new data)")  # fmt: skip
     parser.add_argument("--real", type=Path, help="folder of real captures (capture folders and/or samples)")
     parser.add_argument("--val", type=Path, help="held-out dataset (or pack): normal MAE every --val-every steps")
     parser.add_argument(
@@ -146,7 +149,8 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         cfg = TrainConfig(
-            data=args.input, indices=_read_indices(args.indices), out=args.out, config=args.config, steps=args.steps,
+            data=args.input, also=tuple(args.also), indices=_read_indices(args.indices), out=args.out,
+            config=args.config, steps=args.steps,
             stop_after=args.stop_after, batch_size=args.batch_size, lr=args.lr, weight_decay=args.weight_decay,
             warmup_steps=args.lr_warmup, decay_steps=args.lr_decay_steps,
             min_lr_ratio=args.min_lr_ratio, clip=args.clip, seed=args.seed, resume=args.resume,

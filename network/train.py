@@ -57,7 +57,7 @@ from typing import Any
 import torch
 import torch.distributed as dist
 from torch import Tensor, nn
-from torch.utils.data import DataLoader, Dataset
+from torch.utils.data import ConcatDataset, DataLoader, Dataset
 
 from pbrdf.data.splits import require_role
 from pbrdf.io.atomic import remove_leftovers
@@ -88,6 +88,8 @@ class TrainConfig:
         data: rendered dataset folder (``headless/render.py``) or a pack of one (``headless/pack.py``,
             :mod:`network.packed`).
         indices: train on these sample indices of ``data`` only (None: every completed sample).
+        also: more training datasets (folders or packs) whose every completed sample joins ``data``'s
+            (e.g. replaying the data a fine-tuned model was trained on beside the new data).
         out: output folder (checkpoint, model, logs).
         config: model preset (``toy``, ``small``, ``medium``, ``paper``); ``overrides`` replace fields of it.
         steps: total optimizer steps of the run (a resumed run continues up to it).
@@ -120,6 +122,7 @@ class TrainConfig:
     data: Path
     out: Path
     indices: tuple[int, ...] | None = None
+    also: tuple[Path, ...] = ()
     config: str = "toy"
     steps: int = 100
     stop_after: int | None = None
@@ -288,7 +291,7 @@ def train(cfg: TrainConfig, *, progress: bool = True, stats: dict | None = None)
 class _Data:
     """The run's datasets: synthetic training samples, real captures (optional), validation samples (optional)."""
 
-    synthetic: SampleDataset | PackedDataset
+    synthetic: SampleDataset | PackedDataset | ConcatDataset
     real: RealDataset | None
     val: SampleDataset | PackedDataset | None
 
@@ -299,7 +302,8 @@ class _Data:
 
 def _datasets(cfg: TrainConfig, image_size: int) -> _Data:
     """Open the run's datasets after checking their roles (test splits are read by the final evaluation only)."""
-    require_role(cfg.data, ("train",), "training")
+    for folder in (cfg.data, *cfg.also):
+        require_role(folder, ("train",), "training")
     if cfg.val is not None:
         require_role(cfg.val, ("val",), "validation")
     if cfg.real is not None:
@@ -315,6 +319,9 @@ def _datasets(cfg: TrainConfig, image_size: int) -> _Data:
         missing = sorted(set(cfg.indices) - set(ds.indices))
         raise ValueError(f"{cfg.data}: {len(missing)} of the requested indices are not completed samples "
                          f"(first: {missing[0]})")  # fmt: skip
+    if cfg.also:  # in order: data's samples first, then each extra dataset's
+        more = [open_samples(f, size=image_size, input_scale=cfg.input_scale, light_input=light) for f in cfg.also]
+        ds = ConcatDataset([ds, *more])
     real = None
     if cfg.real is not None:
         real = RealDataset(cfg.real, size=image_size, input_scale=cfg.input_scale)
@@ -615,4 +622,6 @@ def _plain(cfg: TrainConfig) -> dict[str, Any]:
     for k, v in out.items():
         if isinstance(v, Path):
             out[k] = str(v)
+        elif isinstance(v, tuple) and v and isinstance(v[0], Path):
+            out[k] = [str(p) for p in v]
     return out

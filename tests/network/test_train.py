@@ -461,3 +461,20 @@ def test_best_checkpoint_is_selected_on_validation_and_repaired_on_resume(tiny_d
     ckpt = torch.load(out / "checkpoint.pt", weights_only=True)
     assert best["step"] == 6 and best["val_normal_mae_deg"] == 0.5 and "best.pt: missing the best" in caplog.text
     assert all(torch.equal(best["model"][k], v) for k, v in ckpt["model"].items())
+
+
+@pytest.mark.mitsuba
+def test_also_joins_more_training_data_and_refuses_a_test_split(tiny_dataset, tmp_path):
+    """--also: the extra dataset's samples join --input's (the checkpoint records both); a test split is refused."""
+    from headless.train import main
+
+    args = ["--input", tiny_dataset, "--steps", "1", "--quiet", "--device", "cpu", "--no-tensorboard"]
+    assert main([*map(str, args), "--out", str(tmp_path / "o"), "--also", str(tiny_dataset)]) == 0
+    ckpt = torch.load(tmp_path / "o" / "checkpoint.pt", weights_only=True)
+    assert ckpt["data"]["synthetic"] == 6 and ckpt["train"]["also"] == [str(tiny_dataset)]
+    labelled = shutil.copytree(tiny_dataset, tmp_path / "t")
+    manifest = json.loads((labelled / "manifest.json").read_text())
+    (labelled / "manifest.json").write_text(json.dumps({**manifest, "split": "test-scenes"}))
+    cfg = TrainConfig(data=tiny_dataset, also=(labelled,), out=tmp_path / "o2", steps=1, device="cpu", tensorboard=False)
+    with pytest.raises(ValueError, match="split 'test-scenes'; .* may read only"):
+        train(cfg, progress=False)
