@@ -257,8 +257,8 @@ def _sequence_notes(name: str, notes: list[RefineNote], frames: int) -> list[str
     ran = [n for n in notes if n.seconds is not None]
     if ran:
         median = statistics.median(n.seconds for n in ran)
-        lines.append(f"{name}: refined the albedo of {sum(n.refined for n in ran)} of {frames} frames "
-                     f"({median:.1f} s median per frame)")  # fmt: skip
+        lines.append(f"{name}: refinement on {len(ran)} of {frames} frames, the albedo refined on "
+                     f"{sum(n.refined for n in ran)} ({median:.1f} s median per frame)")  # fmt: skip
     return lines
 
 
