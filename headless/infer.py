@@ -32,7 +32,9 @@ pixels or more) and interpolates the rest where it is smooth, decoding edges exa
 
 Cost: a full sensor frame (2448 x 2048 raw, object on half of it) takes about 10 s and 1.2 GB on an
 idle 2-core machine (maps and depth; --gltf +3 s; --blend about 11-13 s in all, Blender starting
-while the maps are predicted; 2026-11-27, docs/measurements/fullframe.md). Every step prints
+while the maps are predicted; 2026-11-27, docs/measurements/fullframe.md); the refinement (the default
+where a distance is known) adds about 0.5 CPU s to it, 1-3 s wall on a loaded machine (2026-11-28,
+docs/measurements/refine.md). Every step prints
 "[elapsed s] stage" on stderr unless --quiet.
 
 The test-time refinement (network/refine.py) checks the prediction against the capture: the maps
