@@ -444,7 +444,7 @@ def test_panel_shows_the_settings_or_the_running_job(bpy, reconstruct, monkeypat
     ((_, idname, op),) = [e for e in log if e[0] == "operator"]
     assert idname == "pdir.reconstruct_capture"
     assert (op.capture_dir, op.mesh, op.output_dir, op.checkpoint, op.refine) == (str(EXAMPLE), "CARD", "", "", True)
-    assert reconstruct.PDIR_OT_reconstruct_capture.bl_rna.properties["refine"].default is True
+    assert s.bl_rna.properties["refine"].default is True  # the checkbox starts checked
     assert not [e for e in log if e[0] == "label"]  # Blender's Python here has torch: no how-to line
     monkeypatch.setattr(reconstruct, "_job", types.SimpleNamespace(name="mug", fraction=0.4, stage="predicting"))
     log.clear()
