@@ -158,9 +158,10 @@ class _ReconstructProperties:
     )  # fmt: skip
     refine: BoolProperty(
         name="Refine against the capture",
-        description="Fit each object's albedo scale so the re-rendered maps match the capture (about 1 s more; "
-        "needs calibrated radiometry and capture.json's distance_m)",
-        default=False,
+        description="Fit each object's albedo scale so the re-rendered maps match the capture (about 1 s more). "
+        "Refines when the distance is known (Distance above, else capture.json's distance_m) and the capture is "
+        "calibrated; otherwise the network's maps are kept",
+        default=True,
     )
 
 

@@ -22,7 +22,9 @@ decoding stride against stride 1 (network.bench.model). With --frame (a full-fra
 (network.bench.fullframe): every stage of headless/infer.py timed once (full_frame.profile,
 a Markdown table in .table), and predict at stride 1 and each --strides value side by side with
 the error of each against stride 1 and whether it holds the tolerance (full_frame.strides),
-and the relief depth by both preconditioners, side by side, with their difference (full_frame.depth).
+and the relief depth by both preconditioners, side by side, with their difference (full_frame.depth),
+and the maps without and with the test-time refinement side by side (full_frame.refine: infer.py
+--no-refine against its default where a distance is known; the refinement's own seconds).
 loader: training samples per second from EXR samples and from a pack (headless/pack.py) of
 the first --count samples of SPLIT written at each size, per loader worker count, next to the
 model's training step rate per batch size (network.bench.loader).
@@ -277,7 +279,7 @@ def _run(args: argparse.Namespace, parser: argparse.ArgumentParser) -> dict:
 
 
 def _full_frame(args: argparse.Namespace) -> dict:
-    """``network --frame``: the capture's stage profile, its strides against stride 1 and its depth routes."""
+    """``network --frame``: the capture's stage profile, its strides against stride 1, its depth routes, refinement."""
     from network.bench import fullframe  # noqa: PLC0415
 
     if args.checkpoint is None or not args.checkpoint.is_file():
@@ -286,7 +288,9 @@ def _full_frame(args: argparse.Namespace) -> dict:
     return {"profile": fullframe.profile(args.frame, args.checkpoint),
             "strides": fullframe.stride_rows(args.frame, args.checkpoint, strides, repeat=args.repeat,
                                                 warmup=args.warmup),
-            "depth": fullframe.depth_rows(args.frame, args.checkpoint, repeat=max(3, args.repeat))}  # fmt: skip
+            "depth": fullframe.depth_rows(args.frame, args.checkpoint, repeat=max(3, args.repeat)),
+            "refine": fullframe.refine_rows(args.frame, args.checkpoint, repeat=max(3, args.repeat),
+                                            warmup=args.warmup)}  # fmt: skip
 
 
 def _network(args: argparse.Namespace, configs: tuple, common: dict) -> dict:

@@ -1,7 +1,8 @@
 """Predict normal, albedo, roughness and metallic maps from a capture or a rendered sample.
 
     python headless/infer.py --input (capture folder | sample.exr | folder of capture folders) --out DIR
-        [--checkpoint model.pt] [--resolution full|network] [--refine] [--blend] [--gltf] [--quiet]
+        [--checkpoint model.pt] [--resolution full|network] [--distance M] [--refine | --no-refine] [--blend]
+        [--gltf] [--quiet]
 
 Without --checkpoint the shipped model (models/small/model.pt, see its MODEL_CARD.md) is used,
 so a real capture folder gives maps without training anything. A capture folder is raw HDR
@@ -31,17 +32,22 @@ pixels or more) and interpolates the rest where it is smooth, decoding edges exa
 
 Cost: a full sensor frame (2448 x 2048 raw, object on half of it) takes about 10 s and 1.2 GB on an
 idle 2-core machine (maps and depth; --gltf +3 s; --blend about 11-13 s in all, Blender starting
-while the maps are predicted; 2026-11-27, docs/measurements/fullframe.md). Every step prints
+while the maps are predicted; 2026-11-27, docs/measurements/fullframe.md); the refinement (the default
+where a distance is known) adds about 0.5 CPU s to it, 1-3 s wall on a loaded machine (2026-11-28,
+docs/measurements/refine.md). Every step prints
 "[elapsed s] stage" on stderr unless --quiet.
 
---refine checks the prediction against the capture (network/refine.py): the maps are re-rendered
-under the display at capture.json's distance_m and each object's albedo scale is fitted so that
-the re-rendered unpol matches the decoded one (about 1 s per capture on 2 CPU cores). It needs a
-calibrated capture (radiometry); without distance_m it assumes 0.75 m and says so; where the fit
-cannot be trusted (metal, too few lit pixels, no lower re-rendering error, an LP the re-renderer's
-material cannot explain, as on measured pBRDFs) it keeps the network's maps and says why; a trusted
-scale is applied half-way in log (a prior on the network's albedo). Measured gains and losses
-(never worse on any test split's mean since the guard): docs/measurements/refine.md.
+The test-time refinement (network/refine.py) checks the prediction against the capture: the maps
+are re-rendered under the display at the object's distance and each object's albedo scale is
+fitted so that the re-rendered unpol matches the decoded one. It is on by default where it can
+work: a capture with calibrated radiometry AND a known distance (--distance, else capture.json's
+distance_m); otherwise it is skipped with one line saying why ("<name>: no refinement (...)",
+stdout, not --quiet). --refine forces it (without a distance at an assumed 0.75 m, with a warning),
+--no-refine turns it off. Where the fit cannot be trusted (metal, too few lit pixels, no lower
+re-rendering error, an LP the re-renderer's material cannot explain, as on measured pBRDFs) it
+keeps the network's maps and says why; a trusted scale is applied half-way in log (a prior on the
+network's albedo). With the guard it is better than the network alone on every test split's
+per-scene mean (+0.2 to +2.4 dB albedo PSNR, true distance): docs/measurements/refine.md.
 
 Sequences: a folder whose sub-folders are capture folders (frames, in name order) gives
 DIR/<name>_NNNN_<map>.exr per frame (NNNN from 0001; Blender reads each map as an image
@@ -60,10 +66,13 @@ a successful run.
 from __future__ import annotations
 
 import argparse
+import functools
+import statistics
 import sys
 import time
 from concurrent.futures import Future
 from pathlib import Path
+from typing import NamedTuple
 
 if not __package__:  # run as a file (python headless/x.py, blender -b -P): the repository root first
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -82,8 +91,9 @@ from pbrdf.io.errors import one_line  # noqa: E402
 
 _REFINE_HELP = (
     "test-time refinement (network/refine.py): fit each object's albedo scale so that the maps re-rendered "
-    "under the display match the capture; about 1 s per capture on 2 CPU cores; needs calibrated radiometry "
-    "and capture.json's distance_m (else 0.75 m, with a warning)"
+    "under the display match the capture; about 1 s per capture on 2 CPU cores. Default: on where a distance is "
+    "known (--distance or capture.json's distance_m) and the radiometry is calibrated, else skipped with a line "
+    "saying why; --refine forces it (no distance: 0.75 m, with a warning), --no-refine turns it off"
 )
 
 
@@ -111,7 +121,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--rig", type=Path, metavar="RIG_JSON",
                         help="decode the capture with a calibrated rig (headless/calibrate.py's rig.json: optics and "
                         "geometry; bracket, sensor: capture.json's); record dark_files for ambient light")  # fmt: skip
-    parser.add_argument("--refine", action="store_true", help=_REFINE_HELP)
+    parser.add_argument("--refine", action=argparse.BooleanOptionalAction, default=None, help=_REFINE_HELP)
     parser.add_argument("--quiet", action="store_true", help="no progress output (the summary line still prints)")
     parser.add_argument("--progress-lines", action="store_true",
                         help="print 'progress: FRACTION STAGE' lines on stdout (for the Blender add-on)")  # fmt: skip
@@ -174,7 +184,7 @@ def main(argv: list[str] | None = None) -> int:
             blend.cancel()
     if code:
         return code
-    print(summary[0])
+    print("\n".join(summary))  # the refinement's lines (not --quiet), then the summary line
     if blend is None:
         return 0
     progress(0.97, "saving the .blend (Blender in its own process)")
@@ -184,11 +194,83 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
+class RefineNote(NamedTuple):
+    """What the test-time refinement did to one input, for the line(s) printed after a run (not ``--quiet``)."""
+
+    text: str  # "no refinement (why)", or the fit's message
+    seconds: float | None  # the refinement's time; None: skipped
+    refined: bool  # the maps changed
+    warned: bool  # a warning already says it (forced --refine that kept the maps)
+
+
+def auto_refine_skip(distance_m: float | None, radiance: float | None) -> str | None:
+    """Why the default (neither ``--refine`` nor ``--no-refine``) skips the refinement; None: it refines.
+
+    The fit is of an absolute albedo scale, so it needs the display radiance in the maps' units (a calibrated
+    capture) and the light at the object, i.e. its distance: at an assumed 0.75 m the display's irradiance is off
+    by about 1.5x for an object at 0.5 or 1.0 m (on axis, :mod:`pbrdf.sensor.irradiance`), 2.1x at 0.35 m.
+
+    Args:
+        distance_m: the measured distance (``--distance``, else capture.json's ``distance_m``), or None.
+        radiance: :attr:`network.infer.InferenceInput.radiance` (None: relative radiometry).
+
+    Returns:
+        None, or the reason in a few words with how to turn it on.
+
+    Example:
+        >>> auto_refine_skip(0.8, 1.0) is None, auto_refine_skip(None, 1.0)
+        (True, 'no distance_m; --distance M refines the albedo scale')
+    """
+    if radiance is None or not radiance > 0:
+        return "relative radiometry: the albedo scale fit needs a calibrated capture"
+    if not distance_m:
+        return "no distance_m; --distance M refines the albedo scale"
+    return None
+
+
+def _refine(pred: dict, inp, distance: float | None, flag: bool | None, announce) -> tuple[dict, RefineNote | None]:
+    """The maps after the refinement ``--refine`` / ``--no-refine`` / the default (auto) asks for, and its note.
+
+    ``announce()`` is called (the progress line) when the refinement runs.
+    """
+    if flag is False:
+        return pred, None
+    why = auto_refine_skip(distance, inp.radiance) if flag is None else None
+    if why is not None:
+        return pred, RefineNote(f"no refinement ({why})", None, False, False)
+    from dataclasses import replace  # noqa: PLC0415
+
+    from network.refine import refine_input  # noqa: PLC0415
+
+    announce()
+    # forced: refine_input warns (the 0.75 m guess, a kept fit); auto: a kept fit is a normal outcome, said plainly
+    res = refine_input(pred, replace(inp, distance_m=distance), warn=flag is True)  # --distance, else capture.json's
+    text = f"{res.message} in {res.seconds:.1f} s" if res.refined else f"{res.message}; the network's maps are kept"
+    return res.pred, RefineNote(text, res.seconds, res.refined, flag is True and not res.refined)
+
+
+def _sequence_notes(name: str, notes: list[RefineNote], frames: int) -> list[str]:
+    """A sequence's refinement in a line or two (not one per frame): each reason for skipping, then what ran."""
+    lines = []
+    skipped = [n.text for n in notes if n.seconds is None]
+    for text in dict.fromkeys(skipped):
+        count = skipped.count(text)
+        lines.append(f"{name}: {text}" + ("" if count == frames else f" in {count} of {frames} frames"))
+    ran = [n for n in notes if n.seconds is not None]
+    if ran:
+        median = statistics.median(n.seconds for n in ran)
+        lines.append(f"{name}: refinement on {len(ran)} of {frames} frames, the albedo refined on "
+                     f"{sum(n.refined for n in ran)} ({median:.1f} s median per frame)")  # fmt: skip
+    return lines
+
+
 def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, progress, start: float = 0.3,
-                 span: float = 0.65, inp=None) -> tuple[dict, CameraRecord, dict | None, Future | None]:  # fmt: skip
+                 span: float = 0.65, inp=None, notes: list[RefineNote] | None = None,
+                 ) -> tuple[dict, CameraRecord, dict | None, Future | None]:  # fmt: skip
     """The maps, the camera, a light model's distance record and the relief depth integrating (None with ``--card``).
 
     ``inp``: the decoded input (:func:`headless._overlap.decode_while_loading`), else it is read here.
+    ``notes``: the refinement's :class:`RefineNote` is appended here.
     """
     from network.infer import auto_refine_deg, load_input, predict  # noqa: PLC0415
     from network.model.dense import REFINE_DEG, auto_stride  # noqa: PLC0415
@@ -205,16 +287,10 @@ def _reconstruct(model, ckpt: dict, source: Path, args: argparse.Namespace, prog
         model, inp.maps, inp.mask, inputs=ckpt["inputs"], input_scale=ckpt["input_scale"],
         radiance=inp.radiance, stride=stride, resolution=args.resolution, light=light, refine_deg=refine,
     )  # fmt: skip
-    if args.refine:
-        from dataclasses import replace  # noqa: PLC0415
-
-        from network.refine import refine_input  # noqa: PLC0415
-
-        progress(start + 0.5 * span, "refining against the capture")
-        res = refine_input(pred, replace(inp, distance_m=distance))  # --distance, else capture.json's
-        pred = res.pred
-        if res.refined and not args.quiet:
-            print(f"{source.name}: {res.message} in {res.seconds:.1f} s")
+    announce = functools.partial(progress, start + 0.5 * span, "refining against the capture")
+    pred, note = _refine(pred, inp, distance, args.refine, announce)
+    if note is not None and notes is not None:
+        notes.append(note)
     relief = None
     if not args.card:  # on its own thread, while the maps are written (headless._overlap)
         progress(start + 0.6 * span, "integrating the relief")
@@ -273,13 +349,16 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
 
         return _load_model(args.checkpoint or DEFAULT_CHECKPOINT)
 
+    notes: list[RefineNote] = []
     if frames is None:  # the model loads while a capture decodes (headless._overlap)
         progress(0.25, "loading the model and decoding the input")
         (model, ckpt), inp = decode_while_loading(args.input, args.rig, load)
-        pred, camera, light, relief = _reconstruct(model, ckpt, args.input, args, progress, inp=inp)
+        pred, camera, light, relief = _reconstruct(model, ckpt, args.input, args, progress, inp=inp, notes=notes)
         progress(0.95, "writing the maps" + (" and the glTF binary" if args.gltf else ""))
         count = _write(args, name, pred, camera, light, relief)
         glb = f", {name}.glb" if args.gltf else ""
+        if not args.quiet:  # printed before the summary line, after a successful run only
+            summary += [f"{args.input.name}: {n.text}" for n in notes if not n.warned]
         summary.append(f"wrote {count} maps ({name}_*.exr/.png{glb}) to {args.out.resolve()}")
         return 0
     progress(0.25, "loading the model")
@@ -289,7 +368,8 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
         start = time.perf_counter()
         try:
             at = 0.3 + 0.7 * (i - 1) / len(frames)
-            pred, camera, light, relief = _reconstruct(model, ckpt, frame, args, progress, at, 0.7 / len(frames))
+            pred, camera, light, relief = _reconstruct(model, ckpt, frame, args, progress, at, 0.7 / len(frames),
+                                                       notes=notes)  # fmt: skip
             if relief is not None:  # a frame's time and errors include its relief
                 pred["depth"], relief = relief.result()["depth"], None
         except (ValueError, OSError) as exc:
@@ -298,6 +378,8 @@ def _infer(args: argparse.Namespace, progress, summary: list[str]) -> int:
         _write(args, f"{name}_{i:04d}", pred, camera, light, relief)
     record = SequenceRecord.of_frames(name, frames, seconds)
     write_sequence(args.out, record)
+    if not args.quiet:
+        summary += _sequence_notes(name, notes, len(frames))
     summary.append(
         f"wrote {len(frames)} frames ({name}_NNNN_*.exr/.png, {name}{SEQUENCE_SUFFIX}) to {args.out.resolve()}; "
         f"{record.to_dict()['frames_per_second']:.2f} frames/s (decode + prediction)"

@@ -385,12 +385,14 @@ def albedo_from_terms(
                         f"{before:.4f} -> {after:.4f}", guard=guard)  # fmt: skip
 
 
-def refine_input(pred: dict[str, np.ndarray], inp) -> RefineResult:
+def refine_input(pred: dict[str, np.ndarray], inp, *, warn: bool = True) -> RefineResult:
     """:func:`refine` for a :class:`network.infer.InferenceInput`; warns when nothing changed or no distance was given.
 
     Args:
         pred: :func:`network.infer.predict`'s maps for ``inp``.
         inp: the input (its maps, intrinsics, rig, radiance and ``distance_m``).
+        warn: warn as above; False leaves the telling to the caller (``infer.py``'s default refinement, where the
+            guard keeping the network's maps is a normal outcome: ``res.message`` says it).
 
     Returns:
         The :class:`RefineResult` (its ``pred`` is what to write).
@@ -399,6 +401,8 @@ def refine_input(pred: dict[str, np.ndarray], inp) -> RefineResult:
 
     res = refine(pred, inp.maps, inp.intrinsics, inp.rig or Rig(), inp.radiance, inp.distance_m,
                  roughness=REFINE_ROUGHNESS)  # fmt: skip
+    if not warn:
+        return res
     if not res.refined:
         warnings.warn(f"refinement: {res.message}; the network's maps are kept", stacklevel=2)
     elif res.message.startswith("not refined"):  # the roughness changed, the albedo did not

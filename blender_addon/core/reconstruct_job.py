@@ -135,15 +135,18 @@ def command_line(
     checkpoint: str | os.PathLike | None = None,
     module: str = SCRIPT_MODULE,
     distance: float | None = None,
-    refine: bool = False,
+    refine: bool = True,
 ) -> list[str]:
     """The command that reconstructs ``capture`` into ``out`` (never ``--blend``); ``distance`` (m) -> ``--distance``.
+
+    ``refine`` (the panel's checkbox) leaves infer.py's default, which refines where a distance is known (the
+    panel's or capture.json's ``distance_m``); False passes ``--no-refine``.
 
     Example:
         >>> " ".join(command_line("py", "cap", "o", card=True, checkpoint="m.pt"))
         'py -m headless.infer --input cap --out o --quiet --progress-lines --card --checkpoint m.pt'
-        >>> command_line("py", "cap", "o", refine=True)[-1]
-        '--refine'
+        >>> command_line("py", "cap", "o", refine=False)[-1]
+        '--no-refine'
     """
     cmd = [str(python), "-m", module, "--input", str(capture), "--out", str(out), "--quiet", "--progress-lines"]
     if card:
@@ -152,8 +155,8 @@ def command_line(
         cmd += ["--checkpoint", str(checkpoint)]
     if distance:
         cmd += ["--distance", f"{distance:g}"]
-    if refine:  # test-time refinement against the capture (network/refine.py)
-        cmd.append("--refine")
+    if not refine:  # on: infer.py's default refinement against the capture (network/refine.py)
+        cmd.append("--no-refine")
     return cmd
 
 
@@ -263,7 +266,7 @@ class ReconstructJob:
         distance: the object distance in m (``--distance``); None or 0: capture.json's, else the default.
         repo_root: the repository to run from (:func:`repository_root`); None: the installed project.
         module: the module run with ``-m`` (tests substitute a stand-in).
-        refine: run the test-time refinement (``--refine``).
+        refine: infer.py's default test-time refinement (where a distance is known); False: ``--no-refine``.
 
     Attributes:
         state: ``"new"``, ``"running"``, ``"done"``, ``"failed"`` or ``"cancelled"``.
@@ -283,7 +286,7 @@ class ReconstructJob:
         repo_root: str | os.PathLike | None = None,
         module: str = SCRIPT_MODULE,
         distance: float | None = None,
-        refine: bool = False,
+        refine: bool = True,
     ) -> None:
         self.distance = distance or None
         self.capture = check_capture_folder(capture)

@@ -11,6 +11,9 @@ tolerance the defaults must keep (:data:`TOLERANCE`). :func:`depth_rows` integra
 with both preconditioners of :func:`pbrdf.geometry.normal_integration.integrate_normals` (the default two-grid and
 algebraic multigrid, ``cell=1``), side by side, and reports their seconds and their difference
 (:func:`depth_error`: relative to the object's depth range, and as the angle between the integrated surfaces).
+:func:`refine_rows` (the ``refine`` variant) times the maps with and without the test-time refinement
+(``infer.py --no-refine`` against its default where a distance is known), side by side, and the refinement's
+own seconds (``RefineResult.seconds``).
 
 Example:
     >>> rows = {"decode": 1.0, "predict": 3.0}
@@ -31,7 +34,16 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["TOLERANCE", "depth_error", "depth_rows", "profile", "stage_table", "stride_rows", "stride_error"]
+__all__ = [
+    "TOLERANCE",
+    "depth_error",
+    "depth_rows",
+    "profile",
+    "refine_rows",
+    "stage_table",
+    "stride_error",
+    "stride_rows",
+]
 
 #: What a faster default must keep against the stride-1 full-resolution answer (issue 30): normal angle p99 in
 #: degrees, and RMSE of albedo, roughness and metallic.
@@ -313,3 +325,79 @@ def depth_rows(capture: Path, checkpoint: Path, *, stride: int | None = None, re
                       "wall_all": [t[0] for t in times[name]], "cpu_all": [t[1] for t in times[name]]}  # fmt: skip
     error = depth_error(depth["multigrid"], depth["two_grid"], inp.mask, inp.intrinsics)
     return {"masked_pixels": pixels, "rows": rows, "two_grid_vs_multigrid": error}
+
+
+def refine_rows(capture: Path, checkpoint: Path, *, repeat: int = 3, warmup: int = 1) -> dict:
+    """The maps without and with the test-time refinement, side by side (calls alternating): wall and CPU seconds.
+
+    ``no_refine`` is :func:`network.infer.predict` as ``infer.py --no-refine`` runs it (the auto stride);
+    ``refine`` is the same call, then :func:`network.refine.refine_input` at the capture's ``distance_m`` (else
+    0.75 m, as ``--refine``), what ``infer.py`` does by default where a distance is known. No decode of the raws,
+    no depth, no files: the difference is the refinement's cost per capture.
+
+    Args:
+        capture: a capture folder (a calibrated one: else nothing is refined).
+        checkpoint: the model.
+        repeat: timed rounds (medians reported), >= 1.
+        warmup: untimed rounds before them.
+
+    Returns:
+        ``{"masked_pixels", "distance_m", "rows": {"no_refine" | "refine": {time_call's entry, "cpu_median",
+        "cpu_all"}}, "refine_seconds_median", "refine_seconds_all" (the refinement's wall seconds),
+        "refine_cpu_median", "refine_cpu_all" (its CPU seconds, all threads), "refined", "message", "changed_maps"}``;
+        ``changed_maps``: the maps that differ between the two (at most ``["albedo"]``).
+    """
+    from network.bench.timing import time_interleaved  # noqa: PLC0415
+    from network.checkpoint import load_checkpoint  # noqa: PLC0415
+    from network.infer import auto_refine_deg, load_input, predict  # noqa: PLC0415
+    from network.model.dense import auto_stride  # noqa: PLC0415
+    from network.refine import refine_input  # noqa: PLC0415
+
+    model, ckpt = load_checkpoint(checkpoint)
+    inp = load_input(capture, require_object=True)
+    pixels = int(inp.mask.sum())
+    kw = {"inputs": ckpt["inputs"], "input_scale": ckpt["input_scale"], "radiance": inp.radiance,
+          "stride": auto_stride(pixels), "refine_deg": auto_refine_deg(pixels)}  # fmt: skip
+    cpu: dict[str, list[float]] = {"no_refine": [], "refine": []}
+    fits = []
+
+    def network():
+        start = time.process_time()
+        pred = predict(model, inp.maps, inp.mask, **kw)
+        cpu["no_refine"].append(time.process_time() - start)
+        return pred
+
+    def refined():
+        start = time.process_time()
+        pred = predict(model, inp.maps, inp.mask, **kw)
+        between = time.process_time()
+        res = refine_input(pred, inp, warn=False)
+        cpu["refine"].append(time.process_time() - start)
+        fits.append((res, time.process_time() - between))
+        return res.pred
+
+    size = f"{Path(capture).name} ({inp.mask.shape[1]} x {inp.mask.shape[0]} decoded, {pixels} masked pixels)"
+    out = time_interleaved({
+        "no_refine": (network, f"network.infer.predict of {size}, stride {kw['stride']}: infer.py --no-refine's maps"),
+        "refine": (refined, f"the same predict, then network.refine.refine_input at distance_m {inp.distance_m}: "
+                            "infer.py's default refinement (a distance known)"),
+    }, repeat=repeat, warmup=warmup)  # fmt: skip
+    rows = {}
+    for name, (timing, _) in out.items():
+        timed = cpu[name][warmup:]
+        rows[name] = {**timing.to_dict(), "cpu_median": float(np.median(timed)), "cpu_all": timed}
+    base, ref = out["no_refine"][1], out["refine"][1]
+    seconds = [f.seconds for f, _ in fits[warmup:]]
+    fit_cpu = [c for _, c in fits[warmup:]]
+    return {
+        "masked_pixels": pixels,
+        "distance_m": inp.distance_m,
+        "rows": rows,
+        "refine_seconds_median": float(np.median(seconds)),
+        "refine_seconds_all": seconds,
+        "refine_cpu_median": float(np.median(fit_cpu)),
+        "refine_cpu_all": fit_cpu,
+        "refined": fits[-1][0].refined,
+        "message": fits[-1][0].message,
+        "changed_maps": [k for k in base if not np.array_equal(base[k], ref[k])],
+    }

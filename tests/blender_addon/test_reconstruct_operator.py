@@ -37,6 +37,10 @@ def test_command_line_runs_the_infer_module_without_blend():
 
     args = infer.build_parser().parse_args(cmd[3:])
     assert (args.input, args.out, args.card, args.blend) == (Path("/data/mug"), Path("/out"), True, False)
+    # The refine checkbox: on (the default) leaves infer.py's auto refinement (None), off passes --no-refine.
+    assert infer.build_parser().parse_args(cmd[3:]).refine is None and "-refine" not in " ".join(cmd)
+    off = reconstruct_job.command_line("/py", "/data/mug", "/out", refine=False)
+    assert off[-1] == "--no-refine" and infer.build_parser().parse_args(off[3:]).refine is False
 
 
 def test_parse_progress_and_the_time_estimate():
@@ -231,7 +235,7 @@ def _stub(reconstruct, **props):
         "mesh": "RELIEF",
         "checkpoint": "",
         "distance": 0.0,
-        "refine": False,
+        "refine": True,
     } | props
     op = types.SimpleNamespace(**values, report=lambda kind, text: reports.append((set(kind), text)))
     return op, reports
@@ -439,7 +443,8 @@ def test_panel_shows_the_settings_or_the_running_job(bpy, reconstruct, monkeypat
     ]
     ((_, idname, op),) = [e for e in log if e[0] == "operator"]
     assert idname == "pdir.reconstruct_capture"
-    assert (op.capture_dir, op.mesh, op.output_dir, op.checkpoint, op.refine) == (str(EXAMPLE), "CARD", "", "", False)
+    assert (op.capture_dir, op.mesh, op.output_dir, op.checkpoint, op.refine) == (str(EXAMPLE), "CARD", "", "", True)
+    assert s.bl_rna.properties["refine"].default is True  # the checkbox starts checked
     assert not [e for e in log if e[0] == "label"]  # Blender's Python here has torch: no how-to line
     monkeypatch.setattr(reconstruct, "_job", types.SimpleNamespace(name="mug", fraction=0.4, stage="predicting"))
     log.clear()

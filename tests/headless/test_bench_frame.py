@@ -30,6 +30,14 @@ def test_frame_rows_profile_every_stage_and_compare_strides(tmp_path):
     assert rows["stride_1"]["error_vs_stride_1"]["normal_deg_max"] == 0.0
     err = rows["stride_2"]["error_vs_stride_1"]
     assert 0.0 < err["normal_deg_p99"] <= err["normal_deg_max"] and err["albedo_rmse"] < 0.05
+    # the refine variant: infer.py --no-refine's maps against its default refinement, side by side
+    refine = frame["refine"]
+    no, yes = refine["rows"]["no_refine"], refine["rows"]["refine"]
+    assert "--no-refine" in no["what"] and "refine_input" in yes["what"] and refine["distance_m"] == 0.8331969976425171
+    assert no["repeats"] == yes["repeats"] == len(refine["refine_seconds_all"]) == 3
+    # each refined round is the predict plus the refinement: longer than the refinement alone
+    assert all(w >= r > 0 for w, r in zip(yes["seconds_all"], refine["refine_seconds_all"], strict=True))
+    assert refine["changed_maps"] == (["albedo"] if refine["refined"] else []), refine["message"]
 
 
 def test_quick_leaves_the_frame_rows_out(tmp_path):

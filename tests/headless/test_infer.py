@@ -180,24 +180,90 @@ def test_sequence_writes_numbered_frames_and_its_speed(tmp_path, toy):
     assert not (tmp_path / "bad").exists()
 
 
-def test_refine_changes_only_the_albedo_and_says_so(tmp_path):
-    """--refine on examples/capture (calibrated, with distance_m): the albedo is rescaled by one factor
-    per object, the other maps are the network's; without --quiet it reports the fit and its time."""
+def _maps(folder: Path, name: str, key: str) -> np.ndarray:
     from pbrdf.io.exr import read_exr
 
-    def maps(folder, key):
-        chans = read_exr(folder / f"capture_{key}.exr")
-        return np.stack([chans[c] for c in sorted(chans)], -1)
+    chans = read_exr(folder / f"{name}_{key}.exr")
+    return np.stack([chans[c] for c in sorted(chans)], -1)
 
-    base, refined = tmp_path / "base", tmp_path / "refined"
-    assert _infer("--input", "examples/capture", "--out", str(base), "--card").returncode == 0
-    proc = subprocess.run([sys.executable, "headless/infer.py", "--input", "examples/capture", "--out", str(refined),
-                           "--card", "--refine"], cwd=ROOT, capture_output=True, text=True, timeout=300)  # fmt: skip
-    assert proc.returncode == 0, proc.stderr
-    assert "refined the albedo scale of 1 object" in proc.stdout, proc.stdout + proc.stderr
-    for k in ("normal", "roughness", "metallic"):
-        np.testing.assert_array_equal(maps(base, k), maps(refined, k))
-    a, b = maps(base, "albedo"), maps(refined, "albedo")
+
+def _loud(*args: str) -> subprocess.CompletedProcess:
+    """headless/infer.py without --quiet (the refinement's lines are printed then)."""
+    return subprocess.run([sys.executable, "headless/infer.py", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=300)  # fmt: skip
+
+
+def _assert_one_scale_on_the_albedo(base: Path, refined: Path, name: str) -> None:
+    """The albedo rescaled by one factor (one object), the other maps the network's."""
+    for k in ("normal", "roughness", "metallic", "mask"):
+        np.testing.assert_array_equal(_maps(base, name, k), _maps(refined, name, k))
+    a, b = _maps(base, name, "albedo"), _maps(refined, name, "albedo")
     sel = (a > 0.02) & (b < 0.999)  # lit, not clipped at 1
     ratio = b[sel] / a[sel]
-    assert ratio.max() - ratio.min() < 1e-3 and abs(ratio.mean() - 1.0) > 1e-3
+    assert ratio.max() - ratio.min() < 1e-3 and abs(ratio.mean() - 1.0) > 1e-3, (ratio.min(), ratio.max())
+
+
+def test_refine_changes_only_the_albedo_and_says_so(tmp_path):
+    """The default on examples/capture (calibrated, with distance_m) refines: the albedo is rescaled by one
+    factor per object, the other maps are --no-refine's; without --quiet it reports the fit and its time."""
+    base, refined = tmp_path / "base", tmp_path / "refined"
+    assert _infer("--input", "examples/capture", "--out", str(base), "--card", "--no-refine").returncode == 0
+    proc = _loud("--input", "examples/capture", "--out", str(refined), "--card")
+    assert proc.returncode == 0, proc.stderr
+    assert "warning:" not in proc.stderr, proc.stderr
+    line = proc.stdout.splitlines()[0]
+    assert line.startswith("capture: refined the albedo scale of 1 object") and line.endswith(" s"), proc.stdout
+    _assert_one_scale_on_the_albedo(base, refined, "capture")
+
+
+def _without_distance(root: Path) -> Path:
+    """A copy of examples/capture whose capture.json has no distance_m."""
+    import json
+    import shutil
+
+    cap = shutil.copytree(ROOT / "examples" / "capture", root / "cap")
+    meta = json.loads((cap / "capture.json").read_text())
+    del meta["distance_m"]
+    (cap / "capture.json").write_text(json.dumps(meta))
+    return cap
+
+
+def test_default_refines_only_where_a_distance_is_known(tmp_path):
+    """No distance_m: the default is --no-refine (same maps) and says so on one plain line; --refine forces the
+    fit at 0.75 m with a warning; --distance 0.8 turns the default refinement on."""
+    cap = _without_distance(tmp_path)
+    base = tmp_path / "base"
+    assert _infer("--input", str(cap), "--out", str(base), "--card", "--no-refine").returncode == 0
+    proc = _loud("--input", str(cap), "--out", str(tmp_path / "auto"), "--card")
+    assert proc.returncode == 0 and "warning:" not in proc.stderr, proc.stderr
+    assert proc.stdout.splitlines()[0] == "cap: no refinement (no distance_m; --distance M refines the albedo scale)"
+    assert len(proc.stdout.splitlines()) == 2 and proc.stdout.splitlines()[1].startswith("wrote 5 maps")
+    for k in ("normal", "albedo", "roughness", "metallic", "mask"):
+        np.testing.assert_array_equal(_maps(base, "cap", k), _maps(tmp_path / "auto", "cap", k))
+    proc = _infer("--input", str(cap), "--out", str(tmp_path / "forced"), "--card", "--refine")
+    assert proc.returncode == 0, proc.stderr
+    assert "warning: refinement at the default distance 0.75 m (no distance_m given)" in proc.stderr, proc.stderr
+    proc = _loud("--input", str(cap), "--out", str(tmp_path / "measured"), "--card", "--distance", "0.8")
+    assert proc.returncode == 0 and "warning:" not in proc.stderr, proc.stderr
+    assert proc.stdout.startswith("cap: refined the albedo scale of 1 object"), proc.stdout
+    _assert_one_scale_on_the_albedo(base, tmp_path / "measured", "cap")
+
+
+def test_sequence_says_once_what_the_refinement_did(tmp_path, toy):
+    """A sequence prints its refinement in one line per outcome, not one per frame; --no-refine prints none."""
+    import shutil
+
+    seq = tmp_path / "face"
+    for frame in ("t000", "t001", "t002"):
+        shutil.copytree(ROOT / "examples" / "capture", seq / frame)
+    shutil.rmtree(seq / "t002")
+    shutil.move(_without_distance(tmp_path), seq / "t002")
+    proc = _loud("--checkpoint", str(toy[0]), "--input", str(seq), "--out", str(tmp_path / "o"), "--card")
+    assert proc.returncode == 0 and "warning:" not in proc.stderr, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert len(lines) == 3 and lines[2].startswith("wrote 3 frames"), lines
+    assert lines[0] == "face: no refinement (no distance_m; --distance M refines the albedo scale) in 1 of 3 frames"
+    assert lines[1].startswith("face: refinement on 2 of 3 frames, the albedo refined on "), lines
+    proc = _loud("--checkpoint", str(toy[0]), "--input", str(seq), "--out", str(tmp_path / "n"), "--card",
+                 "--no-refine")  # fmt: skip
+    assert proc.returncode == 0 and proc.stdout.splitlines()[0].startswith("wrote 3 frames"), proc.stdout

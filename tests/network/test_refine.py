@@ -138,6 +138,14 @@ def test_refine_input_warns_without_distance():
         rf.refine_input(_with_albedo(truth, 0.5), inp)
     with pytest.warns(UserWarning, match="relative .* network's (maps are|albedo is) kept"):
         rf.refine_input(_with_albedo(truth, 0.5), InferenceInput(maps, inp.mask, None, K, DIST, Rig()))
+    # warn=False (infer.py's default refinement): the same result, told by the caller from its message
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        quiet = rf.refine_input(_with_albedo(truth, 0.5), InferenceInput(maps, inp.mask, None, K, DIST, Rig()),
+                                warn=False)  # fmt: skip
+    assert not quiet.refined and quiet.message.startswith("not refined: the capture's radiometry is relative")
 
 
 @pytest.mark.parametrize("case", ["dark", "saturated", "grazing", "smooth", "tiny"])
