@@ -475,6 +475,7 @@ def test_also_joins_more_training_data_and_refuses_a_test_split(tiny_dataset, tm
     labelled = shutil.copytree(tiny_dataset, tmp_path / "t")
     manifest = json.loads((labelled / "manifest.json").read_text())
     (labelled / "manifest.json").write_text(json.dumps({**manifest, "split": "test-scenes"}))
-    cfg = TrainConfig(data=tiny_dataset, also=(labelled,), out=tmp_path / "o2", steps=1, device="cpu", tensorboard=False)
+    cfg = TrainConfig(data=tiny_dataset, also=(labelled,), out=tmp_path / "o2", steps=1, device="cpu",
+                      tensorboard=False)  # fmt: skip
     with pytest.raises(ValueError, match="split 'test-scenes'; .* may read only"):
         train(cfg, progress=False)
