@@ -119,20 +119,24 @@ train-light-model: setup  ## fine-tune small with the light input (resumable chu
 	    --out $(LIGHT_RUN) --resume --quiet
 	$(PY) tools/plot_training.py $(LIGHT_RUN) --out docs/measurements/curves/light-small
 # The replay fine-tune: the light run's model.pt continued on train-light plus as many train-engine scenes
-# (the shipped model's own data, --also), so that the metallic prior the light run drifted (docs/measurements/
-# light_model.md) comes back while the light input and the textures stay. 250 steps at lr 5e-5, resumable.
-REPLAY_RUN := $(OUT)/runs/light-replay
+# rendered as the shipped model's own data was, without textures (--texture-fraction 0: train-engine has been
+# half textured since 2026-11-27, the shipped model was trained before), so that the metallic prior the light
+# run drifted (docs/measurements/light_model.md) comes back while the light input and the textures stay.
+# 250 steps at lr 5e-5, resumable.
+REPLAY_DATA = $(SPLITS_DIR)/train-engine-plain
+REPLAY_RUN := $(OUT)/runs/light-replay-plain
 REPLAY_STEPS := 250
 REPLAY_STOP ?= $(REPLAY_STEPS)
-replay-data: setup  ## render the first LIGHT_COUNT train-engine scenes for the replay fine-tune (resumable; SHARD=K/N)
-	$(PY) headless/render.py --split train-engine --count $(LIGHT_COUNT) --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(SPLITS_DIR)/train-engine --shard $(SHARD) --resume --quiet
-train-light-replay: setup  ## continue the light run on train-light + train-engine (needs light-data, replay-data, the light run)
-	$(PY) headless/train.py --input $(SPLITS_DIR)/train-light --also $(SPLITS_DIR)/train-engine --val $(SPLITS_DIR)/val-light \
+replay-data: setup  ## render LIGHT_COUNT untextured train-engine scenes for the replay fine-tune (resumable; SHARD=K/N)
+	$(PY) headless/render.py --split train-engine --count $(LIGHT_COUNT) --texture-fraction 0 --pbrdfs $(SPLITS_DIR)/pbrdfs-train --out $(REPLAY_DATA) --shard $(SHARD) --resume --quiet
+train-light-replay: setup  ## continue the light run on train-light + untextured train-engine (needs light-data, replay-data, the light run)
+	$(PY) headless/train.py --input $(SPLITS_DIR)/train-light --also $(REPLAY_DATA) --val $(SPLITS_DIR)/val-light \
 	    --config small --overrides image_size=192 canonical_size=128 train_pixels=2048 infer_chunk=8192 light_input=true \
 	    --init-from $(LIGHT_RUN)/model.pt --steps $(REPLAY_STEPS) --stop-after $(REPLAY_STOP) --batch-size 4 --lr 5e-5 \
 	    --lr-warmup 10 --min-lr-ratio 0.2 --seed 1 --input-scale calibrated --checkpoint-every 25 --val-samples 16 \
 	    --out $(REPLAY_RUN) --resume --quiet
-	$(PY) tools/plot_training.py $(REPLAY_RUN) --out docs/measurements/curves/light-replay
+	$(PY) tools/plot_training.py $(REPLAY_RUN) --out docs/measurements/curves/light-replay-plain
+
 # The shipped model's scores on the test splits (re-made when the shipped model changes), and the gate:
 # a candidate replaces it only when headless/compare.py finds no split and metric worse (paired, 95 %).
 SHIPPED_EVAL := $(OUT)/eval-shipped
