@@ -122,6 +122,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--init-from", type=Path, metavar="CKPT",
                         help="start from this model.pt's weights (fine-tuning; with --overrides light_input=true the "
                         "light input's new weights start at zero, so step 0 is exactly CKPT's model)")  # fmt: skip
+    parser.add_argument("--distill-from", type=Path, metavar="CKPT",
+                        help="a frozen teacher model.pt (same input variant and scale) whose --distill-keys maps the "
+                        "model is also pulled towards at every training pixel: fine-tuning without forgetting what "
+                        "the teacher did well (network/distill.py)")  # fmt: skip
+    parser.add_argument("--distill-weight", type=float, default=0.0, metavar="W",
+                        help="weight of that term (default 0: off, no teacher pass)")  # fmt: skip
+    parser.add_argument("--distill-keys", nargs="+", default=["metallic"], metavar="MAP",
+                        choices=["normal", "albedo", "roughness", "metallic"],
+                        help="maps distilled (default: metallic)")  # fmt: skip
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
@@ -159,6 +168,7 @@ def main(argv: list[str] | None = None) -> int:
             inputs=args.inputs, input_scale=args.input_scale, bf16=args.bf16, device=args.device, val=args.val,
             val_every=args.val_every, val_samples=args.val_samples, max_skipped=args.max_skipped, workers=args.workers,
             tensorboard=not args.no_tensorboard, init_from=args.init_from, time_budget=args.time_budget,
+            distill_from=args.distill_from, distill_weight=args.distill_weight, distill_keys=tuple(args.distill_keys),
             rewarm_from=args.rewarm_from, rewarm_steps=args.rewarm_steps,
         )  # fmt: skip
         losses = train(cfg, progress=not args.quiet)

@@ -34,6 +34,7 @@ __all__ = [
     "MODEL_KEYS",
     "init_from_checkpoint",
     "load_checkpoint",
+    "require_trained_with",
     "model_file_is_current",
     "model_file_state",
     "params_sha256",
@@ -157,6 +158,13 @@ def init_from_checkpoint(model: PolarInverseModel, path: str | Path) -> dict:
         raise ValueError(f"{path}: init_from weights do not fit the model (missing {result.missing_keys}, "
                          f"unexpected {result.unexpected_keys})")  # fmt: skip
     return ckpt
+
+
+def require_trained_with(ckpt: dict, path: str | Path, role: str, inputs: str, input_scale: str) -> None:
+    """ValueError unless a loaded checkpoint (``role``: its use in the run) has this input variant and scale."""
+    for name, want in (("inputs", inputs), ("input_scale", input_scale)):
+        if ckpt[name] != want:
+            raise ValueError(f"{path}: {role} checkpoint was trained with {name}={ckpt[name]!r}, not {want!r}")
 
 
 def params_sha256(state: dict[str, torch.Tensor]) -> str:

@@ -50,7 +50,7 @@ import logging
 import math
 import time
 from collections.abc import Iterator
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -62,9 +62,17 @@ from torch.utils.data import ConcatDataset, DataLoader, Dataset
 from pbrdf.data.splits import require_role
 from pbrdf.io.atomic import remove_leftovers
 
-from .checkpoint import CHECKPOINT_FORMAT, init_from_checkpoint, model_file_state, params_sha256, save_checkpoint
+from .checkpoint import (
+    CHECKPOINT_FORMAT,
+    init_from_checkpoint,
+    model_file_state,
+    params_sha256,
+    require_trained_with,
+    save_checkpoint,
+)
 from .config import get_config
 from .data import INPUT_SCALES, TARGET_KEYS, SampleDataset, checkpoint_input_scale, gather_pixels
+from .distill import Teacher, check_distill, distill_loss
 from .distributed import DistContext, init_distributed, resolve_device, rng_state, set_rng_state
 from .inputs import INPUT_VARIANTS, apply_inputs, checkpoint_inputs
 from .losses import LossWeights, real_loss, synthetic_loss
@@ -73,7 +81,7 @@ from .model.polar_model import PolarInverseModel
 from .packed import PackedDataset, open_samples
 from .realdata import RealDataset
 from .schedules import StepBatches, learning_rate, pixel_seed, real_loss_weight, rewarm_factor, sample_batch_pixels
-from .train_files import OUT_FILES, Logs, sync_best_file, sync_model_file, val_rows
+from .train_files import OUT_FILES, Logs, plain_settings, sync_best_file, sync_model_file, val_rows
 
 __all__ = ["TrainConfig", "Trainer", "train"]
 
@@ -117,6 +125,8 @@ class TrainConfig:
         rewarm_from, rewarm_steps: a linear learning-rate re-warm over ``rewarm_steps`` steps from step
             ``rewarm_from`` (a chunk resumed with a fresh optimizer, :mod:`network.chunk_state`; 0: none).
         time_budget: end this invocation, validated and saved, after this many seconds (None: no limit).
+        distill_from, distill_weight, distill_keys: a frozen teacher checkpoint whose maps ``distill_keys`` the
+            model is also pulled towards, with that weight (:mod:`network.distill`; 0: off, no teacher pass).
     """
 
     data: Path
@@ -156,6 +166,9 @@ class TrainConfig:
     rewarm_from: int = 0
     rewarm_steps: int = 0
     time_budget: float | None = None
+    distill_from: Path | None = None
+    distill_weight: float = 0.0
+    distill_keys: tuple[str, ...] = ("metallic",)
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "checkpoint_every", "val_samples"):
@@ -191,6 +204,7 @@ class TrainConfig:
             raise ValueError(f"unknown input scale {self.input_scale!r}; choose one of {INPUT_SCALES}")
         if self.device not in ("cpu", "cuda", "auto"):
             raise ValueError(f"device must be 'cpu', 'cuda' or 'auto'. Got {self.device!r}")
+        check_distill(self.distill_from, self.distill_weight, self.distill_keys)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -359,8 +373,12 @@ class Trainer:
         torch.manual_seed(cfg.seed)  # identical initial weights on every rank
         self.model = PolarInverseModel(self.model_cfg)
         if cfg.init_from is not None:  # fine-tuning; a resumed checkpoint overrides these weights
-            _check_init(init_from_checkpoint(self.model, cfg.init_from), cfg)
+            ckpt = init_from_checkpoint(self.model, cfg.init_from)
+            require_trained_with(ckpt, cfg.init_from, "init_from", cfg.inputs, cfg.input_scale)
         self.model = self.model.to(device)
+        self.teacher = None  # a frozen teacher only when its term has a weight
+        if cfg.distill_weight > 0:
+            self.teacher = Teacher(cfg.distill_from, cfg.inputs, cfg.input_scale, device, cfg.bf16)
         self.opt = torch.optim.AdamW(self.model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
         torch.manual_seed(cfg.seed + 1 + dd.rank)  # per-rank stream for anything random after init
         self.start, self.losses, self.skipped = 0, [], 0
@@ -499,6 +517,10 @@ class Trainer:
         pred = self._forward(syn, pix, valid)
         target = {k: gather_pixels(syn[k], pix) for k in TARGET_KEYS}
         loss_syn, parts = synthetic_loss(pred, target, valid[:, None].float(), cfg.weights)
+        if self.teacher is not None:  # the teacher's maps at the same pixels, a second target
+            term = distill_loss(pred, self.teacher(syn["maps"], syn["mask"], pix, valid, syn.get("light")),
+                                valid[:, None].float(), cfg.distill_keys)  # fmt: skip
+            loss_syn, parts["distill"] = loss_syn + cfg.distill_weight * term, float(term.detach())
         loss_syn.backward()
         del pred
         loss_real, real_parts = torch.zeros((), device=device), {}
@@ -557,7 +579,7 @@ class Trainer:
                 "format": CHECKPOINT_FORMAT, "config": self.model_cfg.to_dict(), "inputs": cfg.inputs,
                 "input_scale": cfg.input_scale, "model": state, "optimizer": self.opt.state_dict(), "step": done,
                 "losses": self.losses, "skipped": self.skipped, "rng": rngs, "rank_params_sha256": shas,
-                "world_size": dd.world, "data": self.data.sizes(), "train": _plain(cfg),
+                "world_size": dd.world, "data": self.data.sizes(), "train": plain_settings(cfg),
             }  # fmt: skip
             save_checkpoint(self.ckpt_path, record)  # first: a kill before model.pt is repaired by the resume
             save_checkpoint(self.out / "model.pt", model_file_state(record, shas[0]))
@@ -606,22 +628,3 @@ class Trainer:
                 self.bar.close()
             self.logs.close()
         return self.losses
-
-
-def _check_init(ckpt: dict, cfg: TrainConfig) -> None:
-    """ValueError unless the ``init_from`` checkpoint was trained with the run's input variant and scale."""
-    for name in ("inputs", "input_scale"):
-        if ckpt[name] != getattr(cfg, name):
-            raise ValueError(f"{cfg.init_from}: init_from checkpoint was trained with {name}={ckpt[name]!r}, "
-                             f"not {getattr(cfg, name)!r}")  # fmt: skip
-
-
-def _plain(cfg: TrainConfig) -> dict[str, Any]:
-    """The run's settings as plain values (for the record; ``weights_only`` loadable)."""
-    out = asdict(cfg)
-    for k, v in out.items():
-        if isinstance(v, Path):
-            out[k] = str(v)
-        elif isinstance(v, tuple) and v and isinstance(v[0], Path):
-            out[k] = [str(p) for p in v]
-    return out

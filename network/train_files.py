@@ -14,6 +14,7 @@ import csv
 import io
 import logging
 import warnings
+from dataclasses import asdict
 from pathlib import Path
 from typing import Any
 
@@ -29,6 +30,7 @@ __all__ = [
     "OUT_FILES",
     "VAL_COLUMNS",
     "Logs",
+    "plain_settings",
     "sync_best_file",
     "sync_model_file",
     "truncate_log",
@@ -179,3 +181,14 @@ def sync_best_file(out: Path, ckpt: dict) -> None:
             return
     log.warning("%s: missing the best validation (step %d); rewritten from the checkpoint", path, step)
     save_checkpoint(path, {**model_file_state(ckpt), "val_normal_mae_deg": mae})
+
+
+def plain_settings(cfg: Any) -> dict[str, Any]:
+    """A run's settings (a ``TrainConfig``) as plain values (for the record; ``weights_only`` loadable)."""
+    out = asdict(cfg)
+    for k, v in out.items():
+        if isinstance(v, Path):
+            out[k] = str(v)
+        elif isinstance(v, tuple) and v and isinstance(v[0], Path):
+            out[k] = [str(p) for p in v]
+    return out
