@@ -155,12 +155,13 @@ train-light-distill: setup  ## the replay fine-tune with the shipped model's met
 SHIPPED_EVAL := $(OUT)/eval-shipped
 $(SHIPPED_EVAL)/test_splits.json: models/small/model.pt
 	$(PY) headless/evaluate.py --split test --input $(SPLITS_DIR) --out $(SHIPPED_EVAL) --quiet
-ship-light-model: setup $(SHIPPED_EVAL)/test_splits.json  ## score the light run's best.pt; ship it only if no test split gets worse
-	$(PY) headless/evaluate.py --split test --input $(SPLITS_DIR) --checkpoint $(LIGHT_RUN)/best.pt --out $(LIGHT_RUN)/eval-test --quiet
-	$(PY) headless/compare.py --before $(SHIPPED_EVAL) --after $(LIGHT_RUN)/eval-test --out $(LIGHT_RUN)/compare.md --gate
-	$(PY) headless/evaluate.py --write-train-stats $(LIGHT_RUN)/train_stats.json --input $(SPLITS_DIR)/train-light
-	cp $(LIGHT_RUN)/best.pt models/small/model.pt
-	cp $(LIGHT_RUN)/train_stats.json models/small/train_stats.json
+CANDIDATE ?= $(LIGHT_RUN)
+ship-light-model: setup $(SHIPPED_EVAL)/test_splits.json  ## score a light run's best.pt (CANDIDATE=run folder); ship it only if no test split gets worse
+	$(PY) headless/evaluate.py --split test --input $(SPLITS_DIR) --checkpoint $(CANDIDATE)/best.pt --out $(CANDIDATE)/eval-test --quiet
+	$(PY) headless/compare.py --before $(SHIPPED_EVAL) --after $(CANDIDATE)/eval-test --out $(CANDIDATE)/compare.md --gate
+	$(PY) headless/evaluate.py --write-train-stats $(CANDIDATE)/train_stats.json --input $(SPLITS_DIR)/train-light
+	cp $(CANDIDATE)/best.pt models/small/model.pt
+	cp $(CANDIDATE)/train_stats.json models/small/train_stats.json
 
 # The paper's Table 3 at this scale (network/ablation.py): six runs with one budget, scored on
 # test-scenes (white: its white twin). Resumable; ABLATION_SCENES training scenes per run.
