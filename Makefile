@@ -137,18 +137,19 @@ train-light-replay: setup  ## continue the light run on train-light + untextured
 	    --out $(REPLAY_RUN) --resume --quiet
 	$(PY) tools/plot_training.py $(REPLAY_RUN) --out docs/measurements/curves/light-replay-plain
 # The replay with distillation (network/distill.py): the same run plus the light-blind shipped model as a frozen
-# teacher of metallic (weight 1, as the metallic loss): the replay kept metallic worse on four test splits even
+# teacher of metallic (DISTILL_WEIGHT, 1 = the metallic loss's own weight): the replay kept metallic worse on four test splits even
 # where its features had the information (docs/measurements/light_model.md). Resumable (DISTILL_STOP=N).
-DISTILL_RUN := $(OUT)/runs/light-distill
+DISTILL_WEIGHT ?= 1
+DISTILL_RUN ?= $(OUT)/runs/light-distill
 DISTILL_STOP ?= $(REPLAY_STEPS)
 train-light-distill: setup  ## the replay fine-tune with the shipped model's metallic distilled (needs light-data, replay-data, the light run)
 	$(PY) headless/train.py --input $(SPLITS_DIR)/train-light --also $(REPLAY_DATA) --val $(SPLITS_DIR)/val-light \
 	    --config small --overrides image_size=192 canonical_size=128 train_pixels=2048 infer_chunk=8192 light_input=true \
 	    --init-from $(LIGHT_RUN)/model.pt --steps $(REPLAY_STEPS) --stop-after $(DISTILL_STOP) --batch-size 4 --lr 5e-5 \
 	    --lr-warmup 10 --min-lr-ratio 0.2 --seed 1 --input-scale calibrated --checkpoint-every 25 --val-samples 16 \
-	    --distill-from models/small/model.pt --distill-weight 1 --distill-keys metallic \
+	    --distill-from models/small/model.pt --distill-weight $(DISTILL_WEIGHT) --distill-keys metallic \
 	    --out $(DISTILL_RUN) --resume --quiet
-	$(PY) tools/plot_training.py $(DISTILL_RUN) --out docs/measurements/curves/light-distill
+	$(PY) tools/plot_training.py $(DISTILL_RUN) --out docs/measurements/curves/$(notdir $(DISTILL_RUN))
 
 # The shipped model's scores on the test splits (re-made when the shipped model changes), and the gate:
 # a candidate replaces it only when headless/compare.py finds no split and metric worse (paired, 95 %).
